@@ -1,0 +1,1 @@
+//! External contours by border following, and bounding boxes.

@@ -1,0 +1,1 @@
+//! Regions of interest, channel selection and conversion to f32 grayscale.

@@ -1,0 +1,1 @@
+//! File formats: Middlebury .flo, .npy, PNG sequences, JSON Lines.

@@ -1,0 +1,1 @@
+//! Binary threshold, erosion and dilation with structuring elements.

@@ -1,0 +1,1 @@
+//! Cutting a flow into contact patches.

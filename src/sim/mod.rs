@@ -1,0 +1,1 @@
+//! Physics-based synthetic tactile sensor: elastic layer, markers, rendering, scenarios.
