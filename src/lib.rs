@@ -24,13 +24,16 @@
 
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
+pub mod calibration;
 pub mod contours;
 pub mod error;
 pub mod flow;
+pub mod geometry;
 pub mod hhd;
 pub mod image;
 pub mod io;
 pub mod morphology;
+pub mod poly;
 pub mod segment;
 pub mod sim;
 

@@ -4,6 +4,10 @@
 //! image x, i.e. columns) and `v` (along image y, i.e. rows), each of shape
 //! `(height, width)`, in pixels.
 
+pub mod dis;
+pub mod pyramid;
+pub mod refine;
+
 use ndarray::{Array2, ArrayView2, Zip};
 
 use crate::error::{Error, Result};

@@ -1,0 +1,1 @@
+//! Calibration: the fitted maps from raw contact quantities to millimetres and newtons.

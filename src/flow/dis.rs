@@ -1,0 +1,1 @@
+//! Dense Inverse Search (Kroeger et al. 2016) optical flow.

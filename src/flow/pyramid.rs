@@ -1,0 +1,1 @@
+//! Area-averaged image pyramids and gradients.

@@ -1,0 +1,1 @@
+//! Variational refinement of a flow field (brightness + gradient constancy + smoothness).

@@ -1,0 +1,1 @@
+//! Sensor geometry: the curved skin, local surface frames, rotations.

@@ -1,0 +1,1 @@
+//! Direct O(N^2) sum: the test oracle.

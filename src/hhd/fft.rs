@@ -1,0 +1,1 @@
+//! Free-space Green's convolution by zero-padded FFT.

@@ -1,0 +1,1 @@
+//! Multivariate polynomials: terms, evaluation, least-squares fitting, order search.
