@@ -25,6 +25,7 @@
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
 pub mod calibration;
+pub mod capture;
 pub mod contours;
 pub mod error;
 pub mod flow;
