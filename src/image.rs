@@ -62,7 +62,7 @@ impl PixelLayout {
 
 /// A rectangular region of interest in pixels: left column `x`, top row `y`,
 /// width `w`, height `h`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Roi {
     /// Left column.
     pub x: usize,

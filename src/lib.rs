@@ -26,6 +26,7 @@
 
 pub mod calibration;
 pub mod capture;
+pub mod contact;
 pub mod contours;
 pub mod error;
 pub mod flow;
@@ -37,6 +38,7 @@ pub mod morphology;
 pub mod poly;
 pub mod segment;
 pub mod sim;
+pub mod track;
 
 pub use error::{Error, Result};
 pub use flow::FlowField;
