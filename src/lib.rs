@@ -39,6 +39,7 @@ pub mod poly;
 pub mod segment;
 pub mod sim;
 pub mod track;
+pub mod viz;
 
 pub use error::{Error, Result};
 pub use flow::FlowField;
