@@ -237,7 +237,7 @@ impl Canvas {
 
     /// A filled disc of radius `r` centred at `(x, y)`.
     pub fn dot(&mut self, x: f64, y: f64, r: f64, c: Rgb) {
-        if !(x.is_finite() && y.is_finite() && r.is_finite()) || !(0.0..=1e4).contains(&r) {
+        if !(x.is_finite() && y.is_finite() && (0.0..=1e4).contains(&r)) {
             return;
         }
         let ri = r.ceil() as i64;
