@@ -25,6 +25,8 @@
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
 pub mod calibration;
+pub mod capture;
+pub mod contact;
 pub mod contours;
 pub mod error;
 pub mod flow;
@@ -36,6 +38,8 @@ pub mod morphology;
 pub mod poly;
 pub mod segment;
 pub mod sim;
+pub mod track;
+pub mod viz;
 
 pub use error::{Error, Result};
 pub use flow::FlowField;
