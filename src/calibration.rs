@@ -1,1 +1,915 @@
 //! Calibration: the fitted maps from raw contact quantities to millimetres and newtons.
+//!
+//! A [`Calibration`] holds the five polynomials of the paper (SPEC.md steps 8-9):
+//!
+//! - `g1: x2d -> x3D` and `g2: y2d -> y3D` (mm), with `z3D = sqrt(R^2 - x3D^2) - d`
+//!   from the [`SensorGeometry`];
+//! - `gx, gy, gz: (dx, dy, dz, x2d, y2d, d_pf) -> Fx, Fy, Fz` (N),
+//!
+//! plus the geometry, the crop and the segmentation thresholds it was fitted
+//! with, and the fit report (orders, validation and test MAE). It is saved and
+//! loaded as versioned, human-readable JSON (`"version": 1`, see DATASET.md);
+//! loading a malformed or incompatible file gives [`Error::Calibration`] naming
+//! the file, never a panic.
+//!
+//! [`fit`] fits all five maps from already-extracted [`Sample`]s with the
+//! paper's order search (train / validation / test split), so that any front end
+//! (the image pipeline, a simulator, recorded quantities) can feed it.
+//! [`evaluate`] and the `*_markdown` functions give the paper's Table I / II.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array1, Array2};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::geometry::SensorGeometry;
+use crate::image::Roi;
+use crate::io::Split;
+use crate::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
+
+/// The calibration file format version this library reads and writes.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Variables of `g1`.
+pub const G1_VARIABLES: [&str; 1] = ["x2d"];
+/// Variables of `g2`.
+pub const G2_VARIABLES: [&str; 1] = ["y2d"];
+/// Variables of the force maps `gx, gy, gz`, in evaluation order.
+pub const FORCE_VARIABLES: [&str; 6] = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+
+/// The segmentation thresholds a calibration was fitted with (the numbers of
+/// SPEC.md step 5; the segmentation module owns their meaning).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SegmentationThresholds {
+    /// Preset name (`low`, `mid`, `high` or a custom label).
+    pub preset: String,
+    /// Threshold on the flow magnitude, pixels.
+    pub magnitude: f64,
+    /// Threshold on the summed |flow| of a bounding box, pixels.
+    pub sum: f64,
+    /// Erosion kernel size, pixels.
+    pub erode: u32,
+    /// Dilation kernel size, pixels.
+    pub dilate: u32,
+}
+
+impl SegmentationThresholds {
+    fn validate(&self) -> std::result::Result<(), String> {
+        for (name, v) in [("magnitude", self.magnitude), ("sum", self.sum)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("threshold `{name}` must be finite and >= 0, got {v}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The sensor-side settings a calibration belongs to: geometry, crop and
+/// segmentation thresholds (not fitted, recorded with the maps).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorSetup {
+    /// The skin's geometry.
+    pub geometry: SensorGeometry,
+    /// The crop of the camera frame the pixel coordinates refer to.
+    pub crop: Roi,
+    /// The segmentation thresholds.
+    pub thresholds: SegmentationThresholds,
+}
+
+/// One characterization test, reduced to the raw quantities of its contact
+/// and the truth (SPEC.md steps 7-9; DATASET.md `tests.csv`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Sample {
+    /// Train, validation or test.
+    pub split: Split,
+    /// Measuring point (for per-point tables).
+    pub point: u32,
+    /// Contact point column, pixels (cropped image).
+    pub x2d: f64,
+    /// Contact point row, pixels (cropped image).
+    pub y2d: f64,
+    /// Raw displacement along sensor x.
+    pub dx: f64,
+    /// Raw displacement along sensor y.
+    pub dy: f64,
+    /// Raw displacement along sensor z.
+    pub dz: f64,
+    /// Potential spread `max D - min D`.
+    pub d_pf: f64,
+    /// True contact x, mm.
+    pub x_mm: f64,
+    /// True contact y, mm.
+    pub y_mm: f64,
+    /// True force x, N.
+    pub fx: f64,
+    /// True force y, N.
+    pub fy: f64,
+    /// True force z, N.
+    pub fz: f64,
+}
+
+impl Sample {
+    fn fields(&self) -> [(&'static str, f64); 11] {
+        [
+            ("x2d", self.x2d),
+            ("y2d", self.y2d),
+            ("dx", self.dx),
+            ("dy", self.dy),
+            ("dz", self.dz),
+            ("d_pf", self.d_pf),
+            ("x_mm", self.x_mm),
+            ("y_mm", self.y_mm),
+            ("fx", self.fx),
+            ("fy", self.fy),
+            ("fz", self.fz),
+        ]
+    }
+
+    fn force_inputs(&self) -> [f64; 6] {
+        [self.dx, self.dy, self.dz, self.x2d, self.y2d, self.d_pf]
+    }
+}
+
+/// A calibrated contact: location (mm) and force (N) in the sensor frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Prediction {
+    /// Contact x, mm.
+    pub x_mm: f64,
+    /// Contact y, mm.
+    pub y_mm: f64,
+    /// Contact z on the skin, mm.
+    pub z_mm: f64,
+    /// Force x, N.
+    pub fx: f64,
+    /// Force y, N.
+    pub fy: f64,
+    /// Force z, N.
+    pub fz: f64,
+}
+
+/// Mean absolute errors of one group of samples.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct QuantityMae {
+    /// Number of samples.
+    pub n: usize,
+    /// MAE of x3D, mm.
+    pub x_mm: f64,
+    /// MAE of y3D, mm.
+    pub y_mm: f64,
+    /// MAE of Fx, N.
+    pub fx: f64,
+    /// MAE of Fy, N.
+    pub fy: f64,
+    /// MAE of Fz, N.
+    pub fz: f64,
+}
+
+/// Errors on a split, in total and per measuring point (the paper's Table II).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PointTable {
+    /// The split the errors are measured on.
+    pub split: Split,
+    /// Over all samples of the split.
+    pub total: QuantityMae,
+    /// Per measuring point, ascending.
+    pub per_point: Vec<(u32, QuantityMae)>,
+}
+
+/// The fit reports of the five maps and the test errors.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationReport {
+    /// Order search of `g1`.
+    pub g1: FitReport,
+    /// Order search of `g2`.
+    pub g2: FitReport,
+    /// Order search of `gx`.
+    pub gx: FitReport,
+    /// Order search of `gy`.
+    pub gy: FitReport,
+    /// Order search of `gz`.
+    pub gz: FitReport,
+    /// Errors of the full calibration on the test split, if it had samples.
+    pub test: Option<PointTable>,
+}
+
+/// The fitted maps of a sensor, with the setup they belong to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Calibration {
+    /// Geometry, crop and segmentation thresholds.
+    pub setup: SensorSetup,
+    g1: Polynomial,
+    g2: Polynomial,
+    gx: Polynomial,
+    gy: Polynomial,
+    gz: Polynomial,
+    /// How the maps were fitted, if they were (absent for hand-made ones).
+    pub report: Option<CalibrationReport>,
+}
+
+/// Checks a polynomial's variables against the expected list.
+fn check_vars(name: &str, p: &Polynomial, expected: &[&str]) -> std::result::Result<(), String> {
+    if p.variables().iter().map(|s| s.as_str()).ne(expected.iter().copied()) {
+        return Err(format!(
+            "polynomial `{name}` has variables [{}], expected [{}]",
+            p.variables().join(", "),
+            expected.join(", ")
+        ));
+    }
+    Ok(())
+}
+
+impl Calibration {
+    /// A calibration from its parts. Errors ([`Error::Calibration`]) if a
+    /// polynomial does not have the variables its role requires (see
+    /// [`G1_VARIABLES`], [`G2_VARIABLES`], [`FORCE_VARIABLES`]) or the setup is
+    /// invalid.
+    pub fn new(
+        setup: SensorSetup,
+        maps: [Polynomial; 5],
+        report: Option<CalibrationReport>,
+    ) -> Result<Self> {
+        let [g1, g2, gx, gy, gz] = maps;
+        let c = Calibration {
+            setup,
+            g1,
+            g2,
+            gx,
+            gy,
+            gz,
+            report,
+        };
+        c.check().map_err(|message| Error::Calibration {
+            path: None,
+            message,
+        })?;
+        Ok(c)
+    }
+
+    fn check(&self) -> std::result::Result<(), String> {
+        check_vars("g1", &self.g1, &G1_VARIABLES)?;
+        check_vars("g2", &self.g2, &G2_VARIABLES)?;
+        check_vars("gx", &self.gx, &FORCE_VARIABLES)?;
+        check_vars("gy", &self.gy, &FORCE_VARIABLES)?;
+        check_vars("gz", &self.gz, &FORCE_VARIABLES)?;
+        self.setup
+            .geometry
+            .validate()
+            .map_err(|e| format!("geometry: {e}"))?;
+        self.setup.thresholds.validate()
+    }
+
+    /// `g1` (x2d -> x3D, mm).
+    pub fn g1(&self) -> &Polynomial {
+        &self.g1
+    }
+    /// `g2` (y2d -> y3D, mm).
+    pub fn g2(&self) -> &Polynomial {
+        &self.g2
+    }
+    /// `gx` (force inputs -> Fx, N).
+    pub fn gx(&self) -> &Polynomial {
+        &self.gx
+    }
+    /// `gy` (force inputs -> Fy, N).
+    pub fn gy(&self) -> &Polynomial {
+        &self.gy
+    }
+    /// `gz` (force inputs -> Fz, N).
+    pub fn gz(&self) -> &Polynomial {
+        &self.gz
+    }
+
+    /// Contact location `[x, y, z]` in mm from the contact point in pixels:
+    /// `x = g1(x2d)`, `y = g2(y2d)`, `z = sqrt(R^2 - x^2) - d`.
+    pub fn location(&self, x2d: f64, y2d: f64) -> Result<[f64; 3]> {
+        let x = self.g1.evaluate(&[x2d])?;
+        let y = self.g2.evaluate(&[y2d])?;
+        Ok([x, y, self.setup.geometry.z_at(x)])
+    }
+
+    /// Force `[Fx, Fy, Fz]` in N from the raw displacements rotated into the
+    /// sensor frame, the contact point in pixels and `d_pf`.
+    pub fn force(
+        &self,
+        dx: f64,
+        dy: f64,
+        dz: f64,
+        x2d: f64,
+        y2d: f64,
+        d_pf: f64,
+    ) -> Result<[f64; 3]> {
+        let v = [dx, dy, dz, x2d, y2d, d_pf];
+        Ok([
+            self.gx.evaluate(&v)?,
+            self.gy.evaluate(&v)?,
+            self.gz.evaluate(&v)?,
+        ])
+    }
+
+    /// Location and force of a sample's raw quantities.
+    pub fn predict(&self, s: &Sample) -> Result<Prediction> {
+        let [x_mm, y_mm, z_mm] = self.location(s.x2d, s.y2d)?;
+        let [fx, fy, fz] = self.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf)?;
+        Ok(Prediction {
+            x_mm,
+            y_mm,
+            z_mm,
+            fx,
+            fy,
+            fz,
+        })
+    }
+
+    /// The calibration as pretty, human-readable JSON (`"version": 1`).
+    /// Arrays of plain values (exponent rows, coefficients) stay on one line.
+    pub fn to_json_string(&self) -> String {
+        let repr = CalibrationRef {
+            version: FORMAT_VERSION,
+            geometry: &self.setup.geometry,
+            crop: &self.setup.crop,
+            thresholds: &self.setup.thresholds,
+            g1: &self.g1,
+            g2: &self.g2,
+            gx: &self.gx,
+            gy: &self.gy,
+            gz: &self.gz,
+            report: self.report.as_ref(),
+        };
+        let pretty = serde_json::to_string_pretty(&repr)
+            .expect("serializing plain data with string keys cannot fail");
+        let mut s = collapse_scalar_arrays(&pretty);
+        s.push('\n');
+        s
+    }
+
+    /// Writes the calibration to `path` as JSON.
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        std::fs::write(path, self.to_json_string()).map_err(|e| Error::io(path, e))
+    }
+
+    /// Reads a calibration file. Errors: the file cannot be read
+    /// ([`Error::Io`]); it is not JSON, has another version, misses a
+    /// polynomial, or holds an inconsistent one ([`Error::Calibration`] naming
+    /// the file, with line and column where JSON parsing failed).
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::parse(&text, Some(path.to_path_buf()))
+    }
+
+    /// Reads a calibration from JSON text (errors as for [`Calibration::load`],
+    /// without a file name).
+    pub fn from_json_str(text: &str) -> Result<Self> {
+        Self::parse(text, None)
+    }
+
+    fn parse(text: &str, path: Option<PathBuf>) -> Result<Self> {
+        let err = |message: String| Error::Calibration {
+            path: path.clone(),
+            message,
+        };
+        // First as an untyped value: syntax errors with their position, and the
+        // version checked before the layout that depends on it.
+        let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
+            err(format!(
+                "malformed JSON at line {}, column {}: {}",
+                e.line(),
+                e.column(),
+                strip_position(&e)
+            ))
+        })?;
+        let obj = value
+            .as_object()
+            .ok_or_else(|| err("the top level must be a JSON object".into()))?;
+        match obj.get("version") {
+            None => {
+                return Err(err(format!(
+                    "no `version` field (this library reads version {FORMAT_VERSION})"
+                )));
+            }
+            Some(v) => match v.as_u64() {
+                Some(n) if n == u64::from(FORMAT_VERSION) => {}
+                _ => {
+                    return Err(err(format!(
+                        "version {v} is not supported (this library reads version {FORMAT_VERSION})"
+                    )));
+                }
+            },
+        }
+        for name in ["geometry", "crop", "thresholds", "g1", "g2", "gx", "gy", "gz"] {
+            if !obj.contains_key(name) {
+                let what = if name.starts_with('g') && name.len() == 2 {
+                    "polynomial"
+                } else {
+                    "field"
+                };
+                return Err(err(format!("missing {what} `{name}`")));
+            }
+        }
+        // Then typed, from the text again, so that errors carry positions.
+        let repr: CalibrationOwned = serde_json::from_str(text).map_err(|e| {
+            err(format!(
+                "line {}, column {}: {}",
+                e.line(),
+                e.column(),
+                strip_position(&e)
+            ))
+        })?;
+        let c = Calibration {
+            setup: SensorSetup {
+                geometry: repr.geometry,
+                crop: repr.crop,
+                thresholds: repr.thresholds,
+            },
+            g1: repr.g1,
+            g2: repr.g2,
+            gx: repr.gx,
+            gy: repr.gy,
+            gz: repr.gz,
+            report: repr.report,
+        };
+        c.check().map_err(err)?;
+        Ok(c)
+    }
+}
+
+/// serde_json's message without its trailing " at line L column C" (we put the
+/// position first, in words).
+fn strip_position(e: &serde_json::Error) -> String {
+    let s = e.to_string();
+    match s.rfind(" at line ") {
+        Some(i) => s[..i].to_string(),
+        None => s,
+    }
+}
+
+#[derive(Serialize)]
+struct CalibrationRef<'a> {
+    version: u32,
+    geometry: &'a SensorGeometry,
+    crop: &'a Roi,
+    thresholds: &'a SegmentationThresholds,
+    g1: &'a Polynomial,
+    g2: &'a Polynomial,
+    gx: &'a Polynomial,
+    gy: &'a Polynomial,
+    gz: &'a Polynomial,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    report: Option<&'a CalibrationReport>,
+}
+
+#[derive(Deserialize)]
+struct CalibrationOwned {
+    #[allow(dead_code)]
+    version: u32,
+    geometry: SensorGeometry,
+    crop: Roi,
+    thresholds: SegmentationThresholds,
+    g1: Polynomial,
+    g2: Polynomial,
+    gx: Polynomial,
+    gy: Polynomial,
+    gz: Polynomial,
+    #[serde(default)]
+    report: Option<CalibrationReport>,
+}
+
+/// Rewrites pretty JSON so that arrays holding only scalars sit on one line
+/// (`[1, 0, 2]`): exponent rows and coefficient lists stay readable instead of
+/// one number per line. Strings are copied untouched.
+fn collapse_scalar_arrays(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = String::with_capacity(s.len());
+    let mut i = 0;
+    let mut in_str = false;
+    let mut esc = false;
+    // Copies the char starting at byte i and returns the next index.
+    let next_char = |i: usize| i + s[i..].chars().next().map_or(1, char::len_utf8);
+    while i < b.len() {
+        let c = b[i];
+        if in_str {
+            if esc {
+                esc = false;
+            } else if c == b'\\' {
+                esc = true;
+            } else if c == b'"' {
+                in_str = false;
+            }
+            let j = next_char(i);
+            out.push_str(&s[i..j]);
+            i = j;
+            continue;
+        }
+        if c == b'"' {
+            in_str = true;
+            out.push('"');
+            i += 1;
+            continue;
+        }
+        if c == b'[' {
+            // Find the matching ']' if no nested container comes first.
+            let (mut j, mut st, mut es) = (i + 1, false, false);
+            let mut end = None;
+            while j < b.len() {
+                let d = b[j];
+                if st {
+                    if es {
+                        es = false;
+                    } else if d == b'\\' {
+                        es = true;
+                    } else if d == b'"' {
+                        st = false;
+                    }
+                } else if d == b'"' {
+                    st = true;
+                } else if d == b'[' || d == b'{' {
+                    break;
+                } else if d == b']' {
+                    end = Some(j);
+                    break;
+                }
+                j += 1;
+            }
+            if let Some(end) = end {
+                let (mut st, mut es) = (false, false);
+                let mut k = i;
+                while k <= end {
+                    let d = b[k];
+                    let nk = next_char(k);
+                    if st {
+                        if es {
+                            es = false;
+                        } else if d == b'\\' {
+                            es = true;
+                        } else if d == b'"' {
+                            st = false;
+                        }
+                        out.push_str(&s[k..nk]);
+                    } else if d == b'"' {
+                        st = true;
+                        out.push('"');
+                    } else if d == b',' {
+                        out.push_str(", ");
+                    } else if !d.is_ascii_whitespace() {
+                        out.push_str(&s[k..nk]);
+                    }
+                    k = nk;
+                }
+                i = end + 1;
+                continue;
+            }
+        }
+        let j = next_char(i);
+        out.push_str(&s[i..j]);
+        i = j;
+    }
+    out
+}
+
+/// Options of [`fit`]: the largest order tried per map and variable group.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitOptions {
+    /// Largest order of `g1` and `g2` (orders `1..=max` are tried).
+    pub location_max_order: u32,
+    /// Largest order of the displacement group `{dx, dy, dz}` in the force maps.
+    pub displacement_max_order: u32,
+    /// Largest order of the location group `{x2d, y2d}` in the force maps.
+    pub force_location_max_order: u32,
+    /// Largest order of `{d_pf}` in the force maps.
+    pub d_pf_max_order: u32,
+    /// Cross-term rule of the force maps.
+    pub cross: CrossTerms,
+    /// Least-squares options. Rank deficiency is allowed by default: a
+    /// variable that does not vary in the dataset (y2d under an indenter that
+    /// spans the width) then gets a minimum-norm (zero) coefficient, and the
+    /// rank is in the report.
+    pub least_squares: poly::FitOptions,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            location_max_order: 5,
+            displacement_max_order: 3,
+            force_location_max_order: 2,
+            d_pf_max_order: 2,
+            cross: CrossTerms::MaxOfGroups,
+            least_squares: poly::FitOptions {
+                allow_rank_deficient: true,
+                ..poly::FitOptions::default()
+            },
+        }
+    }
+}
+
+/// The spec of the force maps for these options.
+pub fn force_spec(options: &FitOptions) -> Result<PolySpec> {
+    PolySpec::new(
+        vec![
+            VarGroup::new("displacement", &FORCE_VARIABLES[..3], options.displacement_max_order),
+            VarGroup::new("location", &FORCE_VARIABLES[3..5], options.force_location_max_order),
+            VarGroup::new("d_pf", &FORCE_VARIABLES[5..], options.d_pf_max_order),
+        ],
+        options.cross,
+    )
+}
+
+/// Fits the five maps from samples with the paper's order search: each
+/// polynomial's orders are chosen among `1..=max` by validation MAE; test
+/// errors are reported.
+///
+/// Errors: no samples, a non-finite field ([`Error::NonFinite`] with the
+/// sample index as `row`), no training or validation sample, or no candidate
+/// order that can be fitted (e.g. fewer training samples than terms).
+pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Result<Calibration> {
+    if samples.is_empty() {
+        return Err(Error::param("samples", "no samples to fit"));
+    }
+    setup
+        .geometry
+        .validate()
+        .map_err(|e| Error::param("geometry", e.to_string()))?;
+    setup
+        .thresholds
+        .validate()
+        .map_err(|m| Error::param("thresholds", m))?;
+    for (row, s) in samples.iter().enumerate() {
+        if let Some(col) = s.fields().iter().position(|(_, v)| !v.is_finite()) {
+            return Err(Error::NonFinite {
+                what: format!("sample field `{}`", s.fields()[col].0),
+                row,
+                col,
+            });
+        }
+    }
+    let pick = |split: Split| -> Vec<&Sample> {
+        samples.iter().filter(|s| s.split == split).collect()
+    };
+    let (train, val, test) = (pick(Split::Train), pick(Split::Val), pick(Split::Test));
+    if train.is_empty() || val.is_empty() {
+        return Err(Error::param(
+            "samples",
+            format!(
+                "fitting needs training and validation samples, got {} train, {} val, {} test",
+                train.len(),
+                val.len(),
+                test.len()
+            ),
+        ));
+    }
+    // Column arrays per split: g1 input, g2 input, force inputs, and targets.
+    struct Cols {
+        x2d: Array2<f64>,
+        y2d: Array2<f64>,
+        force: Array2<f64>,
+        x_mm: Array1<f64>,
+        y_mm: Array1<f64>,
+        f: [Array1<f64>; 3],
+    }
+    let cols = |set: &[&Sample]| {
+        let n = set.len();
+        Cols {
+            x2d: Array2::from_shape_fn((n, 1), |(i, _)| set[i].x2d),
+            y2d: Array2::from_shape_fn((n, 1), |(i, _)| set[i].y2d),
+            force: Array2::from_shape_fn((n, 6), |(i, j)| set[i].force_inputs()[j]),
+            x_mm: set.iter().map(|s| s.x_mm).collect(),
+            y_mm: set.iter().map(|s| s.y_mm).collect(),
+            f: [
+                set.iter().map(|s| s.fx).collect(),
+                set.iter().map(|s| s.fy).collect(),
+                set.iter().map(|s| s.fz).collect(),
+            ],
+        }
+    };
+    let (tr, va, te) = (cols(&train), cols(&val), cols(&test));
+    let has_test = !test.is_empty();
+    let ls = &options.least_squares;
+    let named = |what: &'static str| move |e: Error| prefix_error(what, e);
+
+    let loc_spec = |name: &str| {
+        PolySpec::new(
+            vec![VarGroup::new(name, &[name], options.location_max_order)],
+            CrossTerms::MaxOfGroups,
+        )
+    };
+    let (g1, r1) = poly::search_orders(
+        &loc_spec("x2d")?,
+        FitData::new(tr.x2d.view(), tr.x_mm.view()),
+        FitData::new(va.x2d.view(), va.x_mm.view()),
+        has_test.then(|| FitData::new(te.x2d.view(), te.x_mm.view())),
+        ls,
+    )
+    .map_err(named("g1"))?;
+    let (g2, r2) = poly::search_orders(
+        &loc_spec("y2d")?,
+        FitData::new(tr.y2d.view(), tr.y_mm.view()),
+        FitData::new(va.y2d.view(), va.y_mm.view()),
+        has_test.then(|| FitData::new(te.y2d.view(), te.y_mm.view())),
+        ls,
+    )
+    .map_err(named("g2"))?;
+    let fspec = force_spec(options)?;
+    let mut force_maps = Vec::with_capacity(3);
+    for (k, name) in ["gx", "gy", "gz"].into_iter().enumerate() {
+        let r = poly::search_orders(
+            &fspec,
+            FitData::new(tr.force.view(), tr.f[k].view()),
+            FitData::new(va.force.view(), va.f[k].view()),
+            has_test.then(|| FitData::new(te.force.view(), te.f[k].view())),
+            ls,
+        )
+        .map_err(named(name))?;
+        force_maps.push(r);
+    }
+    let [(gx, rx), (gy, ry), (gz, rz)]: [(Polynomial, FitReport); 3] = force_maps
+        .try_into()
+        .expect("three force maps were fitted");
+    let mut cal = Calibration::new(
+        setup.clone(),
+        [g1, g2, gx, gy, gz],
+        Some(CalibrationReport {
+            g1: r1,
+            g2: r2,
+            gx: rx,
+            gy: ry,
+            gz: rz,
+            test: None,
+        }),
+    )?;
+    if has_test {
+        let table = evaluate(&cal, samples, Split::Test)?;
+        if let Some(r) = cal.report.as_mut() {
+            r.test = Some(table);
+        }
+    }
+    Ok(cal)
+}
+
+/// Puts the map's name in front of an error's message.
+fn prefix_error(what: &str, e: Error) -> Error {
+    match e {
+        Error::Numerical { what: w, message } => Error::Numerical {
+            what: format!("{w} of `{what}`"),
+            message,
+        },
+        Error::InvalidParameter { name, message } => Error::InvalidParameter {
+            name,
+            message: format!("fitting `{what}`: {message}"),
+        },
+        other => other,
+    }
+}
+
+/// MAE of the calibration's predictions on the samples of `split`, in total
+/// and per measuring point (the paper's Table II). Errors if the split has no
+/// sample or a prediction fails.
+pub fn evaluate(cal: &Calibration, samples: &[Sample], split: Split) -> Result<PointTable> {
+    #[derive(Default)]
+    struct Acc {
+        n: usize,
+        s: [f64; 5],
+    }
+    impl Acc {
+        fn add(&mut self, p: &Prediction, s: &Sample) {
+            self.n += 1;
+            let e = [
+                p.x_mm - s.x_mm,
+                p.y_mm - s.y_mm,
+                p.fx - s.fx,
+                p.fy - s.fy,
+                p.fz - s.fz,
+            ];
+            for (a, e) in self.s.iter_mut().zip(e) {
+                *a += e.abs();
+            }
+        }
+        fn mae(&self) -> QuantityMae {
+            let n = self.n.max(1) as f64;
+            QuantityMae {
+                n: self.n,
+                x_mm: self.s[0] / n,
+                y_mm: self.s[1] / n,
+                fx: self.s[2] / n,
+                fy: self.s[3] / n,
+                fz: self.s[4] / n,
+            }
+        }
+    }
+    let mut total = Acc::default();
+    let mut per: BTreeMap<u32, Acc> = BTreeMap::new();
+    for s in samples.iter().filter(|s| s.split == split) {
+        let p = cal.predict(s)?;
+        total.add(&p, s);
+        per.entry(s.point).or_default().add(&p, s);
+    }
+    if total.n == 0 {
+        return Err(Error::param(
+            "split",
+            format!("no `{}` sample to evaluate on", split.as_str()),
+        ));
+    }
+    Ok(PointTable {
+        split,
+        total: total.mae(),
+        per_point: per.into_iter().map(|(k, a)| (k, a.mae())).collect(),
+    })
+}
+
+/// One column of the paper's Table I: a threshold preset, its minimum
+/// detectable force and the test errors of the calibration fitted with it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ThresholdRow {
+    /// Preset name.
+    pub preset: String,
+    /// Minimum detectable force as text (e.g. `"[1, 1.5)"`); measured by the
+    /// image pipeline, not here.
+    pub min_force_n: String,
+    /// Test MAE.
+    pub mae: QuantityMae,
+}
+
+/// The paper's Table I in markdown: one column per threshold preset; rows
+/// `F_min`, MAE of x (mm), Fx, Fy, Fz (N).
+pub fn table_i_markdown(rows: &[ThresholdRow]) -> String {
+    let mut s = String::from("| Variable |");
+    for r in rows {
+        let _ = write!(s, " {} |", r.preset);
+    }
+    s.push_str("\n|---|");
+    s.push_str(&"---|".repeat(rows.len()));
+    s.push('\n');
+    let _ = write!(s, "| F_min [N] |");
+    for r in rows {
+        let _ = write!(s, " {} |", r.min_force_n);
+    }
+    s.push('\n');
+    type Get = fn(&QuantityMae) -> f64;
+    let lines: [(&str, Get, usize); 4] = [
+        ("MAE x3D [mm]", |m| m.x_mm, 2),
+        ("MAE Fx [N]", |m| m.fx, 4),
+        ("MAE Fy [N]", |m| m.fy, 4),
+        ("MAE Fz [N]", |m| m.fz, 4),
+    ];
+    for (name, get, prec) in lines {
+        let _ = write!(s, "| {name} |");
+        for r in rows {
+            let _ = write!(s, " {:.*} |", prec, get(&r.mae));
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// The paper's Table II in markdown: columns Total and one per measuring
+/// point; rows MAE of x (mm), Fx, Fy, Fz (N), and the sample count.
+pub fn table_ii_markdown(t: &PointTable) -> String {
+    let mut cols: Vec<(String, QuantityMae)> = vec![("Total".into(), t.total)];
+    cols.extend(t.per_point.iter().map(|(p, m)| (format!("Point {p}"), *m)));
+    let mut s = String::from("| Variable |");
+    for (name, _) in &cols {
+        let _ = write!(s, " {name} |");
+    }
+    s.push_str("\n|---|");
+    s.push_str(&"---|".repeat(cols.len()));
+    s.push('\n');
+    type Get = fn(&QuantityMae) -> f64;
+    let lines: [(&str, Get, usize); 4] = [
+        ("MAE x3D [mm]", |m| m.x_mm, 2),
+        ("MAE Fx [N]", |m| m.fx, 4),
+        ("MAE Fy [N]", |m| m.fy, 4),
+        ("MAE Fz [N]", |m| m.fz, 4),
+    ];
+    for (name, get, prec) in lines {
+        let _ = write!(s, "| {name} |");
+        for (_, m) in &cols {
+            let _ = write!(s, " {:.*} |", prec, get(m));
+        }
+        s.push('\n');
+    }
+    let _ = write!(s, "| samples |");
+    for (_, m) in &cols {
+        let _ = write!(s, " {} |", m.n);
+    }
+    s.push('\n');
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn collapse_keeps_nested_and_strings() {
+        let v = serde_json::json!({"a": [[1, 2], [3]], "b": ["x [ , ]", "y"], "c": {"d": []}});
+        let pretty = serde_json::to_string_pretty(&v).unwrap();
+        let c = collapse_scalar_arrays(&pretty);
+        assert!(c.contains("[1, 2]"), "{c}");
+        assert!(c.contains("[\"x [ , ]\", \"y\"]"), "{c}");
+        let back: serde_json::Value = serde_json::from_str(&c).unwrap();
+        assert_eq!(back, v);
+    }
+}
