@@ -60,7 +60,9 @@ impl SegmentationThresholds {
     fn validate(&self) -> std::result::Result<(), String> {
         for (name, v) in [("magnitude", self.magnitude), ("sum", self.sum)] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("threshold `{name}` must be finite and >= 0, got {v}"));
+                return Err(format!(
+                    "threshold `{name}` must be finite and >= 0, got {v}"
+                ));
             }
         }
         Ok(())
@@ -211,7 +213,11 @@ pub struct Calibration {
 
 /// Checks a polynomial's variables against the expected list.
 fn check_vars(name: &str, p: &Polynomial, expected: &[&str]) -> std::result::Result<(), String> {
-    if p.variables().iter().map(|s| s.as_str()).ne(expected.iter().copied()) {
+    if p.variables()
+        .iter()
+        .map(|s| s.as_str())
+        .ne(expected.iter().copied())
+    {
         return Err(format!(
             "polynomial `{name}` has variables [{}], expected [{}]",
             p.variables().join(", "),
@@ -400,7 +406,16 @@ impl Calibration {
                 }
             },
         }
-        for name in ["geometry", "crop", "thresholds", "g1", "g2", "gx", "gy", "gz"] {
+        for name in [
+            "geometry",
+            "crop",
+            "thresholds",
+            "g1",
+            "g2",
+            "gx",
+            "gy",
+            "gz",
+        ] {
             if !obj.contains_key(name) {
                 let what = if name.starts_with('g') && name.len() == 2 {
                     "polynomial"
@@ -610,8 +625,16 @@ impl Default for FitOptions {
 pub fn force_spec(options: &FitOptions) -> Result<PolySpec> {
     PolySpec::new(
         vec![
-            VarGroup::new("displacement", &FORCE_VARIABLES[..3], options.displacement_max_order),
-            VarGroup::new("location", &FORCE_VARIABLES[3..5], options.force_location_max_order),
+            VarGroup::new(
+                "displacement",
+                &FORCE_VARIABLES[..3],
+                options.displacement_max_order,
+            ),
+            VarGroup::new(
+                "location",
+                &FORCE_VARIABLES[3..5],
+                options.force_location_max_order,
+            ),
             VarGroup::new("d_pf", &FORCE_VARIABLES[5..], options.d_pf_max_order),
         ],
         options.cross,
@@ -646,9 +669,8 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
             });
         }
     }
-    let pick = |split: Split| -> Vec<&Sample> {
-        samples.iter().filter(|s| s.split == split).collect()
-    };
+    let pick =
+        |split: Split| -> Vec<&Sample> { samples.iter().filter(|s| s.split == split).collect() };
     let (train, val, test) = (pick(Split::Train), pick(Split::Val), pick(Split::Test));
     if train.is_empty() || val.is_empty() {
         return Err(Error::param(
@@ -725,9 +747,8 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         .map_err(named(name))?;
         force_maps.push(r);
     }
-    let [(gx, rx), (gy, ry), (gz, rz)]: [(Polynomial, FitReport); 3] = force_maps
-        .try_into()
-        .expect("three force maps were fitted");
+    let [(gx, rx), (gy, ry), (gz, rz)]: [(Polynomial, FitReport); 3] =
+        force_maps.try_into().expect("three force maps were fitted");
     let mut cal = Calibration::new(
         setup.clone(),
         [g1, g2, gx, gy, gz],

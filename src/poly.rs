@@ -123,12 +123,18 @@ impl PolySpec {
 
     /// A spec with a single variable `name` of maximum order `order`.
     pub fn single(name: &str, order: u32) -> Result<Self> {
-        PolySpec::new(vec![VarGroup::new(name, &[name], order)], CrossTerms::MaxOfGroups)
+        PolySpec::new(
+            vec![VarGroup::new(name, &[name], order)],
+            CrossTerms::MaxOfGroups,
+        )
     }
 
     fn validate(&self) -> Result<()> {
         if self.groups.is_empty() {
-            return Err(Error::param("groups", "a polynomial needs at least one group"));
+            return Err(Error::param(
+                "groups",
+                "a polynomial needs at least one group",
+            ));
         }
         let mut names: Vec<&str> = Vec::new();
         for g in &self.groups {
@@ -401,11 +407,16 @@ impl Polynomial {
         shift: Vec<f64>,
         scale: Vec<f64>,
     ) -> Result<Self> {
-        Self::build(variables, exponents, coefficients, shift, scale).map_err(|m| Error::param("polynomial", m))
+        Self::build(variables, exponents, coefficients, shift, scale)
+            .map_err(|m| Error::param("polynomial", m))
     }
 
     /// A polynomial in the raw variables (shift 0, scale 1).
-    pub fn raw(variables: &[&str], exponents: Vec<Vec<u32>>, coefficients: Vec<f64>) -> Result<Self> {
+    pub fn raw(
+        variables: &[&str],
+        exponents: Vec<Vec<u32>>,
+        coefficients: Vec<f64>,
+    ) -> Result<Self> {
         let n = variables.len();
         Self::new(
             variables.iter().map(|s| s.to_string()).collect(),
@@ -430,7 +441,9 @@ impl Polynomial {
             return Err("a polynomial needs at least one variable".into());
         }
         if nv > MAX_VARIABLES {
-            return Err(format!("{nv} variables, at most {MAX_VARIABLES} are supported"));
+            return Err(format!(
+                "{nv} variables, at most {MAX_VARIABLES} are supported"
+            ));
         }
         for (i, v) in variables.iter().enumerate() {
             if variables[..i].contains(v) {
@@ -651,10 +664,7 @@ impl Polynomial {
     /// Evaluates every row of `x` (`rows x n_variables`).
     pub fn evaluate_rows(&self, x: ArrayView2<f64>) -> Result<Array1<f64>> {
         let mut out = Array1::zeros(x.nrows());
-        self.evaluate_rows_into(
-            x,
-            out.as_slice_mut().expect("a fresh Array1 is contiguous"),
-        )?;
+        self.evaluate_rows_into(x, out.as_slice_mut().expect("a fresh Array1 is contiguous"))?;
         Ok(out)
     }
 
@@ -906,7 +916,10 @@ pub fn fit(
 ) -> Result<(Polynomial, FitStats)> {
     spec.validate()?;
     if !(options.rcond.is_finite() && options.rcond >= 0.0 && options.rcond < 1.0) {
-        return Err(Error::param("rcond", format!("must be in [0, 1), got {}", options.rcond)));
+        return Err(Error::param(
+            "rcond",
+            format!("must be in [0, 1), got {}", options.rcond),
+        ));
     }
     let nv = spec.n_variables();
     check_data(x, y, nv, "fit")?;
@@ -932,7 +945,11 @@ pub fn fit(
             let hi = col.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             shift[j] = 0.5 * (lo + hi);
             let half = 0.5 * (hi - lo);
-            scale[j] = if half > 0.0 && half.is_finite() { half } else { 1.0 };
+            scale[j] = if half > 0.0 && half.is_finite() {
+                half
+            } else {
+                1.0
+            };
         }
     }
     let unit = Polynomial::build(
@@ -974,6 +991,7 @@ pub fn fit(
         }
     }
     let b = nalgebra::DVector::from_iterator(n, y.iter().copied());
+    let scaled = a.clone();
     let svd = nalgebra::SVD::try_new(a, true, true, f64::EPSILON, 10_000).ok_or_else(|| {
         Error::Numerical {
             what: "polynomial fit".into(),
@@ -1001,13 +1019,21 @@ pub fn fit(
         .fold(f64::INFINITY, f64::min);
     let u = svd.u.as_ref().expect("U was requested");
     let v_t = svd.v_t.as_ref().expect("V^T was requested");
-    let utb = u.transpose() * &b;
-    let mut z = nalgebra::DVector::<f64>::zeros(m);
-    for (i, &sv) in s.iter().enumerate() {
-        if sv > tol && sv > 0.0 {
-            z += v_t.row(i).transpose() * (utb[i] / sv);
+    let solve = |rhs: &nalgebra::DVector<f64>| {
+        let utb = u.transpose() * rhs;
+        let mut z = nalgebra::DVector::<f64>::zeros(m);
+        for (i, &sv) in s.iter().enumerate() {
+            if sv > tol && sv > 0.0 {
+                z += v_t.row(i).transpose() * (utb[i] / sv);
+            }
         }
-    }
+        z
+    };
+    let mut z = solve(&b);
+    // One step of iterative refinement on the residual: recovers the digits
+    // the SVD's rounding lost (exact data is then fitted to ~1e-15).
+    let r = &b - &scaled * &z;
+    z += solve(&r);
     let coefficients: Vec<f64> = (0..m).map(|k| z[k] / col_norm[k]).collect();
     if let Some(k) = coefficients.iter().position(|c| !c.is_finite()) {
         return Err(Error::Numerical {
@@ -1015,10 +1041,12 @@ pub fn fit(
             message: format!("coefficient {k} came out non-finite"),
         });
     }
-    let poly = Polynomial::build(spec.variables(), terms, coefficients, shift, scale)
-        .map_err(|msg| Error::Numerical {
-            what: "polynomial fit".into(),
-            message: msg,
+    let poly =
+        Polynomial::build(spec.variables(), terms, coefficients, shift, scale).map_err(|msg| {
+            Error::Numerical {
+                what: "polynomial fit".into(),
+                message: msg,
+            }
         })?;
     let pred = poly.evaluate_rows(x)?;
     let (mut sa, mut sq) = (0.0, 0.0);
@@ -1031,7 +1059,11 @@ pub fn fit(
         n_rows: n,
         n_terms: m,
         rank,
-        condition: if rank > 0 { smax / smin_kept } else { f64::INFINITY },
+        condition: if rank > 0 {
+            smax / smin_kept
+        } else {
+            f64::INFINITY
+        },
         train_mae: sa / n as f64,
         train_rmse: (sq / n as f64).sqrt(),
     };
@@ -1078,6 +1110,7 @@ pub struct Candidate {
     /// Validation MAE (absent if the fit failed).
     pub val_mae: Option<f64>,
     /// Why the fit failed, if it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
 
@@ -1134,9 +1167,15 @@ pub fn candidate_orders(spec: &PolySpec) -> Vec<Vec<u32>> {
     out
 }
 
+/// Relative tolerance under which two validation MAEs count as equal in
+/// [`search_orders`] (relative to the mean |target| of the validation set).
+pub const TIE_TOLERANCE: f64 = 1e-9;
+
 /// The paper's order search: fits `spec` with every combination of group
 /// orders `1..=max_order` on `train`, keeps the one with the lowest MAE on
-/// `val` (ties: fewer terms, then search order) and reports its MAE on `test`.
+/// `val` and reports its MAE on `test`. Ties (MAEs within [`TIE_TOLERANCE`]
+/// times the mean |validation target|, i.e. equal up to rounding) go to the
+/// candidate with fewer terms, then to the lower MAE, then to search order.
 ///
 /// Candidates that cannot be fitted (too few samples, rank deficiency when not
 /// allowed) are recorded in the report and skipped; if none can be fitted the
@@ -1211,12 +1250,22 @@ pub fn search_orders(
             }
         })
         .collect();
-    let best = results
+    let fitted: Vec<(usize, f64, usize)> = results
         .iter()
         .enumerate()
         .filter_map(|(i, (c, p))| p.as_ref().and(c.val_mae).map(|v| (i, v, c.n_terms)))
         .filter(|(_, v, _)| v.is_finite())
-        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.2.cmp(&b.2)).then(a.0.cmp(&b.0)));
+        .collect();
+    // Validation MAEs that differ only by rounding (exactly representable
+    // data: every order at or above the true one fits to ~1e-13) are ties,
+    // resolved towards fewer terms; real data differ by far more.
+    let y_scale = val.y.iter().map(|v| v.abs()).sum::<f64>() / val.y.len() as f64;
+    let min_val = fitted.iter().map(|f| f.1).fold(f64::INFINITY, f64::min);
+    let tie = min_val + TIE_TOLERANCE * y_scale.max(min_val);
+    let best = fitted
+        .into_iter()
+        .filter(|f| f.1 <= tie)
+        .min_by(|a, b| a.2.cmp(&b.2).then(a.1.total_cmp(&b.1)).then(a.0.cmp(&b.0)));
     let Some((bi, val_mae, _)) = best else {
         let first = results
             .iter()
@@ -1272,20 +1321,39 @@ mod tests {
             CrossTerms::Total(2),
             CrossTerms::Full,
         ] {
-            let s = PolySpec { cross, ..spec.clone() };
+            let s = PolySpec {
+                cross,
+                ..spec.clone()
+            };
             assert_eq!(s.terms().len(), s.n_terms(), "{cross:?}");
         }
         // Full tensor product: C(6,3) * C(4,2) * C(2,1) = 20 * 6 * 2.
-        let s = PolySpec { cross: CrossTerms::Full, ..spec.clone() };
+        let s = PolySpec {
+            cross: CrossTerms::Full,
+            ..spec.clone()
+        };
         assert_eq!(s.n_terms(), 240);
         // No cross terms: 1 + (20-1) + (6-1) + (2-1).
-        let s = PolySpec { cross: CrossTerms::None, ..spec };
+        let s = PolySpec {
+            cross: CrossTerms::None,
+            ..spec
+        };
         assert_eq!(s.n_terms(), 26);
     }
 
     #[test]
     fn exact_text_round_trips() {
-        for x in [0.0, -0.0, 1.0, 0.1, 1e-300, -2.5e-7, 1e20, f64::MAX, f64::MIN_POSITIVE] {
+        for x in [
+            0.0,
+            -0.0,
+            1.0,
+            0.1,
+            1e-300,
+            -2.5e-7,
+            1e20,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+        ] {
             let t = exact_f64::to_text(x);
             assert_eq!(t.parse::<f64>().unwrap().to_bits(), x.to_bits(), "{t}");
         }

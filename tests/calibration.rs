@@ -1,0 +1,542 @@
+//! Calibration: fitting from samples, evaluation, versioned JSON and its
+//! errors, Table I/II helpers.
+
+use std::path::PathBuf;
+
+use optical_tactile::Error;
+use optical_tactile::calibration::{
+    self, Calibration, FitOptions, Sample, SegmentationThresholds, SensorSetup, ThresholdRow,
+    evaluate, table_i_markdown, table_ii_markdown,
+};
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::image::Roi;
+use optical_tactile::io::Split;
+use optical_tactile::poly::{CrossTerms, Polynomial};
+
+/// Deterministic generator (splitmix64).
+struct Rng(u64);
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+    }
+    fn normal(&mut self) -> f64 {
+        let u1 = self.uniform(1e-12, 1.0);
+        let u2 = self.uniform(0.0, 1.0);
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+fn setup() -> SensorSetup {
+    SensorSetup {
+        geometry: SensorGeometry::default(),
+        crop: Roi::new(160, 440, 1600, 200),
+        thresholds: SegmentationThresholds {
+            preset: "high".into(),
+            magnitude: 1.5,
+            sum: 400.0,
+            erode: 5,
+            dilate: 9,
+        },
+    }
+}
+
+fn small_options() -> FitOptions {
+    FitOptions {
+        location_max_order: 4,
+        displacement_max_order: 3,
+        force_location_max_order: 2,
+        d_pf_max_order: 1,
+        ..FitOptions::default()
+    }
+}
+
+/// The characterization protocol (SPEC.md) with a smooth synthetic forward
+/// model from truth to raw quantities plus noise: points 2-14, three
+/// indenters, five tilts, six force magnitudes; points 5, 8, 11 alternate
+/// between validation and test.
+fn protocol_samples(noise: f64, seed: u64) -> Vec<Sample> {
+    let g = SensorGeometry::default();
+    let mut rng = Rng(seed);
+    let mut out = Vec::new();
+    let tilts = [
+        (0.0, 0.0),
+        (0.0, 15.0),
+        (0.0, -15.0),
+        (15.0, 0.0),
+        (-15.0, 0.0),
+    ];
+    for point in 2u32..=14 {
+        let x_mm = g.arc_to_chord((point as f64 - 8.0) * 20.0);
+        for (ii, diam) in [2.0, 5.0, 10.0].into_iter().enumerate() {
+            for (ti, (yaw, pitch)) in tilts.into_iter().enumerate() {
+                for (fi, f) in [0.5, 1.0, 1.5, 2.0, 2.5, 3.0].into_iter().enumerate() {
+                    let split = match point {
+                        5 | 8 | 11 if (ii + ti + fi) % 2 == 0 => Split::Val,
+                        5 | 8 | 11 => Split::Test,
+                        _ => Split::Train,
+                    };
+                    let (p, y): (f64, f64) = (f64::to_radians(pitch), f64::to_radians(yaw));
+                    let fx = f * p.sin();
+                    let fy = f * y.sin() * p.cos();
+                    let fz = -f * p.cos() * y.cos();
+                    let n = |rng: &mut Rng| noise * rng.normal();
+                    out.push(Sample {
+                        split,
+                        point,
+                        x2d: 800.0 + 3.4 * x_mm + 0.002 * x_mm * x_mm + 3.0 * n(&mut rng),
+                        y2d: 100.0 + 3.0 * n(&mut rng),
+                        dx: 90.0 * fx * (1.0 + 0.001 * x_mm) + 20.0 * n(&mut rng),
+                        dy: 70.0 * fy + 20.0 * n(&mut rng),
+                        dz: 150.0 * fz - 12.0 * fz * fz
+                            + 10.0 * diam * fz / 5.0
+                            + 20.0 * n(&mut rng),
+                        d_pf: 0.4 * diam + 0.8 * f + n(&mut rng),
+                        x_mm,
+                        y_mm: 0.0,
+                        fx,
+                        fy,
+                        fz,
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("calibration_tests");
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+#[test]
+fn fit_on_the_protocol_reaches_small_test_errors() {
+    let samples = protocol_samples(0.1, 1);
+    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let rep = cal.report.as_ref().unwrap();
+    let test = rep.test.as_ref().unwrap();
+    assert_eq!(test.split, Split::Test);
+    assert_eq!(
+        test.per_point.iter().map(|(p, _)| *p).collect::<Vec<_>>(),
+        vec![5, 8, 11]
+    );
+    assert_eq!(
+        test.total.n,
+        samples.iter().filter(|s| s.split == Split::Test).count()
+    );
+    // Pixel noise 0.3 px at ~3.4 px/mm is ~0.09 mm; displacement noise 2
+    // raw units is ~0.02 N in x, 0.03 N in y; 0.013 N in z.
+    assert!(test.total.x_mm < 0.15, "x MAE {}", test.total.x_mm);
+    assert!(test.total.fx < 0.04, "Fx MAE {}", test.total.fx);
+    assert!(test.total.fy < 0.04, "Fy MAE {}", test.total.fy);
+    assert!(test.total.fz < 0.04, "Fz MAE {}", test.total.fz);
+    // The report's test MAE per map agrees with the table.
+    assert!((rep.g1.test_mae.unwrap() - test.total.x_mm).abs() < 1e-12);
+    assert!((rep.gz.test_mae.unwrap() - test.total.fz).abs() < 1e-12);
+    // y2d carries no information about y (always 0).
+    assert!(test.total.y_mm < 1e-9, "y MAE {}", test.total.y_mm);
+    // Every chosen order lies in the searched range.
+    assert!((1..=4).contains(&rep.g1.orders[0]));
+    assert_eq!(rep.gx.orders.len(), 3);
+    assert!(rep.gx.orders[0] <= 3 && rep.gx.orders[1] <= 2 && rep.gx.orders[2] <= 1);
+}
+
+#[test]
+fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
+    // Raw quantities random; truth an exact polynomial of them. The search
+    // must find the true orders and reach ~zero test error.
+    let mut rng = Rng(77);
+    let mut samples = Vec::new();
+    for i in 0..700 {
+        let split = match i % 7 {
+            0 | 1 => Split::Val,
+            2 => Split::Test,
+            _ => Split::Train,
+        };
+        let (x2d, y2d) = (rng.uniform(100.0, 1500.0), rng.uniform(60.0, 140.0));
+        let (dx, dy, dz) = (
+            rng.uniform(-80.0, 80.0),
+            rng.uniform(-60.0, 60.0),
+            rng.uniform(-400.0, 0.0),
+        );
+        let d_pf = rng.uniform(1.0, 6.0);
+        let t = (x2d - 800.0) / 700.0;
+        samples.push(Sample {
+            split,
+            point: (i % 13) as u32 + 2,
+            x2d,
+            y2d,
+            dx,
+            dy,
+            dz,
+            d_pf,
+            // Order 3 in x2d, order 1 in y2d.
+            x_mm: 150.0 * t - 4.0 * t * t + 2.0 * t * t * t,
+            y_mm: 0.25 * (y2d - 100.0),
+            // gx: displacement order 1, location order 1, d_pf order 1 (cross
+            // terms within total degree 1).
+            fx: 0.01 * dx + 0.001 * x2d - 0.02 * d_pf,
+            fy: 0.012 * dy,
+            // gz: displacement order 2 with a location cross term.
+            fz: 0.006 * dz + 2e-6 * dz * dz + 1e-6 * dz * x2d + 0.03 * d_pf,
+        });
+    }
+    let opts = FitOptions {
+        location_max_order: 5,
+        displacement_max_order: 3,
+        force_location_max_order: 2,
+        d_pf_max_order: 2,
+        ..FitOptions::default()
+    };
+    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let rep = cal.report.as_ref().unwrap();
+    assert_eq!(rep.g1.orders, vec![3]);
+    assert_eq!(rep.g2.orders, vec![1]);
+    assert_eq!(rep.gx.orders, vec![1, 1, 1]);
+    assert_eq!(rep.gy.orders, vec![1, 1, 1]);
+    assert_eq!(rep.gz.orders[0], 2);
+    let t = rep.test.as_ref().unwrap().total;
+    assert!(t.x_mm < 1e-9 && t.y_mm < 1e-9, "{t:?}");
+    assert!(t.fx < 1e-9 && t.fy < 1e-9 && t.fz < 1e-9, "{t:?}");
+}
+
+#[test]
+fn location_and_force_evaluate_the_maps() {
+    let samples = protocol_samples(0.1, 2);
+    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let g = SensorGeometry::default();
+    for s in samples.iter().step_by(97) {
+        let [x, y, z] = cal.location(s.x2d, s.y2d).unwrap();
+        assert_eq!(x, cal.g1().evaluate(&[s.x2d]).unwrap());
+        assert_eq!(y, cal.g2().evaluate(&[s.y2d]).unwrap());
+        let zz = (g.radius_mm * g.radius_mm - x * x).sqrt() - g.d_mm;
+        assert!((z - zz).abs() < 1e-12);
+        let f = cal.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf).unwrap();
+        let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
+        assert_eq!(f[0], cal.gx().evaluate(&v).unwrap());
+        assert_eq!(f[2], cal.gz().evaluate(&v).unwrap());
+        let p = cal.predict(s).unwrap();
+        assert_eq!(
+            [p.x_mm, p.y_mm, p.z_mm, p.fx, p.fy, p.fz],
+            [x, y, z, f[0], f[1], f[2]]
+        );
+    }
+    assert!(matches!(
+        cal.force(f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0),
+        Err(Error::NonFinite { .. })
+    ));
+    assert!(matches!(
+        cal.location(f64::INFINITY, 0.0),
+        Err(Error::NonFinite { .. })
+    ));
+}
+
+#[test]
+fn json_round_trip_is_bit_exact() {
+    let samples = protocol_samples(0.1, 3);
+    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let path = tmp("roundtrip.json");
+    cal.save(&path).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.starts_with("{\n  \"version\": 1,"), "{}", &text[..40]);
+    // Exponent rows stay on one line.
+    assert!(
+        text.contains("\"exponents\": [\n      [0, 0, 0, 0, 0, 0],\n      [1, 0, 0, 0, 0, 0],\n")
+    );
+    let back = Calibration::load(&path).unwrap();
+    assert_eq!(back.setup, cal.setup);
+    for (a, b) in [
+        (cal.g1(), back.g1()),
+        (cal.g2(), back.g2()),
+        (cal.gx(), back.gx()),
+        (cal.gy(), back.gy()),
+        (cal.gz(), back.gz()),
+    ] {
+        assert_eq!(a, b);
+        for (x, y) in a.coefficients().iter().zip(b.coefficients()) {
+            assert_eq!(x.to_bits(), y.to_bits());
+        }
+    }
+    for s in samples.iter().step_by(31) {
+        let (p, q) = (cal.predict(s).unwrap(), back.predict(s).unwrap());
+        assert_eq!(p, q);
+    }
+    // The report's numbers are plain JSON numbers (read within an ulp).
+    let (r, rb) = (cal.report.as_ref().unwrap(), back.report.as_ref().unwrap());
+    assert_eq!(r.gx.orders, rb.gx.orders);
+    assert!((r.gx.val_mae - rb.gx.val_mae).abs() <= 1e-15 * r.gx.val_mae.abs());
+    // Saving the loaded calibration gives the same polynomials text.
+    let again = back.to_json_string();
+    let poly_part =
+        |s: &str| s[s.find("\"g1\"").unwrap()..s.find("\"report\"").unwrap()].to_string();
+    assert_eq!(poly_part(&text), poly_part(&again));
+}
+
+/// A valid calibration file's text, for the error tests to break.
+fn valid_text() -> String {
+    let p1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25]).unwrap();
+    let p2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
+    let f = |c: f64| {
+        Polynomial::raw(
+            &["dx", "dy", "dz", "x2d", "y2d", "d_pf"],
+            vec![vec![0, 0, 0, 0, 0, 0], vec![1, 0, 0, 0, 0, 0]],
+            vec![0.0, c],
+        )
+        .unwrap()
+    };
+    let cal = Calibration::new(setup(), [p1, p2, f(0.01), f(0.02), f(0.03)], None).unwrap();
+    cal.to_json_string()
+}
+
+fn load_text(name: &str, text: &str) -> Error {
+    let path = tmp(name);
+    std::fs::write(&path, text).unwrap();
+    let e = Calibration::load(&path).unwrap_err();
+    match &e {
+        Error::Calibration { path: Some(p), .. } => assert_eq!(p, &path),
+        other => panic!("expected a calibration error naming the file, got {other:?}"),
+    }
+    assert!(e.to_string().contains(name), "{e}");
+    e
+}
+
+#[test]
+fn a_valid_hand_made_file_loads_and_evaluates() {
+    let path = tmp("valid.json");
+    std::fs::write(&path, valid_text()).unwrap();
+    let cal = Calibration::load(&path).unwrap();
+    let [x, _, z] = cal.location(800.0, 100.0).unwrap();
+    assert_eq!(x, 0.0);
+    assert_eq!(z, 160.0);
+    assert_eq!(cal.force(100.0, 0.0, 0.0, 0.0, 0.0, 0.0).unwrap()[2], 3.0);
+    assert!(cal.report.is_none());
+}
+
+#[test]
+fn other_versions_are_rejected() {
+    let text = valid_text().replace("\"version\": 1", "\"version\": 2");
+    let e = load_text("v2.json", &text);
+    assert!(e.to_string().contains("version 2 is not supported"), "{e}");
+    let text = valid_text().replace("\"version\": 1,", "");
+    let e = load_text("noversion.json", &text);
+    assert!(e.to_string().contains("no `version`"), "{e}");
+    let text = valid_text().replace("\"version\": 1", "\"version\": \"1\"");
+    let e = load_text("strversion.json", &text);
+    assert!(e.to_string().contains("not supported"), "{e}");
+}
+
+#[test]
+fn a_missing_polynomial_is_named() {
+    let mut v: serde_json::Value = serde_json::from_str(&valid_text()).unwrap();
+    v.as_object_mut().unwrap().remove("gz");
+    let e = load_text("nogz.json", &serde_json::to_string_pretty(&v).unwrap());
+    assert!(e.to_string().contains("missing polynomial `gz`"), "{e}");
+    let mut v: serde_json::Value = serde_json::from_str(&valid_text()).unwrap();
+    v.as_object_mut().unwrap().remove("geometry");
+    let e = load_text("nogeom.json", &serde_json::to_string_pretty(&v).unwrap());
+    assert!(e.to_string().contains("missing field `geometry`"), "{e}");
+}
+
+#[test]
+fn malformed_json_gives_line_and_column() {
+    let text = valid_text();
+    // Break the third line.
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines[2] = "  \"geometry\": {,";
+    let e = load_text("malformed.json", &lines.join("\n"));
+    let msg = e.to_string();
+    assert!(msg.contains("malformed JSON at line 3, column"), "{msg}");
+    let e = load_text("truncated.json", &text[..text.len() / 2]);
+    assert!(e.to_string().contains("malformed JSON at line"), "{e}");
+    let e = load_text("empty.json", "");
+    assert!(e.to_string().contains("malformed JSON"), "{e}");
+    let e = load_text("array.json", "[1, 2]");
+    assert!(e.to_string().contains("JSON object"), "{e}");
+}
+
+#[test]
+fn inconsistent_polynomials_are_rejected_with_position() {
+    let text = valid_text();
+    // An exponent row of the wrong width in gx.
+    let bad = text.replacen("[1, 0, 0, 0, 0, 0]", "[1, 0, 0]", 1);
+    assert_ne!(bad, text);
+    let e = load_text("badrow.json", &bad);
+    let msg = e.to_string();
+    assert!(
+        msg.contains("exponent row 1 has 3 entries but there are 6 variables"),
+        "{msg}"
+    );
+    assert!(msg.contains("line "), "{msg}");
+    // More coefficients than exponent rows.
+    let bad = text.replacen(
+        "\"coefficients\": [\"0.0\", \"0.01\"]",
+        "\"coefficients\": [\"0.0\", \"0.01\", \"1\"]",
+        1,
+    );
+    assert_ne!(bad, text);
+    let e = load_text("badcoef.json", &bad);
+    assert!(
+        e.to_string().contains("2 exponent rows but 3 coefficients"),
+        "{e}"
+    );
+    // Wrong variables for the role.
+    let bad = text.replacen("\"dx\", \"dy\", \"dz\"", "\"dy\", \"dx\", \"dz\"", 1);
+    assert_ne!(bad, text);
+    let e = load_text("badvars.json", &bad);
+    assert!(
+        e.to_string()
+            .contains("polynomial `gx` has variables [dy, dx"),
+        "{e}"
+    );
+    // A non-numeric coefficient.
+    let bad = text.replacen("\"0.01\"", "\"abc\"", 1);
+    let e = load_text("badnum.json", &bad);
+    assert!(
+        e.to_string().contains("`abc` is not a decimal number"),
+        "{e}"
+    );
+    // A bad geometry.
+    let bad = text.replacen("\"radius_mm\": 220.0", "\"radius_mm\": -1.0", 1);
+    assert_ne!(bad, text);
+    let e = load_text("badgeom.json", &bad);
+    assert!(e.to_string().contains("radius_mm"), "{e}");
+}
+
+#[test]
+fn unreadable_file_is_an_io_error() {
+    let e = Calibration::load(tmp("does-not-exist.json")).unwrap_err();
+    assert!(matches!(e, Error::Io { .. }), "{e}");
+    assert!(e.to_string().contains("does-not-exist.json"));
+}
+
+#[test]
+fn new_checks_the_variables() {
+    let p = Polynomial::raw(&["x"], vec![vec![0]], vec![0.0]).unwrap();
+    let e = Calibration::new(
+        setup(),
+        [p.clone(), p.clone(), p.clone(), p.clone(), p],
+        None,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("`g1` has variables [x], expected [x2d]"),
+        "{e}"
+    );
+}
+
+#[test]
+fn fit_rejects_bad_samples() {
+    let samples = protocol_samples(0.1, 4);
+    let s = setup();
+    let o = small_options();
+    assert!(matches!(
+        calibration::fit(&[], &s, &o),
+        Err(Error::InvalidParameter { .. })
+    ));
+    let mut bad = samples.clone();
+    bad[17].dz = f64::NAN;
+    match calibration::fit(&bad, &s, &o).unwrap_err() {
+        Error::NonFinite { what, row, .. } => {
+            assert_eq!(row, 17);
+            assert!(what.contains("dz"), "{what}");
+        }
+        e => panic!("{e}"),
+    }
+    let no_val: Vec<Sample> = samples
+        .iter()
+        .filter(|s| s.split != Split::Val)
+        .copied()
+        .collect();
+    let e = calibration::fit(&no_val, &s, &o).unwrap_err();
+    assert!(e.to_string().contains("0 val"), "{e}");
+    // Too few training samples for even the smallest force map.
+    let mut few: Vec<Sample> = samples
+        .iter()
+        .filter(|s| s.split != Split::Train)
+        .copied()
+        .collect();
+    few.extend(samples.iter().filter(|s| s.split == Split::Train).take(5));
+    let e = calibration::fit(&few, &s, &o).unwrap_err();
+    let msg = e.to_string();
+    assert!(msg.contains("`gx`") && msg.contains("at least"), "{msg}");
+    // Invalid setup.
+    let mut s2 = setup();
+    s2.thresholds.magnitude = f64::NAN;
+    assert!(calibration::fit(&samples, &s2, &o).is_err());
+    // An unsupported order.
+    let o2 = FitOptions {
+        displacement_max_order: 40,
+        ..small_options()
+    };
+    assert!(calibration::fit(&samples, &s, &o2).is_err());
+}
+
+#[test]
+fn tables_render_as_markdown() {
+    let samples = protocol_samples(0.1, 5);
+    let opts = FitOptions {
+        cross: CrossTerms::None,
+        ..small_options()
+    };
+    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let t = evaluate(&cal, &samples, Split::Test).unwrap();
+    assert_eq!(&t, cal.report.as_ref().unwrap().test.as_ref().unwrap());
+    let md = table_ii_markdown(&t);
+    let lines: Vec<&str> = md.lines().collect();
+    assert_eq!(
+        lines[0],
+        "| Variable | Total | Point 5 | Point 8 | Point 11 |"
+    );
+    assert_eq!(lines[1], "|---|---|---|---|---|");
+    assert!(lines[2].starts_with(&format!("| MAE x3D [mm] | {:.2} |", t.total.x_mm)));
+    assert_eq!(lines.len(), 7);
+    let rows = vec![
+        ThresholdRow {
+            preset: "low".into(),
+            min_force_n: "(0, 0.5)".into(),
+            mae: t.total,
+        },
+        ThresholdRow {
+            preset: "high".into(),
+            min_force_n: "[1, 1.5)".into(),
+            mae: t.total,
+        },
+    ];
+    let md = table_i_markdown(&rows);
+    assert!(
+        md.starts_with(
+            "| Variable | low | high |\n|---|---|---|\n| F_min [N] | (0, 0.5) | [1, 1.5) |\n"
+        ),
+        "{md}"
+    );
+    assert!(md.contains(&format!("| MAE Fz [N] | {:.4} |", t.total.fz)));
+    // Per-point MAE is the mean over that point's samples.
+    let p8: Vec<&Sample> = samples
+        .iter()
+        .filter(|s| s.split == Split::Test && s.point == 8)
+        .collect();
+    let m: f64 = p8
+        .iter()
+        .map(|s| (cal.predict(s).unwrap().fx - s.fx).abs())
+        .sum::<f64>()
+        / p8.len() as f64;
+    let row8 = t.per_point.iter().find(|(p, _)| *p == 8).unwrap().1;
+    assert!((row8.fx - m).abs() < 1e-15);
+    assert_eq!(row8.n, p8.len());
+    // No sample in the split: an error, not NaN.
+    let train_only: Vec<Sample> = samples
+        .iter()
+        .filter(|s| s.split == Split::Train)
+        .copied()
+        .collect();
+    assert!(evaluate(&cal, &train_only, Split::Test).is_err());
+}
