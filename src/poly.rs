@@ -387,6 +387,8 @@ pub struct Polynomial {
     pow_offset: Vec<usize>,
     /// Derived: highest exponent of each variable.
     max_exp: Vec<u32>,
+    /// Derived: used length of the power table.
+    pow_len: usize,
     /// Derived: for every term, the power-table indices of its non-zero
     /// factors, concatenated; term k's factors are
     /// `factors[term_end[k-1]..term_end[k]]`.
@@ -520,6 +522,7 @@ impl Polynomial {
             scale,
             pow_offset,
             max_exp,
+            pow_len: off,
             factors,
             term_end,
         })
@@ -571,7 +574,7 @@ impl Polynomial {
 
     /// Fills the power table: `pow[off_j + e] = t_j^e`.
     #[inline]
-    fn powers(&self, x: &[f64], pow: &mut [f64; POW_TABLE]) {
+    fn powers(&self, x: &[f64], pow: &mut [f64]) {
         for j in 0..x.len() {
             let t = (x[j] - self.shift[j]) / self.scale[j];
             let base = self.pow_offset[j];
@@ -586,7 +589,7 @@ impl Polynomial {
 
     /// Sum of the terms, powers already in the table.
     #[inline]
-    fn sum_terms(&self, pow: &[f64; POW_TABLE]) -> f64 {
+    fn sum_terms(&self, pow: &[f64]) -> f64 {
         let mut sum = 0.0;
         let mut start = 0usize;
         for (k, &c) in self.coefficients.iter().enumerate() {
@@ -629,9 +632,20 @@ impl Polynomial {
     #[inline]
     pub fn evaluate(&self, x: &[f64]) -> Result<f64> {
         self.check_input(x, 0)?;
-        let mut pow = [0.0f64; POW_TABLE];
+        // The table lives on the stack; its size is picked so that the common
+        // small maps do not pay for zeroing the largest possible table.
+        Ok(match self.pow_len {
+            0..=32 => self.eval_with::<32>(x),
+            33..=96 => self.eval_with::<96>(x),
+            _ => self.eval_with::<POW_TABLE>(x),
+        })
+    }
+
+    #[inline]
+    fn eval_with<const N: usize>(&self, x: &[f64]) -> f64 {
+        let mut pow = [0.0f64; N];
         self.powers(x, &mut pow);
-        Ok(self.sum_terms(&pow))
+        self.sum_terms(&pow)
     }
 
     /// Evaluates every row of `x` (`rows x n_variables`) into `out`.
