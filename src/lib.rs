@@ -29,6 +29,7 @@ pub mod capture;
 pub mod contact;
 pub mod contours;
 pub mod error;
+pub mod evaluate;
 pub mod flow;
 pub mod geometry;
 pub mod hhd;
