@@ -16,6 +16,36 @@
 //! paper's order search (train / validation / test split), so that any front end
 //! (the image pipeline, a simulator, recorded quantities) can feed it.
 //! [`evaluate`] and the `*_markdown` functions give the paper's Table I / II.
+//!
+//! ```
+//! use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
+//! use optical_tactile::geometry::SensorGeometry;
+//! use optical_tactile::image::Roi;
+//! use optical_tactile::poly::Polynomial;
+//!
+//! // A hand-made calibration: x = (x2d - 800) / 4 mm, y = 0, F = 0.01 * D.
+//! let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25])?;
+//! let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0])?;
+//! let vars = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+//! let lin = |k: usize| {
+//!     let mut e = vec![0u32; 6];
+//!     e[k] = 1;
+//!     Polynomial::raw(&vars, vec![e], vec![0.01])
+//! };
+//! let setup = SensorSetup {
+//!     geometry: SensorGeometry::default(),
+//!     crop: Roi::new(0, 440, 1600, 200),
+//!     thresholds: SegmentationThresholds {
+//!         preset: "high".into(), magnitude: 1.5, sum: 400.0, erode: 5, dilate: 9,
+//!     },
+//! };
+//! let cal = Calibration::new(setup, [g1, g2, lin(0)?, lin(1)?, lin(2)?], None)?;
+//! assert_eq!(cal.location(800.0, 100.0)?, [0.0, 0.0, 160.0]);
+//! assert_eq!(cal.force(10.0, 0.0, -200.0, 800.0, 100.0, 3.0)?, [0.1, 0.0, -2.0]);
+//! let back = Calibration::from_json_str(&cal.to_json_string())?;
+//! assert_eq!(back, cal);
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -24,10 +54,11 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array1, Array2};
 use serde::{Deserialize, Serialize};
 
+use crate::contact::{Contact, RawContact};
 use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
 use crate::image::Roi;
-use crate::io::Split;
+use crate::io::{Split, TestRow};
 use crate::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
 
 /// The calibration file format version this library reads and writes.
@@ -114,6 +145,26 @@ pub struct Sample {
 }
 
 impl Sample {
+    /// The sample of one characterization test: truth, split and point from
+    /// its `tests.csv` row, raw quantities from the contact found in its frame.
+    pub fn from_test(row: &TestRow, raw: &RawContact) -> Self {
+        Sample {
+            split: row.split,
+            point: row.point,
+            x2d: raw.x_px,
+            y2d: raw.y_px,
+            dx: raw.d_sensor[0],
+            dy: raw.d_sensor[1],
+            dz: raw.d_sensor[2],
+            d_pf: raw.d_pf,
+            x_mm: row.x_mm,
+            y_mm: row.y_mm,
+            fx: row.fx_n,
+            fy: row.fy_n,
+            fz: row.fz_n,
+        }
+    }
+
     fn fields(&self) -> [(&'static str, f64); 11] {
         [
             ("x2d", self.x2d),
@@ -313,6 +364,19 @@ impl Calibration {
             self.gy.evaluate(&v)?,
             self.gz.evaluate(&v)?,
         ])
+    }
+
+    /// The calibrated contact of a patch's raw quantities (`id` and `missed`
+    /// are 0: identity is the tracker's business).
+    pub fn contact(&self, raw: &RawContact) -> Result<Contact> {
+        let [dx, dy, dz] = raw.d_sensor;
+        Ok(Contact {
+            id: 0,
+            location_mm: self.location(raw.x_px, raw.y_px)?,
+            force_n: self.force(dx, dy, dz, raw.x_px, raw.y_px, raw.d_pf)?,
+            raw: *raw,
+            missed: 0,
+        })
     }
 
     /// Location and force of a sample's raw quantities.

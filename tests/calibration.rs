@@ -540,3 +540,50 @@ fn tables_render_as_markdown() {
         .collect();
     assert!(evaluate(&cal, &train_only, Split::Test).is_err());
 }
+
+#[test]
+fn samples_and_contacts_connect_to_the_pipeline_types() {
+    use optical_tactile::contact::RawContact;
+    use optical_tactile::io::TestRow;
+    let row = TestRow {
+        test: 0,
+        frame: "frames/t0000.png".into(),
+        reference: "frames/t0000_ref.png".into(),
+        point: 2,
+        indenter_mm: 10.0,
+        yaw_deg: 0.0,
+        pitch_deg: 15.0,
+        repeat: 1,
+        force_n: 1.5,
+        split: Split::Val,
+        x_mm: -114.1,
+        y_mm: 0.0,
+        fx_n: 0.39,
+        fy_n: 0.02,
+        fz_n: -1.45,
+    };
+    let raw = RawContact {
+        x_px: 512.4,
+        y_px: 101.0,
+        d_pf: 3.1,
+        d_sensor: [10.2, -1.0, -250.3],
+        ..RawContact::default()
+    };
+    let s = Sample::from_test(&row, &raw);
+    assert_eq!((s.split, s.point), (Split::Val, 2));
+    assert_eq!(
+        [s.x2d, s.y2d, s.dx, s.dy, s.dz, s.d_pf],
+        [512.4, 101.0, 10.2, -1.0, -250.3, 3.1]
+    );
+    assert_eq!(
+        [s.x_mm, s.y_mm, s.fx, s.fy, s.fz],
+        [-114.1, 0.0, 0.39, 0.02, -1.45]
+    );
+    let cal = Calibration::from_json_str(&valid_text()).unwrap();
+    let c = cal.contact(&raw).unwrap();
+    let p = cal.predict(&s).unwrap();
+    assert_eq!(c.location_mm, [p.x_mm, p.y_mm, p.z_mm]);
+    assert_eq!(c.force_n, [p.fx, p.fy, p.fz]);
+    assert_eq!(c.raw, raw);
+    assert!((c.force_n[0] - 0.102).abs() < 1e-12);
+}
