@@ -660,6 +660,12 @@ pub struct FitOptions {
     pub force_location_max_order: u32,
     /// Largest order of `{d_pf}` in the force maps.
     pub d_pf_max_order: u32,
+    /// Whether `y2d` enters the force maps (the paper's choice, the default).
+    /// When every characterization indenter spans the skin's width, `y2d` only
+    /// carries noise: turning this off keeps it out (its exponents stay 0, the
+    /// maps keep their six variables), so a contact off the centre line later
+    /// does not extrapolate the fitted noise.
+    pub force_use_y2d: bool,
     /// Cross-term rule of the force maps.
     pub cross: CrossTerms,
     /// Least-squares options. Rank deficiency is allowed by default: a
@@ -676,6 +682,7 @@ impl Default for FitOptions {
             displacement_max_order: 3,
             force_location_max_order: 2,
             d_pf_max_order: 2,
+            force_use_y2d: true,
             cross: CrossTerms::MaxOfGroups,
             least_squares: poly::FitOptions {
                 allow_rank_deficient: true,
@@ -686,23 +693,33 @@ impl Default for FitOptions {
 }
 
 /// The spec of the force maps for these options.
+///
+/// Groups, in variable order: `displacement {dx, dy, dz}`, `location {x2d,
+/// y2d}`, `d_pf {d_pf}`; without [`FitOptions::force_use_y2d`] the location
+/// group is `{x2d}` and `y2d` sits alone in a group of order 0 (unused).
 pub fn force_spec(options: &FitOptions) -> Result<PolySpec> {
-    PolySpec::new(
-        vec![
-            VarGroup::new(
-                "displacement",
-                &FORCE_VARIABLES[..3],
-                options.displacement_max_order,
-            ),
-            VarGroup::new(
-                "location",
-                &FORCE_VARIABLES[3..5],
-                options.force_location_max_order,
-            ),
-            VarGroup::new("d_pf", &FORCE_VARIABLES[5..], options.d_pf_max_order),
-        ],
-        options.cross,
-    )
+    let v = &FORCE_VARIABLES;
+    let mut groups = vec![VarGroup::new(
+        "displacement",
+        &v[..3],
+        options.displacement_max_order,
+    )];
+    if options.force_use_y2d {
+        groups.push(VarGroup::new(
+            "location",
+            &v[3..5],
+            options.force_location_max_order,
+        ));
+    } else {
+        groups.push(VarGroup::new(
+            "location",
+            &v[3..4],
+            options.force_location_max_order,
+        ));
+        groups.push(VarGroup::new("unused", &v[4..5], 0));
+    }
+    groups.push(VarGroup::new("d_pf", &v[5..], options.d_pf_max_order));
+    PolySpec::new(groups, options.cross)
 }
 
 /// Fits the five maps from samples with the paper's order search: each

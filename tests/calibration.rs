@@ -587,3 +587,40 @@ fn samples_and_contacts_connect_to_the_pipeline_types() {
     assert_eq!(c.raw, raw);
     assert!((c.force_n[0] - 0.102).abs() < 1e-12);
 }
+
+#[test]
+fn y2d_can_be_kept_out_of_the_force_maps() {
+    let samples = protocol_samples(0.1, 6);
+    let opts = FitOptions {
+        force_use_y2d: false,
+        ..small_options()
+    };
+    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    for g in [cal.gx(), cal.gy(), cal.gz()] {
+        assert_eq!(g.n_variables(), 6);
+        for k in 0..g.n_terms() {
+            assert_eq!(
+                g.exponents(k)[4],
+                0,
+                "y2d used in term {:?}",
+                g.exponents(k)
+            );
+        }
+    }
+    let rep = cal.report.as_ref().unwrap();
+    assert_eq!(
+        rep.gx.groups,
+        vec!["displacement", "location", "unused", "d_pf"]
+    );
+    assert_eq!(rep.gx.orders[2], 0);
+    // y2d far outside the training range does not change the force.
+    let s = samples[0];
+    let a = cal.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf).unwrap();
+    let b = cal
+        .force(s.dx, s.dy, s.dz, s.x2d, s.y2d + 80.0, s.d_pf)
+        .unwrap();
+    assert_eq!(a, b);
+    // Still accurate on this data (y2d carries only noise here).
+    let t = rep.test.as_ref().unwrap().total;
+    assert!(t.fx < 0.04 && t.fy < 0.04 && t.fz < 0.04, "{t:?}");
+}
