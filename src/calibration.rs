@@ -209,14 +209,19 @@ pub struct QuantityMae {
     /// Number of samples.
     pub n: usize,
     /// MAE of x3D, mm.
+    #[serde(deserialize_with = "poly::nullable_f64")]
     pub x_mm: f64,
     /// MAE of y3D, mm.
+    #[serde(deserialize_with = "poly::nullable_f64")]
     pub y_mm: f64,
     /// MAE of Fx, N.
+    #[serde(deserialize_with = "poly::nullable_f64")]
     pub fx: f64,
     /// MAE of Fy, N.
+    #[serde(deserialize_with = "poly::nullable_f64")]
     pub fy: f64,
     /// MAE of Fz, N.
+    #[serde(deserialize_with = "poly::nullable_f64")]
     pub fz: f64,
 }
 
@@ -1003,6 +1008,44 @@ pub fn table_ii_markdown(t: &PointTable) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    fn json_value() -> impl Strategy<Value = serde_json::Value> {
+        use serde_json::Value;
+        let leaf = prop_oneof![
+            Just(Value::Null),
+            any::<bool>().prop_map(Value::Bool),
+            any::<i32>().prop_map(Value::from),
+            "[ \\[\\]{},:\"\\\\a-zé]{0,8}".prop_map(Value::String),
+        ];
+        leaf.prop_recursive(4, 40, 6, |inner| {
+            prop_oneof![
+                prop::collection::vec(inner.clone(), 0..6).prop_map(Value::Array),
+                prop::collection::btree_map("[a-z\\[ ]{1,4}", inner, 0..5)
+                    .prop_map(|m| Value::Object(m.into_iter().collect())),
+            ]
+        })
+    }
+
+    proptest! {
+        #![proptest_config(proptest::test_runner::Config {
+            cases: 128,
+            rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(6),
+            failure_persistence: None,
+            ..proptest::test_runner::Config::default()
+        })]
+
+        /// Collapsing arrays only changes whitespace outside strings: the
+        /// document still parses to the same value.
+        #[test]
+        fn collapse_preserves_any_document(v in json_value()) {
+            let pretty = serde_json::to_string_pretty(&v).unwrap();
+            let c = collapse_scalar_arrays(&pretty);
+            let back: serde_json::Value = serde_json::from_str(&c).unwrap();
+            prop_assert_eq!(back, v);
+        }
+    }
 
     #[test]
     fn collapse_keeps_nested_and_strings() {

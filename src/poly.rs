@@ -1148,13 +1148,23 @@ pub struct FitReport {
     /// Number of test samples (0 without a test set).
     pub n_test: usize,
     /// Training MAE of the chosen polynomial.
+    #[serde(deserialize_with = "nullable_f64")]
     pub train_mae: f64,
     /// Validation MAE (the selection criterion).
+    #[serde(deserialize_with = "nullable_f64")]
     pub val_mae: f64,
     /// Test MAE, if a test set was given.
     pub test_mae: Option<f64>,
     /// Every candidate tried, in search order.
     pub candidates: Vec<Candidate>,
+}
+
+/// Reads an `f64` that may have been written as `null` (serde_json writes
+/// NaN and infinities as `null`), so a saved report always loads back.
+pub(crate) fn nullable_f64<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// Every combination of group orders `1..=max_order` (a group of max order 0

@@ -624,3 +624,16 @@ fn y2d_can_be_kept_out_of_the_force_maps() {
     let t = rep.test.as_ref().unwrap().total;
     assert!(t.fx < 0.04 && t.fy < 0.04 && t.fz < 0.04, "{t:?}");
 }
+
+#[test]
+fn a_report_with_non_finite_numbers_still_loads() {
+    let samples = protocol_samples(0.1, 8);
+    let mut cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let rep = cal.report.as_mut().unwrap();
+    rep.test.as_mut().unwrap().total.fx = f64::NAN;
+    rep.gy.train_mae = f64::INFINITY;
+    let back = Calibration::from_json_str(&cal.to_json_string()).unwrap();
+    let r = back.report.unwrap();
+    assert!(r.test.unwrap().total.fx.is_nan());
+    assert!(r.gy.train_mae.is_nan());
+}
