@@ -8,7 +8,10 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use ndarray::{Array1, Array2};
-use optical_tactile::poly::{CrossTerms, FitOptions, PolySpec, VarGroup, fit};
+use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::image::Roi;
+use optical_tactile::poly::{CrossTerms, FitOptions, PolySpec, Polynomial, VarGroup, fit};
 
 /// Deterministic pseudo-random numbers in [-1, 1).
 fn lcg(state: &mut u64) -> f64 {
@@ -62,6 +65,41 @@ fn bench(c: &mut Criterion) {
             bch.iter(|| fit(&spec, black_box(x.view()), y.view(), &FitOptions::default()).unwrap())
         });
     }
+
+    // A whole contact: location (g1, g2) and force (gx, gy, gz of orders 3, 2, 2).
+    let spec = force_spec(3, 2, 2);
+    let (f, _) = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap();
+    let g1 = Polynomial::raw(
+        &["x2d"],
+        (0..6).map(|e| vec![e]).collect(),
+        vec![-200.0, 0.25, 1e-5, 1e-8, 1e-11, 1e-14],
+    )
+    .unwrap();
+    let g2 = Polynomial::raw(&["y2d"], vec![vec![0], vec![1]], vec![-25.0, 0.25]).unwrap();
+    let setup = SensorSetup {
+        geometry: SensorGeometry::default(),
+        crop: Roi::new(0, 0, 1600, 200),
+        thresholds: SegmentationThresholds {
+            preset: "high".into(),
+            magnitude: 1.5,
+            sum: 400.0,
+            erode: 5,
+            dilate: 9,
+        },
+    };
+    let cal = Calibration::new(setup, [g1, g2, f.clone(), f.clone(), f], None).unwrap();
+    g.bench_function(
+        BenchmarkId::new("calibration_contact", "location+force_322"),
+        |bch| {
+            bch.iter(|| {
+                let l = cal.location(black_box(512.4), black_box(101.0)).unwrap();
+                let f = cal
+                    .force(black_box(12.0), -3.0, -250.0, 512.4, 101.0, 3.1)
+                    .unwrap();
+                (l, f)
+            })
+        },
+    );
     g.finish();
 }
 

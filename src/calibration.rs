@@ -239,6 +239,9 @@ pub struct PointTable {
 /// The fit reports of the five maps and the test errors.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationReport {
+    /// The options the maps were fitted with.
+    #[serde(default)]
+    pub options: FitOptions,
     /// Order search of `g1`.
     pub g1: FitReport,
     /// Order search of `g2`.
@@ -839,6 +842,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         setup.clone(),
         [g1, g2, gx, gy, gz],
         Some(CalibrationReport {
+            options: options.clone(),
             g1: r1,
             g2: r2,
             gx: rx,
