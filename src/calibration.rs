@@ -930,14 +930,93 @@ pub fn evaluate(cal: &Calibration, samples: &[Sample], split: Split) -> Result<P
     })
 }
 
+/// Where the minimum detectable force lies, from the commanded force levels
+/// of the characterization (the paper's Table I, row `F_min`): above
+/// `above_n` (the largest level not reliably detected, 0 if none) and at most
+/// `at_most_n` (the smallest level from which every level is reliably
+/// detected; `None` if even the largest is not).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DetectionLimit {
+    /// Exclusive lower bound, N.
+    pub above_n: f64,
+    /// Inclusive upper bound, N.
+    pub at_most_n: Option<f64>,
+}
+
+impl std::fmt::Display for DetectionLimit {
+    /// `(0, 0.5]`, `(0.5, 1]`, or `> 3` when nothing is reliably detected.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.at_most_n {
+            Some(hi) => write!(f, "({}, {}]", self.above_n, hi),
+            None => write!(f, "> {}", self.above_n),
+        }
+    }
+}
+
+/// The minimum detectable force from per-test detection results
+/// `(commanded force N, contact detected)`: a force level counts as reliably
+/// detected when at least `min_fraction` of its tests found a contact (1.0:
+/// all of them), and the limit is the smallest level from which every level
+/// up is reliably detected.
+pub fn min_detectable_force(
+    detections: &[(f64, bool)],
+    min_fraction: f64,
+) -> Result<DetectionLimit> {
+    if detections.is_empty() {
+        return Err(Error::param("detections", "no test results"));
+    }
+    if !(min_fraction > 0.0 && min_fraction <= 1.0) {
+        return Err(Error::param(
+            "min_fraction",
+            format!("must be in (0, 1], got {min_fraction}"),
+        ));
+    }
+    if let Some(i) = detections
+        .iter()
+        .position(|d| !(d.0.is_finite() && d.0 > 0.0))
+    {
+        return Err(Error::param(
+            "detections",
+            format!(
+                "test {i} has commanded force {}, expected > 0",
+                detections[i].0
+            ),
+        ));
+    }
+    // Per level: (tests, detected). Levels are exact commanded values.
+    let mut levels: Vec<(f64, usize, usize)> = Vec::new();
+    for &(f, hit) in detections {
+        match levels.iter_mut().find(|l| l.0 == f) {
+            Some(l) => {
+                l.1 += 1;
+                l.2 += usize::from(hit);
+            }
+            None => levels.push((f, 1, usize::from(hit))),
+        }
+    }
+    levels.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let ok = |l: &(f64, usize, usize)| l.2 as f64 >= min_fraction * l.1 as f64;
+    // The first level of the all-reliable tail.
+    let mut start = levels.len();
+    while start > 0 && ok(&levels[start - 1]) {
+        start -= 1;
+    }
+    let above_n = if start == 0 { 0.0 } else { levels[start - 1].0 };
+    Ok(DetectionLimit {
+        above_n,
+        at_most_n: levels.get(start).map(|l| l.0),
+    })
+}
+
 /// One column of the paper's Table I: a threshold preset, its minimum
 /// detectable force and the test errors of the calibration fitted with it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ThresholdRow {
     /// Preset name.
     pub preset: String,
-    /// Minimum detectable force as text (e.g. `"[1, 1.5)"`); measured by the
-    /// image pipeline, not here.
+    /// Minimum detectable force as text, e.g. a [`DetectionLimit`] printed
+    /// (`"(1, 1.5]"`) from the pipeline's detections with
+    /// [`min_detectable_force`].
     pub min_force_n: String,
     /// Test MAE.
     pub mae: QuantityMae,

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use optical_tactile::Error;
 use optical_tactile::calibration::{
-    self, Calibration, FitOptions, Sample, SegmentationThresholds, SensorSetup, ThresholdRow,
-    evaluate, table_i_markdown, table_ii_markdown,
+    self, Calibration, DetectionLimit, FitOptions, Sample, SegmentationThresholds, SensorSetup,
+    ThresholdRow, evaluate, min_detectable_force, table_i_markdown, table_ii_markdown,
 };
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
@@ -636,4 +636,51 @@ fn a_report_with_non_finite_numbers_still_loads() {
     let r = back.report.unwrap();
     assert!(r.test.unwrap().total.fx.is_nan());
     assert!(r.gy.train_mae.is_nan());
+}
+
+#[test]
+fn minimum_detectable_force_from_detections() {
+    let levels = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
+    let mk = |miss: &dyn Fn(f64, usize) -> bool| {
+        let mut v = Vec::new();
+        for &f in &levels {
+            for r in 0..5 {
+                v.push((f, !miss(f, r)));
+            }
+        }
+        v
+    };
+    // Everything detected: below the smallest level.
+    let d = min_detectable_force(&mk(&|_, _| false), 1.0).unwrap();
+    assert_eq!(
+        d,
+        DetectionLimit {
+            above_n: 0.0,
+            at_most_n: Some(0.5)
+        }
+    );
+    assert_eq!(d.to_string(), "(0, 0.5]");
+    // 0.5 N and one 1.0 N test missed.
+    let v = mk(&|f, r| f == 0.5 || (f == 1.0 && r == 0));
+    assert_eq!(
+        min_detectable_force(&v, 1.0).unwrap().to_string(),
+        "(1, 1.5]"
+    );
+    assert_eq!(
+        min_detectable_force(&v, 0.8).unwrap().to_string(),
+        "(0.5, 1]"
+    );
+    // A miss at a high level moves the limit above it.
+    let v = mk(&|f, r| f == 2.5 && r == 3);
+    assert_eq!(
+        min_detectable_force(&v, 1.0).unwrap().to_string(),
+        "(2.5, 3]"
+    );
+    // Nothing detected.
+    let d = min_detectable_force(&mk(&|_, _| true), 1.0).unwrap();
+    assert_eq!(d.to_string(), "> 3");
+    // Bad input.
+    assert!(min_detectable_force(&[], 1.0).is_err());
+    assert!(min_detectable_force(&[(1.0, true)], 0.0).is_err());
+    assert!(min_detectable_force(&[(f64::NAN, true)], 1.0).is_err());
 }
