@@ -244,19 +244,26 @@ impl GreenConvolver {
         }
         ws.reserve_for(self);
         let rows = &mut ws.rows[..self.ny * self.px];
-        for (y, row) in rows.chunks_exact_mut(self.px).enumerate() {
-            let (dr, cr) = (div.row(y), curl.row(y));
-            for x in 0..self.nx {
-                row[x] = Complex64::new(dr[x], cr[x]);
+        for ((row, dr), cr) in rows
+            .chunks_exact_mut(self.px)
+            .zip(div.rows())
+            .zip(curl.rows())
+        {
+            for ((z, &d), &c) in row.iter_mut().zip(&dr).zip(&cr) {
+                *z = Complex64::new(d, c);
             }
             row[self.nx..].fill(Complex64::default());
         }
         self.convolve_rows(ws);
         let rows = &ws.rows[..self.ny * self.px];
-        for (y, row) in rows.chunks_exact(self.px).enumerate() {
-            for x in 0..self.nx {
-                d_out[[y, x]] = row[x].re;
-                r_out[[y, x]] = row[x].im;
+        for ((row, mut dr), mut rr) in rows
+            .chunks_exact(self.px)
+            .zip(d_out.rows_mut())
+            .zip(r_out.rows_mut())
+        {
+            for ((z, d), r) in row.iter().zip(&mut dr).zip(&mut rr) {
+                *d = z.re;
+                *r = z.im;
             }
         }
         Ok(())
