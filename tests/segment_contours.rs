@@ -103,13 +103,7 @@ fn shapes() -> impl Strategy<Value = Array2<u8>> {
                     for xx in x..(x + rw).min(w) {
                         let border = yy == y || xx == x || yy + 1 == y + rh || xx + 1 == x + rw;
                         // Rings toggle so that rings inside rings make islands in holes.
-                        if !ring {
-                            m[[yy, xx]] = 1;
-                        } else if border {
-                            m[[yy, xx]] = 1;
-                        } else {
-                            m[[yy, xx]] = 0;
-                        }
+                        m[[yy, xx]] = (!ring || border) as u8;
                     }
                 }
             }
