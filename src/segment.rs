@@ -1,1 +1,619 @@
-//! Cutting a flow into contact patches.
+//! Cutting a flow into contact patches (SPEC.md step 5, the paper's
+//! "Thresholds" section).
+//!
+//! [`Segmenter::segment`]: `|flow|` → threshold → binary mask → erode (drops
+//! specks smaller than the kernel) → dilate (restores the region, joins what
+//! erosion split) → **external** contours only → one bounding box per contour
+//! → discard boxes whose summed `|flow|` is below a second threshold → grow the
+//! boxes by a margin, clamp them to the image, merge the ones that overlap →
+//! [`ContactPatch`]es, each a box over the **unmodified** flow.
+//!
+//! ## Units and scale
+//! [`Thresholds`] are stated for the **full-resolution** image (pixels of the
+//! cropped camera frame), so one preset serves any pyramid level. A flow at
+//! `scale` `s` (its width over the full-resolution width, e.g. `0.25` for
+//! DIS's native level 2) is in its own pixels, so on it:
+//! - the magnitude threshold is `magnitude * s` (displacements shrink by `s`);
+//! - the summed threshold is `sum * s^3` (`s` for each displacement, `s^2` for
+//!   the number of pixels summed);
+//! - kernel sizes and the margin are `size * s`, rounded to the nearest odd
+//!   size (kernels, at least 1) or integer (margin).
+//!
+//! ## Boxes that overlap, and the image border
+//! - A box grown by the margin is clamped to the image: a contact at the edge
+//!   yields a smaller patch, never an error.
+//! - Boxes that share at least one pixel after the margin are merged into
+//!   their union box, repeatedly until no two overlap: one patch per group.
+//!   The nHHD of a patch assumes one contact in it, and two overlapping boxes
+//!   would count the shared flow twice. Boxes that only touch stay apart.
+//! - The summed `|flow|` test is made on each contour's own box (before the
+//!   margin), as in the paper; a merged patch reports the sum over its final box.
+
+use ndarray::ArrayView2;
+
+use crate::contours::{BoundingBox, ContourFinder};
+use crate::error::{Error, Result};
+use crate::flow::FlowField;
+use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
+
+/// Segmentation thresholds and kernels, in **full-resolution** pixels (see
+/// the module docs for how they scale).
+///
+/// The presets [`Thresholds::LOW`], [`Thresholds::MID`] and
+/// [`Thresholds::HIGH`] are **provisional**: reasoned from the reference
+/// geometry (a 1600 x 200 px crop of a 320 x 40 mm skin, about 5 px/mm; DIS
+/// noise at rest of about 0.1-0.2 px; a 0.5-1 N press moving markers by a
+/// few pixels over a region 10-20 mm across), not yet tuned on the simulator.
+/// Their targets (paper): minimum detectable force below 0.5 N, 0.5-1 N and
+/// 1-1.5 N, with no false contact at rest.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Thresholds {
+    /// Per-pixel `|flow|` above which a pixel belongs to the mask, in
+    /// full-resolution pixels.
+    pub magnitude: f32,
+    /// Minimum summed `|flow|` over a contour's box for it to count as a
+    /// contact, in full-resolution pixels (displacement) summed over
+    /// full-resolution pixels.
+    pub sum: f32,
+    /// Erosion kernel size (square), full-resolution pixels.
+    pub erode: usize,
+    /// Dilation kernel size (square), full-resolution pixels.
+    pub dilate: usize,
+    /// Kernel shape for both.
+    pub shape: Shape,
+}
+
+impl Thresholds {
+    /// Low thresholds: the most sensitive (target: minimum detectable force
+    /// below 0.5 N). **Provisional**, not yet tuned on the simulator.
+    pub const LOW: Thresholds = Thresholds {
+        magnitude: 0.5,
+        sum: 600.0,
+        erode: 5,
+        dilate: 15,
+        shape: Shape::Rect,
+    };
+
+    /// Mid thresholds (target: minimum detectable force 0.5-1 N).
+    /// **Provisional**, not yet tuned on the simulator.
+    pub const MID: Thresholds = Thresholds {
+        magnitude: 0.8,
+        sum: 2000.0,
+        erode: 9,
+        dilate: 21,
+        shape: Shape::Rect,
+    };
+
+    /// High thresholds, the paper's choice in flight (target: minimum
+    /// detectable force 1-1.5 N, robust to vibration). **Provisional**, not
+    /// yet tuned on the simulator.
+    pub const HIGH: Thresholds = Thresholds {
+        magnitude: 1.2,
+        sum: 5000.0,
+        erode: 13,
+        dilate: 25,
+        shape: Shape::Rect,
+    };
+
+    /// Errors unless the thresholds are finite and non-negative and the
+    /// kernels at least 1.
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [("magnitude", self.magnitude), ("sum", self.sum)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::param(
+                    format!("thresholds.{name}"),
+                    format!("must be finite and >= 0, got {v}"),
+                ));
+            }
+        }
+        for (name, k) in [("erode", self.erode), ("dilate", self.dilate)] {
+            if k == 0 {
+                return Err(Error::param(
+                    format!("thresholds.{name}"),
+                    "kernel size must be >= 1",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The thresholds for a flow at `scale` (its width over the full-resolution
+    /// width), in that flow's pixels.
+    pub fn at_scale(&self, scale: f32) -> Result<ScaledThresholds> {
+        self.validate()?;
+        check_scale(scale)?;
+        let s = scale as f64;
+        Ok(ScaledThresholds {
+            magnitude: (self.magnitude as f64 * s) as f32,
+            sum: self.sum as f64 * s * s * s,
+            erode: StructuringElement::new(self.shape, odd(self.erode, s), odd(self.erode, s)),
+            dilate: StructuringElement::new(self.shape, odd(self.dilate, s), odd(self.dilate, s)),
+        })
+    }
+
+    /// Thresholds derived from the noise floor of flows recorded **without
+    /// contact** (beyond the paper).
+    ///
+    /// `flows` are rest flows at `options.scale`; kernels and shape come from
+    /// `options.kernels`. Method:
+    /// 1. `magnitude` = the `pixel_quantile` quantile of all per-pixel
+    ///    `|flow|`, times `headroom`: a fraction `1 - pixel_quantile` of noise
+    ///    pixels pass, and the erosion removes those specks.
+    /// 2. For each frame, the statistic a false contact would have to beat:
+    ///    the larger of (a) the largest summed `|flow|` of any box the
+    ///    segmentation finds with that magnitude threshold and no sum
+    ///    threshold, and (b) the largest summed `|flow|` of any window of the
+    ///    dilation kernel's size (the smallest box a surviving blob can
+    ///    have), so that the sum threshold also guards frames noisier than the
+    ///    ones recorded.
+    /// 3. `sum` = the `k`-th smallest of those per-frame statistics with
+    ///    `k = ceil((1 - false_contact_rate) n)`, times `headroom`: on frames
+    ///    like the recorded ones, at most a fraction `false_contact_rate`
+    ///    exceeds it.
+    ///
+    /// Errors: no flows, flows of different sizes or with non-finite values,
+    /// parameters out of range, or fewer than `ceil(1 / false_contact_rate)`
+    /// flows (too few to estimate that rate).
+    pub fn from_rest(flows: &[FlowField], options: &RestOptions) -> Result<Thresholds> {
+        let rate = options.false_contact_rate;
+        if !(rate > 0.0 && rate < 1.0) {
+            return Err(Error::param(
+                "false_contact_rate",
+                format!("must be in (0, 1), got {rate}"),
+            ));
+        }
+        let q = options.pixel_quantile;
+        if !(q > 0.0 && q < 1.0) {
+            return Err(Error::param(
+                "pixel_quantile",
+                format!("must be in (0, 1), got {q}"),
+            ));
+        }
+        if !(options.headroom.is_finite() && options.headroom >= 1.0) {
+            return Err(Error::param(
+                "headroom",
+                format!("must be finite and >= 1, got {}", options.headroom),
+            ));
+        }
+        let mut base = options.kernels;
+        base.magnitude = 0.0;
+        base.sum = 0.0;
+        let scaled = base.at_scale(options.scale)?;
+        let needed = (1.0 / rate).ceil() as usize;
+        if flows.len() < needed {
+            return Err(Error::param(
+                "false_contact_rate",
+                format!(
+                    "a rate of {rate} needs at least {needed} rest flows, got {}",
+                    flows.len()
+                ),
+            ));
+        }
+        let size = flows[0].size();
+        for f in flows {
+            check_flow(f)?;
+            if f.size() != size {
+                return Err(Error::shape("rest flow", size, f.size()));
+            }
+        }
+        // 1. Per-pixel quantile.
+        let mut mags: Vec<f32> = Vec::with_capacity(size.0 * size.1 * flows.len());
+        for f in flows {
+            mags.extend(f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)));
+        }
+        let k = ((q * mags.len() as f64).ceil() as usize).clamp(1, mags.len()) - 1;
+        let (_, &mut qv, _) = mags.select_nth_unstable_by(k, f32::total_cmp);
+        let mag_level = qv * options.headroom;
+        drop(mags);
+        // 2. Per-frame statistics.
+        let s = options.scale as f64;
+        let mut seg = Segmenter::new(SegmenterConfig {
+            thresholds: Thresholds {
+                magnitude: (mag_level as f64 / s) as f32,
+                sum: 0.0,
+                ..base
+            },
+            margin: 0,
+            scale: options.scale,
+        })?;
+        let win = scaled.dilate.width.min(size.0).min(size.1).max(1);
+        let mut integral = Vec::new();
+        let mut stats = Vec::with_capacity(flows.len());
+        let mut patches = Vec::new();
+        for f in flows {
+            seg.segment_into(f, &mut patches)?;
+            let boxes = seg.contour_sums.iter().copied().fold(0.0f64, f64::max);
+            let windows = max_window_sum(f, win, &mut integral);
+            stats.push(boxes.max(windows));
+        }
+        // 3. Order statistic.
+        stats.sort_by(f64::total_cmp);
+        let k = (((1.0 - rate) * stats.len() as f64).ceil() as usize).clamp(1, stats.len()) - 1;
+        let sum_level = stats[k] * options.headroom as f64;
+        Ok(Thresholds {
+            magnitude: (mag_level as f64 / s) as f32,
+            sum: (sum_level / (s * s * s)) as f32,
+            ..base
+        })
+    }
+}
+
+/// Options of [`Thresholds::from_rest`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RestOptions {
+    /// Accepted fraction of rest frames with a false contact, in (0, 1).
+    pub false_contact_rate: f64,
+    /// Quantile of the per-pixel `|flow|` used as the magnitude threshold, in
+    /// (0, 1).
+    pub pixel_quantile: f64,
+    /// Factor (>= 1) applied to both measured thresholds, for rest frames
+    /// noisier than the recorded ones.
+    pub headroom: f32,
+    /// Scale of the given flows (their width over the full-resolution width).
+    pub scale: f32,
+    /// Kernels and shape to use (its `magnitude` and `sum` are ignored).
+    pub kernels: Thresholds,
+}
+
+impl Default for RestOptions {
+    fn default() -> Self {
+        RestOptions {
+            false_contact_rate: 0.01,
+            pixel_quantile: 0.999,
+            headroom: 1.25,
+            scale: 1.0,
+            kernels: Thresholds::MID,
+        }
+    }
+}
+
+/// [`Thresholds`] converted to one flow scale, in that flow's pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScaledThresholds {
+    /// Per-pixel `|flow|` threshold.
+    pub magnitude: f32,
+    /// Summed `|flow|` threshold.
+    pub sum: f64,
+    /// Erosion element.
+    pub erode: StructuringElement,
+    /// Dilation element.
+    pub dilate: StructuringElement,
+}
+
+/// Configuration of a [`Segmenter`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SegmenterConfig {
+    /// Thresholds and kernels (full-resolution pixels).
+    pub thresholds: Thresholds,
+    /// Margin added around each box so that a patch holds its whole
+    /// deformation, full-resolution pixels (scaled like the kernels).
+    pub margin: usize,
+    /// Scale of the flows to segment: their width over the full-resolution
+    /// width (1 for full resolution, 0.25 for DIS's level-2 native flow).
+    pub scale: f32,
+}
+
+impl Default for SegmenterConfig {
+    /// [`Thresholds::HIGH`] (the paper's flight setting), a 10 px margin,
+    /// full resolution.
+    fn default() -> Self {
+        SegmenterConfig {
+            thresholds: Thresholds::HIGH,
+            margin: 10,
+            scale: 1.0,
+        }
+    }
+}
+
+/// One contact patch: a box over the unmodified flow.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactPatch {
+    /// The patch: contour box(es) grown by the margin, clamped, merged.
+    pub bbox: BoundingBox,
+    /// Union of the contour boxes it came from (before the margin).
+    pub core: BoundingBox,
+    /// Summed `|flow|` over `bbox`, in the flow's pixels.
+    pub flow_sum: f64,
+    /// Number of mask pixels (after erosion and dilation) inside `bbox`.
+    pub area: usize,
+}
+
+impl ContactPatch {
+    /// Views `(u, v)` of the patch's sub-flow in `flow` (the flow it was cut
+    /// from, unmodified). Errors if the box does not fit `flow`.
+    pub fn view<'a>(
+        &self,
+        flow: &'a FlowField,
+    ) -> Result<(ArrayView2<'a, f32>, ArrayView2<'a, f32>)> {
+        let b = self.bbox;
+        flow.window(b.x, b.y, b.width, b.height)
+    }
+
+    /// The patch's sub-flow as an owned [`FlowField`].
+    pub fn sub_flow(&self, flow: &FlowField) -> Result<FlowField> {
+        let (u, v) = self.view(flow)?;
+        Ok(FlowField {
+            u: u.to_owned(),
+            v: v.to_owned(),
+        })
+    }
+}
+
+/// Reusable segmenter: built once for a configuration, called per flow; its
+/// buffers are kept so that nothing but the output list is allocated per
+/// frame once they have grown.
+#[derive(Debug, Clone)]
+pub struct Segmenter {
+    config: SegmenterConfig,
+    scaled: ScaledThresholds,
+    margin: usize,
+    morph: Morphology,
+    contours: ContourFinder,
+    raw: Mask,
+    eroded: Mask,
+    mask: Mask,
+    boxes: Vec<BoundingBox>,
+    /// Summed |flow| of every contour box of the last call (before the sum test).
+    contour_sums: Vec<f64>,
+    merged: Vec<(BoundingBox, BoundingBox)>,
+}
+
+impl Segmenter {
+    /// A segmenter for `config`. Errors on invalid thresholds or scale.
+    pub fn new(config: SegmenterConfig) -> Result<Self> {
+        let scaled = config.thresholds.at_scale(config.scale)?;
+        Ok(Segmenter {
+            config,
+            scaled,
+            margin: (config.margin as f64 * config.scale as f64).round() as usize,
+            morph: Morphology::new(),
+            contours: ContourFinder::new(),
+            raw: Mask::default(),
+            eroded: Mask::default(),
+            mask: Mask::default(),
+            boxes: Vec::new(),
+            contour_sums: Vec::new(),
+            merged: Vec::new(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SegmenterConfig {
+        &self.config
+    }
+
+    /// The thresholds in the flow's pixels.
+    pub fn scaled(&self) -> &ScaledThresholds {
+        &self.scaled
+    }
+
+    /// The mask of the last call after erosion and dilation (for display).
+    pub fn mask(&self) -> &Mask {
+        &self.mask
+    }
+
+    /// The external contours' boxes of the last call, before the sum test.
+    pub fn contour_boxes(&self) -> &[BoundingBox] {
+        &self.boxes
+    }
+
+    /// The summed `|flow|` of each of [`Segmenter::contour_boxes`].
+    pub fn contour_sums(&self) -> &[f64] {
+        &self.contour_sums
+    }
+
+    /// The contact patches of `flow` (see the module docs).
+    ///
+    /// Errors: an empty flow ([`Error::TooSmall`]), planes of different
+    /// shapes ([`Error::ShapeMismatch`]), NaN or infinite values
+    /// ([`Error::NonFinite`]).
+    pub fn segment(&mut self, flow: &FlowField) -> Result<Vec<ContactPatch>> {
+        let mut out = Vec::new();
+        self.segment_into(flow, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Segmenter::segment`] into `out` (cleared first), reusing its allocation.
+    pub fn segment_into(&mut self, flow: &FlowField, out: &mut Vec<ContactPatch>) -> Result<()> {
+        out.clear();
+        check_flow(flow)?;
+        let (w, h) = flow.size();
+        let st = self.scaled;
+        self.raw.threshold_flow_into(flow, st.magnitude)?;
+        self.morph
+            .erode(&self.raw, &mut self.eroded, &st.erode, 1)?;
+        self.morph
+            .dilate(&self.eroded, &mut self.mask, &st.dilate, 1)?;
+        self.contours.external_boxes(&self.mask, &mut self.boxes);
+        self.contour_sums.clear();
+        self.merged.clear();
+        for b in &self.boxes {
+            let s = box_sum(flow, b);
+            self.contour_sums.push(s);
+            if s >= st.sum {
+                self.merged.push((b.expand(self.margin, w, h), *b));
+            }
+        }
+        // Merge overlapping grown boxes until none overlap (few boxes: O(n^2)
+        // per pass is cheap).
+        let mut changed = true;
+        while changed {
+            changed = false;
+            'outer: for i in 0..self.merged.len() {
+                for j in i + 1..self.merged.len() {
+                    if self.merged[i].0.intersects(&self.merged[j].0) {
+                        let (bj, cj) = self.merged.swap_remove(j);
+                        let (bi, ci) = self.merged[i];
+                        self.merged[i] = (bi.union(&bj), ci.union(&cj));
+                        changed = true;
+                        break 'outer;
+                    }
+                }
+            }
+        }
+        self.merged.sort_by_key(|(b, _)| (b.y, b.x));
+        for &(bbox, core) in &self.merged {
+            out.push(ContactPatch {
+                bbox,
+                core,
+                flow_sum: box_sum(flow, &bbox),
+                area: self
+                    .mask
+                    .count_ones_in(bbox.x, bbox.y, bbox.x_end(), bbox.y_end()),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Nearest odd size to `size * s`, at least 1.
+fn odd(size: usize, s: f64) -> usize {
+    let v = size as f64 * s;
+    ((((v - 1.0) / 2.0).round().max(0.0)) as usize) * 2 + 1
+}
+
+fn check_scale(scale: f32) -> Result<()> {
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(Error::param(
+            "scale",
+            format!("must be finite and > 0, got {scale}"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_flow(flow: &FlowField) -> Result<()> {
+    if flow.u.dim() != flow.v.dim() {
+        return Err(Error::shape(
+            "flow planes (v against u)",
+            (flow.u.ncols(), flow.u.nrows()),
+            (flow.v.ncols(), flow.v.nrows()),
+        ));
+    }
+    let (w, h) = flow.size();
+    if w == 0 || h == 0 {
+        return Err(Error::TooSmall {
+            what: "flow to segment".into(),
+            width: w,
+            height: h,
+            min_w: 1,
+            min_h: 1,
+        });
+    }
+    Ok(())
+}
+
+/// Sum of `|flow|` over a box (f64 accumulation).
+fn box_sum(flow: &FlowField, b: &BoundingBox) -> f64 {
+    let mut s = 0.0f64;
+    for y in b.y..b.y_end() {
+        let (u, v) = (flow.u.row(y), flow.v.row(y));
+        let mut row = 0.0f32;
+        for x in b.x..b.x_end() {
+            row += u[x].hypot(v[x]);
+        }
+        s += row as f64;
+    }
+    s
+}
+
+/// Largest sum of `|flow|` over any `k x k` window (integral image).
+fn max_window_sum(flow: &FlowField, k: usize, integral: &mut Vec<f64>) -> f64 {
+    let (w, h) = flow.size();
+    let k = k.min(w).min(h);
+    let iw = w + 1;
+    integral.clear();
+    integral.resize(iw * (h + 1), 0.0);
+    for y in 0..h {
+        let mut row = 0.0f64;
+        for x in 0..w {
+            row += flow.u[[y, x]].hypot(flow.v[[y, x]]) as f64;
+            integral[(y + 1) * iw + x + 1] = integral[y * iw + x + 1] + row;
+        }
+    }
+    let mut best = 0.0f64;
+    for y in 0..=h - k {
+        for x in 0..=w - k {
+            let s = integral[(y + k) * iw + x + k]
+                - integral[y * iw + x + k]
+                - integral[(y + k) * iw + x]
+                + integral[y * iw + x];
+            best = best.max(s);
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn odd_sizes() {
+        assert_eq!(odd(13, 0.25), 3);
+        assert_eq!(odd(5, 0.25), 1);
+        assert_eq!(odd(25, 0.25), 7);
+        assert_eq!(odd(21, 1.0), 21);
+        assert_eq!(odd(1, 0.01), 1);
+    }
+
+    #[test]
+    fn scaling_of_the_thresholds() {
+        let t = Thresholds::HIGH.at_scale(0.25).unwrap();
+        assert!((t.magnitude - 0.3).abs() < 1e-6);
+        assert!((t.sum - 5000.0 / 64.0).abs() < 1e-9);
+        assert_eq!(t.erode, StructuringElement::rect(3, 3));
+        assert!(Thresholds::HIGH.at_scale(0.0).is_err());
+        assert!(Thresholds::HIGH.at_scale(f32::NAN).is_err());
+        let bad = Thresholds {
+            sum: -1.0,
+            ..Thresholds::LOW
+        };
+        assert!(bad.validate().is_err());
+        let bad = Thresholds {
+            erode: 0,
+            ..Thresholds::LOW
+        };
+        assert!(
+            Segmenter::new(SegmenterConfig {
+                thresholds: bad,
+                ..Default::default()
+            })
+            .is_err()
+        );
+    }
+
+    #[test]
+    fn presets_are_ordered() {
+        for (a, b) in [
+            (Thresholds::LOW, Thresholds::MID),
+            (Thresholds::MID, Thresholds::HIGH),
+        ] {
+            assert!(a.magnitude < b.magnitude && a.sum < b.sum && a.erode <= b.erode);
+        }
+    }
+
+    #[test]
+    fn window_sum_matches_brute_force() {
+        let mut f = FlowField::zeros(7, 5);
+        for y in 0..5 {
+            for x in 0..7 {
+                f.u[[y, x]] = ((x * 3 + y * 5) % 7) as f32;
+                f.v[[y, x]] = ((x + y) % 3) as f32 - 1.0;
+            }
+        }
+        let mut buf = Vec::new();
+        for k in 1..=5 {
+            let mut best = 0.0f64;
+            for y in 0..=5 - k {
+                for x in 0..=7 - k {
+                    best = best.max(box_sum(&f, &BoundingBox::new(x, y, k, k)));
+                }
+            }
+            assert!(
+                (max_window_sum(&f, k, &mut buf) - best).abs() < 1e-4,
+                "k {k}"
+            );
+        }
+    }
+}
