@@ -498,9 +498,11 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
                 let fy = y - y0 as f32;
                 let r0 = &i1[y0 * w + x0..][..2];
                 let r1 = &i1[(y0 + 1) * w + x0..][..2];
-                let top = r0[0] + fx * (r0[1] - r0[0]);
-                let bot = r1[0] + fx * (r1[1] - r1[0]);
-                row[j] = top + fy * (bot - top);
+                // Weighted form (not `a + f * (b - a)`): exact at f = 0 and f = 1, so a
+                // zero flow reproduces the image bit for bit.
+                let top = (1.0 - fx) * r0[0] + fx * r0[1];
+                let bot = (1.0 - fx) * r1[0] + fx * r1[1];
+                row[j] = (1.0 - fy) * top + fy * bot;
             }
         });
 }
