@@ -1,1 +1,963 @@
-//! Dense Inverse Search (Kroeger et al. 2016) optical flow.
+//! Dense Inverse Search (Kroeger et al., ECCV 2016) optical flow.
+//!
+//! [`Dis`] is a planner: [`Dis::set_reference`] computes everything that
+//! depends only on the reference frame (pyramid, Sobel gradients, the patch
+//! grid, each patch's mean-normalized structure tensor and its inverse), and
+//! [`Dis::compute_into`] then estimates the flow from the reference to a
+//! current frame without allocating. The flow maps reference pixels to the
+//! current frame: `cur(x + u, y + v) ≈ ref(x, y)`.
+//!
+//! Per pyramid level, from the coarsest to the finest computed scale:
+//! 1. each patch (a `patch_size` square every `patch_stride` pixels) starts
+//!    from the coarser level's dense flow at its centre;
+//! 2. two passes of inverse-compositional Gauss-Newton descent on the
+//!    mean-normalized SSD, with spatial propagation from the already-visited
+//!    neighbours (forward: left/up; backward: right/down) inside fixed stripes
+//!    of patch rows, so the result never depends on the thread count;
+//! 3. densification: every pixel averages the vectors of the patches covering
+//!    it, weighted by `1 / max(1, |cur(x + u) - ref(x)|)`;
+//!
+//! and the finest level's flow is bilinearly resized to full resolution.
+//!
+//! The `Ultrafast`, `Fast` and `Medium` presets use OpenCV 5's values; the
+//! `Accurate` preset fixes what makes OpenCV's DIS weak on marker images
+//! (see [`DisPreset::Accurate`]).
+
+use ndarray::ArrayRef2;
+use rayon::prelude::*;
+
+use super::FlowField;
+use super::pyramid::{self, ResizeAxis};
+use crate::error::{Error, Result};
+
+/// Largest supported patch side (keeps the per-patch scratch on the stack).
+pub const MAX_PATCH_SIZE: usize = 32;
+
+/// Named parameter sets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DisPreset {
+    /// OpenCV 5 `PRESET_ULTRAFAST`: scale 2, 8/4 patches, 12 descent
+    /// iterations, no variational refinement.
+    Ultrafast,
+    /// OpenCV 5 `PRESET_FAST` (the paper's default): scale 2, 8/4 patches,
+    /// 16 descent iterations.
+    Fast,
+    /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent iterations.
+    Medium,
+    /// Our marker-image preset: true Gauss-Newton steps (Sobel normalized
+    /// to the true derivative, so each step solves the linearized problem
+    /// instead of moving 1/8 of the way) and the finest scale 1, which avoids
+    /// the sub-pixel bias of 1-px markers shrunk to dots at scale 2.
+    Accurate,
+}
+
+impl DisPreset {
+    /// Parses `ultrafast`, `fast`, `medium`, `accurate` (case-insensitive).
+    pub fn parse(name: &str) -> Result<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "ultrafast" => Ok(DisPreset::Ultrafast),
+            "fast" => Ok(DisPreset::Fast),
+            "medium" => Ok(DisPreset::Medium),
+            "accurate" => Ok(DisPreset::Accurate),
+            _ => Err(Error::param(
+                "preset",
+                format!("unknown DIS preset `{name}` (ultrafast, fast, medium, accurate)"),
+            )),
+        }
+    }
+
+    /// Lower-case name, as accepted by [`DisPreset::parse`].
+    pub fn name(self) -> &'static str {
+        match self {
+            DisPreset::Ultrafast => "ultrafast",
+            DisPreset::Fast => "fast",
+            DisPreset::Medium => "medium",
+            DisPreset::Accurate => "accurate",
+        }
+    }
+
+    /// All presets, fastest first.
+    pub const ALL: [DisPreset; 4] = [
+        DisPreset::Ultrafast,
+        DisPreset::Fast,
+        DisPreset::Medium,
+        DisPreset::Accurate,
+    ];
+}
+
+/// Every DIS parameter. Start from [`DisParams::preset`] and change fields.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DisParams {
+    /// Finest pyramid scale the patches are searched at (0 = full
+    /// resolution); the flow is upsampled from there by `2^finest_scale`.
+    pub finest_scale: usize,
+    /// Coarsest scale; `None` picks OpenCV's
+    /// `min(round(log2(max(W,H) / (4 patch))), floor(log2(min(W,H) / patch)))`.
+    pub coarsest_scale: Option<usize>,
+    /// Patch side in pixels (2..=[`MAX_PATCH_SIZE`]).
+    pub patch_size: usize,
+    /// Distance between patch corners (1..=patch_size).
+    pub patch_stride: usize,
+    /// Gradient-descent iterations per patch, split over the two passes.
+    pub gradient_descent_iterations: usize,
+    /// Subtract the patch mean of the residual (robust to brightness change).
+    pub mean_normalization: bool,
+    /// Let each patch try its already-visited neighbours' vectors first.
+    pub spatial_propagation: bool,
+    /// Scale the Sobel gradients to the true derivative (divide by 8), making
+    /// each descent step a full Gauss-Newton step. `false` reproduces OpenCV,
+    /// whose un-normalized Sobel gives steps of about 1/8 of that.
+    pub normalized_gradients: bool,
+    /// Gaussian prefilter (standard deviation in level pixels, 0 = off)
+    /// applied to both images at every level before the search. Markers of
+    /// ~1 px sigma are sub-pixel dots after the area averaging; a light blur
+    /// makes the Sobel gradient match the bilinear cost surface, which
+    /// removes the sub-pixel bias of un-filtered DIS.
+    pub prefilter_sigma: f32,
+    /// On a cost increase, halve the step back towards the last better
+    /// vector and retry (within the iteration budget) instead of stopping.
+    /// `false` stops there, as OpenCV does.
+    pub backtracking: bool,
+    /// Fixed number of stripes of patch rows that propagation does not cross
+    /// (the unit of parallel work; results do not depend on thread count).
+    pub stripes: usize,
+}
+
+impl DisParams {
+    /// The parameters of a preset.
+    pub fn preset(preset: DisPreset) -> Self {
+        let base = DisParams {
+            finest_scale: 2,
+            coarsest_scale: None,
+            patch_size: 8,
+            patch_stride: 4,
+            gradient_descent_iterations: 16,
+            mean_normalization: true,
+            spatial_propagation: true,
+            normalized_gradients: false,
+            prefilter_sigma: 0.0,
+            backtracking: false,
+            stripes: 8,
+        };
+        match preset {
+            DisPreset::Ultrafast => DisParams {
+                gradient_descent_iterations: 12,
+                ..base
+            },
+            DisPreset::Fast => base,
+            DisPreset::Medium => DisParams {
+                finest_scale: 1,
+                patch_stride: 3,
+                gradient_descent_iterations: 25,
+                ..base
+            },
+            DisPreset::Accurate => DisParams {
+                finest_scale: 1,
+                patch_stride: 4,
+                gradient_descent_iterations: 16,
+                normalized_gradients: true,
+                prefilter_sigma: 0.7,
+                backtracking: true,
+                ..base
+            },
+        }
+    }
+
+    /// Checks every field; [`Error::InvalidParameter`] names the bad one.
+    pub fn validate(&self) -> Result<()> {
+        if !(2..=MAX_PATCH_SIZE).contains(&self.patch_size) {
+            return Err(Error::param(
+                "patch_size",
+                format!("{} is outside 2..={MAX_PATCH_SIZE}", self.patch_size),
+            ));
+        }
+        if self.patch_stride == 0 || self.patch_stride > self.patch_size {
+            return Err(Error::param(
+                "patch_stride",
+                format!(
+                    "{} must be in 1..=patch_size ({}) so patches cover the image",
+                    self.patch_stride, self.patch_size
+                ),
+            ));
+        }
+        if self.finest_scale > 12 {
+            return Err(Error::param(
+                "finest_scale",
+                format!("{} is larger than 12", self.finest_scale),
+            ));
+        }
+        if let Some(c) = self.coarsest_scale
+            && c < self.finest_scale
+        {
+            return Err(Error::param(
+                "coarsest_scale",
+                format!("{c} is finer than finest_scale {}", self.finest_scale),
+            ));
+        }
+        if !(self.prefilter_sigma.is_finite() && (0.0..=8.0).contains(&self.prefilter_sigma)) {
+            return Err(Error::param(
+                "prefilter_sigma",
+                format!("{} is outside 0..=8 px", self.prefilter_sigma),
+            ));
+        }
+        if self.stripes == 0 {
+            return Err(Error::param("stripes", "must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
+impl Default for DisParams {
+    /// The sensor's default, [`DisPreset::Accurate`].
+    fn default() -> Self {
+        DisParams::preset(DisPreset::Accurate)
+    }
+}
+
+/// Reference-only data of one patch: the inverse of its (mean-normalized)
+/// structure tensor and its gradient sums.
+#[derive(Debug, Clone, Copy, Default)]
+struct PatchRef {
+    ih11: f32,
+    ih12: f32,
+    ih22: f32,
+    sgx: f32,
+    sgy: f32,
+}
+
+/// One pyramid level: reference data (fixed) and per-frame buffers.
+#[derive(Debug)]
+struct Level {
+    w: usize,
+    h: usize,
+    /// Reference image and its gradients.
+    i0: Vec<f32>,
+    gx: Vec<f32>,
+    gy: Vec<f32>,
+    /// Current image at this level (per frame).
+    i1: Vec<f32>,
+    /// Scratch for the prefilter.
+    tmp: Vec<f32>,
+    /// Patch grid: corner of patch column `j` / row `i`.
+    px: Vec<u32>,
+    py: Vec<u32>,
+    /// Patches covering column `x`: `jlo[x]..=jhi[x]`; same for rows.
+    jlo: Vec<u32>,
+    jhi: Vec<u32>,
+    ilo: Vec<u32>,
+    ihi: Vec<u32>,
+    patches: Vec<PatchRef>,
+    /// Patch flow vectors (per frame).
+    sx: Vec<f32>,
+    sy: Vec<f32>,
+    /// Dense flow at this level, in this level's pixels.
+    flow: FlowField,
+}
+
+impl Level {
+    fn ws(&self) -> usize {
+        self.px.len()
+    }
+    fn hs(&self) -> usize {
+        self.py.len()
+    }
+}
+
+/// Corners of patches of side `p` every `s` pixels along an axis of `n`
+/// pixels, the last one moved flush with the edge so every pixel is covered.
+fn patch_corners(n: usize, p: usize, s: usize) -> Vec<u32> {
+    let count = (n - p).div_ceil(s) + 1;
+    (0..count).map(|k| (k * s).min(n - p) as u32).collect()
+}
+
+/// For each pixel along an axis, the first and last patch covering it.
+fn coverage(n: usize, p: usize, corners: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    let mut lo = vec![0u32; n];
+    let mut hi = vec![0u32; n];
+    for x in 0..n {
+        let first = corners
+            .iter()
+            .position(|&c| c as usize + p > x)
+            .expect("patches cover the axis");
+        let last = corners
+            .iter()
+            .rposition(|&c| c as usize <= x)
+            .expect("patches cover the axis");
+        lo[x] = first as u32;
+        hi[x] = last as u32;
+    }
+    (lo, hi)
+}
+
+/// Dense Inverse Search optical flow against a fixed reference frame.
+///
+/// ```
+/// use ndarray::Array2;
+/// use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
+///
+/// // A smooth texture and the same texture moved by (+1.5, -0.5) px.
+/// let tex = |x: f32, y: f32| 128.0 + 60.0 * (0.31 * x).sin() * (0.23 * y).cos()
+///     + 40.0 * (0.17 * x + 0.11 * y).sin();
+/// let (w, h) = (128, 96);
+/// let reference = Array2::from_shape_fn((h, w), |(y, x)| tex(x as f32, y as f32));
+/// let current = Array2::from_shape_fn((h, w), |(y, x)| tex(x as f32 - 1.5, y as f32 + 0.5));
+///
+/// let mut dis = Dis::new(DisParams::preset(DisPreset::Accurate))?;
+/// dis.set_reference(&reference)?;
+/// let flow = dis.compute(&current)?;
+/// assert!((flow.u[[48, 64]] - 1.5).abs() < 0.1);
+/// assert!((flow.v[[48, 64]] + 0.5).abs() < 0.1);
+/// # Ok::<(), optical_tactile::Error>(())
+/// ```
+#[derive(Debug)]
+pub struct Dis {
+    params: DisParams,
+    width: usize,
+    height: usize,
+    /// Levels from finest (`levels[0]`, scale `params.finest_scale`) to coarsest.
+    levels: Vec<Level>,
+    /// Taps from the finest level to full resolution.
+    out_x: ResizeAxis,
+    out_y: ResizeAxis,
+}
+
+impl Dis {
+    /// A planner with the given parameters (checked here).
+    pub fn new(params: DisParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Dis {
+            params,
+            width: 0,
+            height: 0,
+            levels: Vec::new(),
+            out_x: ResizeAxis::default(),
+            out_y: ResizeAxis::default(),
+        })
+    }
+
+    /// A planner for a preset.
+    pub fn with_preset(preset: DisPreset) -> Self {
+        Dis::new(DisParams::preset(preset)).expect("presets are valid")
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &DisParams {
+        &self.params
+    }
+
+    /// `(width, height)` of the reference, `(0, 0)` before one is set.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// The coarsest scale OpenCV would choose for this image size.
+    pub fn auto_coarsest_scale(width: usize, height: usize, patch_size: usize) -> usize {
+        let maxd = width.max(height) as f64;
+        let mind = width.min(height) as f64;
+        let p = patch_size as f64;
+        let a = ((maxd / (4.0 * p)).log2() + 0.5).floor();
+        let b = (mind / p).log2().floor();
+        a.min(b).max(0.0) as usize
+    }
+
+    /// Sets the reference frame and computes everything that depends on it
+    /// alone. Errors on empty images, images too small for the patch size at
+    /// the finest scale, and non-finite pixels.
+    pub fn set_reference(&mut self, reference: &ArrayRef2<f32>) -> Result<()> {
+        let (h, w) = reference.dim();
+        let p = &self.params;
+        let f = 1usize << p.finest_scale;
+        let (min_w, min_h) = (p.patch_size * f, p.patch_size * f);
+        if w < min_w || h < min_h {
+            return Err(Error::TooSmall {
+                what: format!(
+                    "DIS reference (patch {} at scale {})",
+                    p.patch_size, p.finest_scale
+                ),
+                width: w,
+                height: h,
+                min_w,
+                min_h,
+            });
+        }
+        check_finite(reference, "DIS reference")?;
+        let coarsest = p
+            .coarsest_scale
+            .unwrap_or_else(|| Dis::auto_coarsest_scale(w, h, p.patch_size))
+            .max(p.finest_scale);
+        // Never go coarser than a level that still holds one patch.
+        let mut scales = Vec::new();
+        for s in p.finest_scale..=coarsest {
+            let (lw, lh) = pyramid::level_size(w, h, s);
+            if lw < p.patch_size || lh < p.patch_size {
+                break;
+            }
+            scales.push(s);
+        }
+        let full = contiguous(reference);
+        let grad_scale = if p.normalized_gradients { 0.125 } else { 1.0 };
+        let psz = p.patch_size;
+        let stride = p.patch_stride;
+        let mean_norm = p.mean_normalization;
+        let mut levels: Vec<Level> = Vec::with_capacity(scales.len());
+        let mut levels_raw: Vec<Vec<f32>> = Vec::with_capacity(scales.len());
+        for (k, &s) in scales.iter().enumerate() {
+            let (lw, lh) = pyramid::level_size(w, h, s);
+            let mut i0 = vec![0.0f32; lw * lh];
+            if k == 0 {
+                pyramid::downsample_area(&full, w, h, 1 << s, &mut i0);
+            } else {
+                // Coarser levels average the un-filtered finer level.
+                let prev = &levels[k - 1];
+                pyramid::downsample_area(&levels_raw[k - 1], prev.w, prev.h, 2, &mut i0);
+            }
+            levels_raw.push(i0.clone());
+            pyramid::gaussian_blur(&mut i0, lw, lh, p.prefilter_sigma, &mut vec![0.0; lw * lh]);
+            let mut gx = vec![0.0f32; lw * lh];
+            let mut gy = vec![0.0f32; lw * lh];
+            pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy);
+            let px = patch_corners(lw, psz, stride);
+            let py = patch_corners(lh, psz, stride);
+            let (jlo, jhi) = coverage(lw, psz, &px);
+            let (ilo, ihi) = coverage(lh, psz, &py);
+            let ws = px.len();
+            let patches: Vec<PatchRef> = (0..py.len() * ws)
+                .into_par_iter()
+                .map(|idx| {
+                    let (x0, y0) = (px[idx % ws] as usize, py[idx / ws] as usize);
+                    patch_ref(&gx, &gy, lw, x0, y0, psz, mean_norm)
+                })
+                .collect();
+            let n = patches.len();
+            levels.push(Level {
+                w: lw,
+                h: lh,
+                i0,
+                gx,
+                gy,
+                i1: vec![0.0; lw * lh],
+                tmp: vec![0.0; lw * lh],
+                px,
+                py,
+                jlo,
+                jhi,
+                ilo,
+                ihi,
+                patches,
+                sx: vec![0.0; n],
+                sy: vec![0.0; n],
+                flow: FlowField::zeros(lw, lh),
+            });
+        }
+        let (fw, fh) = (levels[0].w, levels[0].h);
+        self.out_x = ResizeAxis::new(fw, w);
+        self.out_y = ResizeAxis::new(fh, h);
+        self.levels = levels;
+        self.width = w;
+        self.height = h;
+        Ok(())
+    }
+
+    /// The flow from the reference to `current`, at full resolution.
+    pub fn compute(&mut self, current: &ArrayRef2<f32>) -> Result<FlowField> {
+        let mut out = FlowField::zeros(self.width, self.height);
+        self.compute_into(current, &mut out)?;
+        Ok(out)
+    }
+
+    /// Like [`Dis::compute`] into a caller-owned flow (resized if its size is
+    /// wrong; in steady state nothing is allocated).
+    pub fn compute_into(&mut self, current: &ArrayRef2<f32>, out: &mut FlowField) -> Result<()> {
+        self.compute_native(current)?;
+        if out.size() != (self.width, self.height) {
+            *out = FlowField::zeros(self.width, self.height);
+        }
+        let lvl = &self.levels[0];
+        let gain = (1usize << self.params.finest_scale) as f32;
+        let (ou, ov) = (
+            out.u.as_slice_mut().expect("standard layout"),
+            out.v.as_slice_mut().expect("standard layout"),
+        );
+        let (fu, fv) = (
+            lvl.flow.u.as_slice().expect("standard layout"),
+            lvl.flow.v.as_slice().expect("standard layout"),
+        );
+        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, ou);
+        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, ov);
+        Ok(())
+    }
+
+    /// Computes the flow only at its native (finest computed) level; read it
+    /// with [`Dis::native_flow`]. Cheaper than [`Dis::compute_into`] by the
+    /// final upsampling.
+    pub fn compute_native(&mut self, current: &ArrayRef2<f32>) -> Result<()> {
+        if self.levels.is_empty() {
+            return Err(Error::NoReference);
+        }
+        let (h, w) = current.dim();
+        if (w, h) != (self.width, self.height) {
+            return Err(Error::shape(
+                "DIS current frame against the reference",
+                (self.width, self.height),
+                (w, h),
+            ));
+        }
+        self.build_current_pyramid(current)?;
+        let nl = self.levels.len();
+        for k in (0..nl).rev() {
+            let (finer, coarser) = self.levels.split_at_mut(k + 1);
+            let lvl = &mut finer[k];
+            init_patches(lvl, coarser.first(), self.params.patch_size);
+            search_level(lvl, &self.params);
+            densify(lvl, self.params.patch_size);
+        }
+        Ok(())
+    }
+
+    /// The flow at its native level (the finest computed scale) from the last
+    /// compute, in that level's pixels, and the level's scale `2^finest_scale`
+    /// (full-resolution pixels per level pixel). `None` before any compute.
+    pub fn native_flow(&self) -> Option<(&FlowField, usize)> {
+        self.levels
+            .first()
+            .map(|l| (&l.flow, 1usize << self.params.finest_scale))
+    }
+
+    fn build_current_pyramid(&mut self, current: &ArrayRef2<f32>) -> Result<()> {
+        let (w, h) = (self.width, self.height);
+        let f = 1usize << self.params.finest_scale;
+        {
+            let lvl = &mut self.levels[0];
+            match current.as_slice() {
+                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1),
+                None => {
+                    // Non-contiguous view: one copy (rare; not the hot path).
+                    let c = current.as_standard_layout();
+                    let s = c.as_slice().expect("standard layout");
+                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1);
+                }
+            }
+            // The box sums carry any NaN/inf of the pixels they cover; the
+            // margins a box does not cover are checked directly.
+            let bad = lvl.i1.par_iter().any(|v| !v.is_finite())
+                || margins_nonfinite(current, lvl.w * f, lvl.h * f);
+            if bad {
+                check_finite(current, "DIS current frame")?;
+            }
+        }
+        for k in 1..self.levels.len() {
+            let (a, b) = self.levels.split_at_mut(k);
+            let prev = &a[k - 1];
+            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1);
+        }
+        // Filter after the whole pyramid is built: coarser levels average the
+        // un-filtered finer ones, exactly as for the reference.
+        let sigma = self.params.prefilter_sigma;
+        if sigma > 0.0 {
+            for lvl in &mut self.levels {
+                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, sigma, &mut lvl.tmp);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A contiguous copy-or-borrow of an image as a row-major slice.
+fn contiguous(img: &ArrayRef2<f32>) -> std::borrow::Cow<'_, [f32]> {
+    match img.as_slice() {
+        Some(s) => std::borrow::Cow::Borrowed(s),
+        None => std::borrow::Cow::Owned(img.iter().copied().collect()),
+    }
+}
+
+fn check_finite(img: &ArrayRef2<f32>, what: &str) -> Result<()> {
+    let (h, w) = img.dim();
+    if w == 0 || h == 0 {
+        return Err(Error::TooSmall {
+            what: what.to_string(),
+            width: w,
+            height: h,
+            min_w: 1,
+            min_h: 1,
+        });
+    }
+    if let Some(((row, col), _)) = img.indexed_iter().find(|(_, v)| !v.is_finite()) {
+        return Err(Error::NonFinite {
+            what: what.to_string(),
+            row,
+            col,
+        });
+    }
+    Ok(())
+}
+
+/// Whether pixels outside the `cw x ch` top-left block are non-finite.
+fn margins_nonfinite(img: &ArrayRef2<f32>, cw: usize, ch: usize) -> bool {
+    let (h, w) = img.dim();
+    (0..h).any(|y| {
+        let xs = if y < ch { cw } else { 0 };
+        (xs..w).any(|x| !img[[y, x]].is_finite())
+    })
+}
+
+fn patch_ref(
+    gx: &[f32],
+    gy: &[f32],
+    w: usize,
+    x0: usize,
+    y0: usize,
+    psz: usize,
+    mean_norm: bool,
+) -> PatchRef {
+    // Accumulate in f64: sums of 64 squared Sobel values lose digits in f32
+    // after the mean is subtracted.
+    let (mut xx, mut yy, mut xy, mut sx, mut sy) = (0f64, 0f64, 0f64, 0f64, 0f64);
+    for r in 0..psz {
+        let o = (y0 + r) * w + x0;
+        for c in 0..psz {
+            let (a, b) = (gx[o + c] as f64, gy[o + c] as f64);
+            xx += a * a;
+            yy += b * b;
+            xy += a * b;
+            sx += a;
+            sy += b;
+        }
+    }
+    if mean_norm {
+        let n = (psz * psz) as f64;
+        xx -= sx * sx / n;
+        yy -= sy * sy / n;
+        xy -= sx * sy / n;
+    }
+    let det = xx * yy - xy * xy;
+    let tr = xx + yy;
+    // A textureless or edge-only patch has no well-defined 2-D step: leave it
+    // where propagation and the coarser level put it.
+    let (ih11, ih12, ih22) = if tr > 0.0 && det > 1e-6 * tr * tr {
+        (yy / det, -xy / det, xx / det)
+    } else {
+        (0.0, 0.0, 0.0)
+    };
+    PatchRef {
+        ih11: ih11 as f32,
+        ih12: ih12 as f32,
+        ih22: ih22 as f32,
+        sgx: sx as f32,
+        sgy: sy as f32,
+    }
+}
+
+/// Initial patch vectors: the coarser level's dense flow (times 2) at each
+/// patch centre, or zero at the coarsest level.
+fn init_patches(lvl: &mut Level, coarser: Option<&Level>, psz: usize) {
+    let ws = lvl.ws();
+    match coarser {
+        None => {
+            lvl.sx.fill(0.0);
+            lvl.sy.fill(0.0);
+        }
+        Some(c) => {
+            let (cu, cv) = (
+                c.flow.u.as_slice().expect("standard layout"),
+                c.flow.v.as_slice().expect("standard layout"),
+            );
+            let rx = c.w as f32 / lvl.w as f32;
+            let ry = c.h as f32 / lvl.h as f32;
+            let (px, py) = (&lvl.px, &lvl.py);
+            lvl.sx
+                .par_chunks_mut(ws)
+                .zip(lvl.sy.par_chunks_mut(ws))
+                .enumerate()
+                .for_each(|(i, (sxr, syr))| {
+                    let cy = (py[i] as usize + psz / 2) as f32;
+                    let y = (cy + 0.5) * ry - 0.5;
+                    for j in 0..ws {
+                        let cx = (px[j] as usize + psz / 2) as f32;
+                        let x = (cx + 0.5) * rx - 0.5;
+                        sxr[j] = 2.0 * pyramid::sample_clamped(cu, c.w, c.h, x, y);
+                        syr[j] = 2.0 * pyramid::sample_clamped(cv, c.w, c.h, x, y);
+                    }
+                });
+        }
+    }
+}
+
+/// Cost and gradient of one patch at one displacement.
+#[derive(Clone, Copy)]
+struct Eval {
+    ssd: f32,
+    bx: f32,
+    by: f32,
+}
+
+/// Read-only data one patch evaluation needs.
+struct LevelView<'a> {
+    w: usize,
+    h: usize,
+    i0: &'a [f32],
+    gx: &'a [f32],
+    gy: &'a [f32],
+    i1: &'a [f32],
+    psz: usize,
+    mean_norm: bool,
+}
+
+impl LevelView<'_> {
+    /// Mean-normalized SSD between the current image bilinearly sampled at
+    /// the patch moved by `(u, v)` and the reference patch, and the
+    /// residual-weighted gradient sums `b`.
+    #[inline]
+    fn eval(&self, x0: usize, y0: usize, pr: &PatchRef, u: f32, v: f32) -> Eval {
+        let psz = self.psz;
+        let fxp = x0 as f32 + u;
+        let fyp = y0 as f32 + v;
+        let ixf = fxp.floor();
+        let iyf = fyp.floor();
+        let (ax, ay) = (fxp - ixf, fyp - iyf);
+        let w00 = (1.0 - ax) * (1.0 - ay);
+        let w01 = ax * (1.0 - ay);
+        let w10 = (1.0 - ax) * ay;
+        let w11 = ax * ay;
+        // Sample window (psz+1)^2 starting at (ix, iy): direct when inside,
+        // else copied with border replication into a stack buffer.
+        let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
+        let inside = ixf >= 0.0
+            && iyf >= 0.0
+            && ixf + (psz as f32) < self.w as f32
+            && iyf + (psz as f32) < self.h as f32;
+        let (win, stride): (&[f32], usize) = if inside {
+            let o = iyf as usize * self.w + ixf as usize;
+            (&self.i1[o..], self.w)
+        } else {
+            let st = psz + 1;
+            // Clamp in f32 first: a wild vector must not overflow the casts.
+            let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
+            for r in 0..st {
+                let yy = cl(iyf + r as f32, self.h);
+                for c in 0..st {
+                    let xx = cl(ixf + c as f32, self.w);
+                    buf[r * st + c] = self.i1[yy * self.w + xx];
+                }
+            }
+            (&buf[..], st)
+        };
+        // Per-column accumulators keep the inner loop free of a serial
+        // floating-point dependency (vectorizable, and deterministic).
+        let mut ad = [0.0f32; MAX_PATCH_SIZE];
+        let mut ad2 = [0.0f32; MAX_PATCH_SIZE];
+        let mut abx = [0.0f32; MAX_PATCH_SIZE];
+        let mut aby = [0.0f32; MAX_PATCH_SIZE];
+        for r in 0..psz {
+            let a = &win[r * stride..][..psz + 1];
+            let b = &win[(r + 1) * stride..][..psz + 1];
+            let o = (y0 + r) * self.w + x0;
+            let i0r = &self.i0[o..][..psz];
+            let gxr = &self.gx[o..][..psz];
+            let gyr = &self.gy[o..][..psz];
+            for c in 0..psz {
+                let s = w00 * a[c] + w01 * a[c + 1] + w10 * b[c] + w11 * b[c + 1];
+                let d = s - i0r[c];
+                ad[c] += d;
+                ad2[c] += d * d;
+                abx[c] += d * gxr[c];
+                aby[c] += d * gyr[c];
+            }
+        }
+        let (mut sd, mut sd2, mut bx, mut by) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for c in 0..psz {
+            sd += ad[c];
+            sd2 += ad2[c];
+            bx += abx[c];
+            by += aby[c];
+        }
+        if self.mean_norm {
+            let mean = sd / (psz * psz) as f32;
+            bx -= mean * pr.sgx;
+            by -= mean * pr.sgy;
+            sd2 -= sd * mean;
+        }
+        Eval { ssd: sd2, bx, by }
+    }
+}
+
+/// Both propagation passes over all stripes of one level.
+fn search_level(lvl: &mut Level, p: &DisParams) {
+    let ws = lvl.ws();
+    let hs = lvl.hs();
+    let stripe_rows = hs.div_ceil(p.stripes).max(1);
+    let iters = p.gradient_descent_iterations / 2;
+    let view = LevelView {
+        w: lvl.w,
+        h: lvl.h,
+        i0: &lvl.i0,
+        gx: &lvl.gx,
+        gy: &lvl.gy,
+        i1: &lvl.i1,
+        psz: p.patch_size,
+        mean_norm: p.mean_normalization,
+    };
+    let (px, py, patches) = (&lvl.px, &lvl.py, &lvl.patches);
+    lvl.sx
+        .par_chunks_mut(stripe_rows * ws)
+        .zip(lvl.sy.par_chunks_mut(stripe_rows * ws))
+        .enumerate()
+        .for_each(|(k, (sx, sy))| {
+            let i_begin = k * stripe_rows;
+            let rows = sx.len() / ws;
+            for forward in [true, false] {
+                for ii in 0..rows {
+                    let i = if forward { ii } else { rows - 1 - ii };
+                    for jj in 0..ws {
+                        let j = if forward { jj } else { ws - 1 - jj };
+                        let idx = i * ws + j;
+                        let gi = i_begin + i;
+                        let (x0, y0) = (px[j] as usize, py[gi] as usize);
+                        let pr = &patches[gi * ws + j];
+                        let (mut u, mut v) = (sx[idx], sy[idx]);
+                        let mut cur = view.eval(x0, y0, pr, u, v);
+                        if p.spatial_propagation {
+                            let mut try_cand = |n: usize| {
+                                let (cu, cv) = (sx[n], sy[n]);
+                                if cu == u && cv == v {
+                                    return;
+                                }
+                                let e = view.eval(x0, y0, pr, cu, cv);
+                                if e.ssd < cur.ssd {
+                                    (u, v, cur) = (cu, cv, e);
+                                }
+                            };
+                            if forward {
+                                if j > 0 {
+                                    try_cand(idx - 1);
+                                }
+                                if i > 0 {
+                                    try_cand(idx - ws);
+                                }
+                            } else {
+                                if j + 1 < ws {
+                                    try_cand(idx + 1);
+                                }
+                                if i + 1 < rows {
+                                    try_cand(idx + ws);
+                                }
+                            }
+                        }
+                        let (u0, v0) = (u, v);
+                        let mut prev = f32::INFINITY;
+                        let (mut lu, mut lv) = (u, v);
+                        // Whether (u, v) is a halved step not yet evaluated.
+                        let mut halved = false;
+                        for t in 0..iters {
+                            if t > 0 {
+                                cur = view.eval(x0, y0, pr, u, v);
+                            }
+                            // Stop when the cost stops falling; keep the
+                            // last vector that lowered it.
+                            if !(cur.ssd < prev) {
+                                if p.backtracking && t > 0 {
+                                    u = 0.5 * (u + lu);
+                                    v = 0.5 * (v + lv);
+                                    halved = true;
+                                    continue;
+                                }
+                                (u, v) = (lu, lv);
+                                break;
+                            }
+                            prev = cur.ssd;
+                            (lu, lv) = (u, v);
+                            halved = false;
+                            u -= pr.ih11 * cur.bx + pr.ih12 * cur.by;
+                            v -= pr.ih12 * cur.bx + pr.ih22 * cur.by;
+                        }
+                        if halved {
+                            (u, v) = (lu, lv);
+                        }
+                        // A vector that wandered more than a patch away from
+                        // its start is more likely wrong than a large motion.
+                        let du = u - u0;
+                        let dv = v - v0;
+                        let lim = p.patch_size as f32;
+                        if !(du * du + dv * dv <= lim * lim) {
+                            (u, v) = (u0, v0);
+                        }
+                        sx[idx] = u;
+                        sy[idx] = v;
+                    }
+                }
+            }
+        });
+}
+
+/// Dense flow: each pixel averages the vectors of the patches covering it,
+/// weighted by `1 / max(1, |cur(x + u) - ref(x)|)`.
+fn densify(lvl: &mut Level, _psz: usize) {
+    let (w, h, ws) = (lvl.w, lvl.h, lvl.ws());
+    let (i0, i1) = (&lvl.i0, &lvl.i1);
+    let (sx, sy) = (&lvl.sx, &lvl.sy);
+    let (jlo, jhi, ilo, ihi) = (&lvl.jlo, &lvl.jhi, &lvl.ilo, &lvl.ihi);
+    let fu = lvl.flow.u.as_slice_mut().expect("standard layout");
+    let fv = lvl.flow.v.as_slice_mut().expect("standard layout");
+    fu.par_chunks_mut(w)
+        .zip(fv.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (ur, vr))| {
+            let (i_a, i_b) = (ilo[y] as usize, ihi[y] as usize);
+            for x in 0..w {
+                let r = i0[y * w + x];
+                let (mut su, mut sv, mut sw) = (0.0f32, 0.0f32, 0.0f32);
+                for i in i_a..=i_b {
+                    for j in jlo[x] as usize..=jhi[x] as usize {
+                        let (pu, pv) = (sx[i * ws + j], sy[i * ws + j]);
+                        let s = pyramid::sample_clamped(i1, w, h, x as f32 + pu, y as f32 + pv);
+                        let wgt = 1.0 / (s - r).abs().max(1.0);
+                        su += wgt * pu;
+                        sv += wgt * pv;
+                        sw += wgt;
+                    }
+                }
+                ur[x] = su / sw;
+                vr[x] = sv / sw;
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patch_grid_covers_every_pixel() {
+        for (n, p, s) in [(33, 8, 4), (32, 8, 4), (8, 8, 4), (50, 8, 3), (9, 4, 4)] {
+            let c = patch_corners(n, p, s);
+            assert_eq!(*c.last().unwrap() as usize + p, n);
+            let (lo, hi) = coverage(n, p, &c);
+            for x in 0..n {
+                assert!(lo[x] <= hi[x]);
+                for k in lo[x]..=hi[x] {
+                    let c0 = c[k as usize] as usize;
+                    assert!(c0 <= x && x < c0 + p);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn opencv_coarsest_scale() {
+        assert_eq!(Dis::auto_coarsest_scale(1920, 1080, 8), 6);
+        assert_eq!(Dis::auto_coarsest_scale(1600, 240, 8), 4);
+    }
+
+    #[test]
+    fn presets_parse_and_validate() {
+        for p in DisPreset::ALL {
+            assert_eq!(DisPreset::parse(p.name()).unwrap(), p);
+            DisParams::preset(p).validate().unwrap();
+        }
+        assert!(DisPreset::parse("slow").is_err());
+        let bad = DisParams {
+            patch_stride: 9,
+            ..DisParams::preset(DisPreset::Fast)
+        };
+        assert!(matches!(Dis::new(bad), Err(Error::InvalidParameter { .. })));
+    }
+}

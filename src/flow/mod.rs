@@ -4,6 +4,7 @@
 //! image x, i.e. columns) and `v` (along image y, i.e. rows), each of shape
 //! `(height, width)`, in pixels.
 
+pub mod color;
 pub mod dis;
 pub mod pyramid;
 pub mod refine;

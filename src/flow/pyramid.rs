@@ -1,1 +1,349 @@
-//! Area-averaged image pyramids and gradients.
+//! Area-averaged image pyramids, Sobel gradients and bilinear resampling.
+//!
+//! All kernels work on contiguous row-major `f32` slices (`width * height`),
+//! run rows in parallel with rayon, and write into caller-owned buffers so a
+//! planner can reuse them frame after frame. Each output pixel is computed
+//! from its inputs alone, so results do not depend on the thread count.
+
+use rayon::prelude::*;
+
+/// Size of pyramid level `scale` for a `(width, height)` image: integer
+/// division by `2^scale`, as OpenCV's DIS does.
+pub fn level_size(width: usize, height: usize, scale: usize) -> (usize, usize) {
+    (width >> scale, height >> scale)
+}
+
+/// Box-averages `src` (`sw x sh`) by a `factor x factor` area into `dst`
+/// (`sw / factor x sh / factor`, integer division: trailing rows and columns
+/// that do not fill a whole box are dropped, as in OpenCV's `INTER_AREA` at
+/// integer ratios). `factor == 1` is a copy.
+///
+/// Levels stay in `f32` (no 8-bit rounding), so sub-grey-level detail of small
+/// markers survives into the coarse levels.
+pub fn downsample_area(src: &[f32], sw: usize, sh: usize, factor: usize, dst: &mut [f32]) {
+    assert!(factor >= 1);
+    let (dw, dh) = (sw / factor, sh / factor);
+    assert_eq!(src.len(), sw * sh);
+    assert_eq!(dst.len(), dw * dh);
+    if dw == 0 || dh == 0 {
+        return;
+    }
+    if factor == 1 {
+        dst.par_chunks_mut(dw)
+            .zip(src.par_chunks(sw))
+            .for_each(|(d, s)| d.copy_from_slice(&s[..dw]));
+        return;
+    }
+    let norm = 1.0 / (factor * factor) as f32;
+    dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
+        let rows = &src[y * factor * sw..(y + 1) * factor * sw];
+        if factor == 2 {
+            let (r0, r1) = rows.split_at(sw);
+            for (x, d) in drow.iter_mut().enumerate() {
+                let c = 2 * x;
+                *d = (r0[c] + r0[c + 1] + r1[c] + r1[c + 1]) * 0.25;
+            }
+        } else {
+            drow.fill(0.0);
+            for r in rows.chunks_exact(sw) {
+                for (x, d) in drow.iter_mut().enumerate() {
+                    let c = x * factor;
+                    *d += r[c..c + factor].iter().sum::<f32>();
+                }
+            }
+            for d in drow.iter_mut() {
+                *d *= norm;
+            }
+        }
+    });
+}
+
+/// 3x3 Sobel gradients of `img` (`w x h`) into `gx`, `gy`, scaled by `scale`
+/// (`1.0` gives OpenCV's un-normalized Sobel where a unit ramp gives 8;
+/// `0.125` gives the true derivative). Borders are reflected without
+/// repeating the edge pixel (OpenCV's `BORDER_REFLECT_101`).
+pub fn sobel(img: &[f32], w: usize, h: usize, scale: f32, gx: &mut [f32], gy: &mut [f32]) {
+    assert_eq!(img.len(), w * h);
+    assert_eq!(gx.len(), w * h);
+    assert_eq!(gy.len(), w * h);
+    if w == 0 || h == 0 {
+        return;
+    }
+    let refl = |i: isize, n: usize| -> usize {
+        let n = n as isize;
+        if n == 1 {
+            return 0;
+        }
+        let r = if i < 0 {
+            -i
+        } else if i >= n {
+            2 * n - 2 - i
+        } else {
+            i
+        };
+        r as usize
+    };
+    gx.par_chunks_mut(w)
+        .zip(gy.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (gxr, gyr))| {
+            let up = &img[refl(y as isize - 1, h) * w..][..w];
+            let mid = &img[y * w..][..w];
+            let dn = &img[refl(y as isize + 1, h) * w..][..w];
+            for x in 0..w {
+                let l = refl(x as isize - 1, w);
+                let r = refl(x as isize + 1, w);
+                let dx = (up[r] - up[l]) + 2.0 * (mid[r] - mid[l]) + (dn[r] - dn[l]);
+                let dy = (dn[l] - up[l]) + 2.0 * (dn[x] - up[x]) + (dn[r] - up[r]);
+                gxr[x] = dx * scale;
+                gyr[x] = dy * scale;
+            }
+        });
+}
+
+/// Separable Gaussian blur of `img` (`w x h`) in place with standard
+/// deviation `sigma` px (radius `ceil(3 sigma)`, reflect-101 borders), using
+/// `tmp` (same size) as scratch. `sigma <= 0` does nothing.
+pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, sigma: f32, tmp: &mut [f32]) {
+    if sigma <= 0.0 || w == 0 || h == 0 {
+        return;
+    }
+    let rad = (3.0 * sigma).ceil() as isize;
+    let mut k: Vec<f32> = (-rad..=rad)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= sum);
+    let refl = |i: isize, n: usize| -> usize {
+        let n = n as isize;
+        if n == 1 {
+            return 0;
+        }
+        let mut i = i;
+        // Reflect until inside (radius may exceed the size on tiny images).
+        loop {
+            if i < 0 {
+                i = -i;
+            } else if i >= n {
+                i = 2 * n - 2 - i;
+            } else {
+                return i as usize;
+            }
+        }
+    };
+    // Horizontal pass: img -> tmp.
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, trow)| {
+        let row = &img[y * w..][..w];
+        for x in 0..w {
+            let mut acc = 0.0f32;
+            if x as isize >= rad && (x as isize + rad) < w as isize {
+                let base = x - rad as usize;
+                for (t, kv) in k.iter().enumerate() {
+                    acc += kv * row[base + t];
+                }
+            } else {
+                for (t, kv) in k.iter().enumerate() {
+                    acc += kv * row[refl(x as isize + t as isize - rad, w)];
+                }
+            }
+            trow[x] = acc;
+        }
+    });
+    // Vertical pass: tmp -> img.
+    let tmp = &*tmp;
+    img.par_chunks_mut(w).enumerate().for_each(|(y, orow)| {
+        orow.fill(0.0);
+        for (t, kv) in k.iter().enumerate() {
+            let yy = refl(y as isize + t as isize - rad, h);
+            let src = &tmp[yy * w..][..w];
+            for x in 0..w {
+                orow[x] += kv * src[x];
+            }
+        }
+    });
+}
+
+/// Precomputed bilinear taps for resizing one axis from `src_n` to `dst_n`
+/// samples with OpenCV's half-pixel-centre convention
+/// (`src = (dst + 0.5) * src_n / dst_n - 0.5`, clamped to the edge).
+#[derive(Debug, Clone, Default)]
+pub struct ResizeAxis {
+    /// Lower source index of each destination sample.
+    pub i0: Vec<u32>,
+    /// Upper source index (equal to `i0` at the clamped edges).
+    pub i1: Vec<u32>,
+    /// Weight of `i1` (the weight of `i0` is `1 - w`).
+    pub w: Vec<f32>,
+}
+
+impl ResizeAxis {
+    /// Taps for `src_n -> dst_n` (both non-zero).
+    pub fn new(src_n: usize, dst_n: usize) -> Self {
+        let ratio = src_n as f64 / dst_n as f64;
+        let mut a = ResizeAxis {
+            i0: Vec::with_capacity(dst_n),
+            i1: Vec::with_capacity(dst_n),
+            w: Vec::with_capacity(dst_n),
+        };
+        for d in 0..dst_n {
+            let s = ((d as f64 + 0.5) * ratio - 0.5).clamp(0.0, (src_n - 1) as f64);
+            let f = s.floor();
+            let i0 = f as usize;
+            let i1 = (i0 + 1).min(src_n - 1);
+            a.i0.push(i0 as u32);
+            a.i1.push(i1 as u32);
+            a.w.push((s - f) as f32);
+        }
+        a
+    }
+}
+
+/// Bilinear resize of `src` (`sw` columns) into `dst` (`dw` columns) with
+/// precomputed taps, multiplying every value by `gain` (the flow rescaling
+/// when moving between pyramid levels).
+pub fn resize_bilinear(
+    src: &[f32],
+    sw: usize,
+    xs: &ResizeAxis,
+    ys: &ResizeAxis,
+    gain: f32,
+    dst: &mut [f32],
+) {
+    let dw = xs.w.len();
+    assert_eq!(dst.len(), dw * ys.w.len());
+    dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
+        let r0 = &src[ys.i0[y] as usize * sw..][..sw];
+        let r1 = &src[ys.i1[y] as usize * sw..][..sw];
+        let wy = ys.w[y];
+        for x in 0..dw {
+            let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
+            let top = r0[a] + wx * (r0[b] - r0[a]);
+            let bot = r1[a] + wx * (r1[b] - r1[a]);
+            drow[x] = gain * (top + wy * (bot - top));
+        }
+    });
+}
+
+/// Bilinear sample of `img` (`w x h`) at `(x, y)`, clamping to the edge
+/// (border replication). Used where one sample at a time is needed.
+#[inline]
+pub fn sample_clamped(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
+    let xc = x.clamp(0.0, (w - 1) as f32);
+    let yc = y.clamp(0.0, (h - 1) as f32);
+    let x0 = xc.floor();
+    let y0 = yc.floor();
+    let (fx, fy) = (xc - x0, yc - y0);
+    let (x0, y0) = (x0 as usize, y0 as usize);
+    let x1 = (x0 + 1).min(w - 1);
+    let y1 = (y0 + 1).min(h - 1);
+    let top = img[y0 * w + x0] + fx * (img[y0 * w + x1] - img[y0 * w + x0]);
+    let bot = img[y1 * w + x0] + fx * (img[y1 * w + x1] - img[y1 * w + x0]);
+    top + fy * (bot - top)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn area_average_matches_naive_boxes() {
+        let (w, h) = (13, 9);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 101) as f32).collect();
+        for f in 1..=4 {
+            let (dw, dh) = (w / f, h / f);
+            let mut dst = vec![0.0; dw * dh];
+            downsample_area(&src, w, h, f, &mut dst);
+            for y in 0..dh {
+                for x in 0..dw {
+                    let mut s = 0.0f64;
+                    for yy in 0..f {
+                        for xx in 0..f {
+                            s += src[(y * f + yy) * w + x * f + xx] as f64;
+                        }
+                    }
+                    let want = s / (f * f) as f64;
+                    assert!((dst[y * dw + x] as f64 - want).abs() < 1e-3, "f={f}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn blur_matches_naive_convolution_and_keeps_constants() {
+        let (w, h) = (11, 9);
+        let img: Vec<f32> = (0..w * h).map(|i| ((i * 29) % 53) as f32).collect();
+        let mut out = img.clone();
+        let mut tmp = vec![0.0; w * h];
+        let sigma = 0.8f32;
+        gaussian_blur(&mut out, w, h, sigma, &mut tmp);
+        let rad = 3i64;
+        let kern = |i: i64| (-(i * i) as f64 / (2.0 * (sigma as f64).powi(2))).exp();
+        let ksum: f64 = (-rad..=rad).map(kern).sum();
+        let refl = |i: i64, n: i64| {
+            if i < 0 {
+                -i
+            } else if i >= n {
+                2 * n - 2 - i
+            } else {
+                i
+            }
+        };
+        for y in 0..h as i64 {
+            for x in 0..w as i64 {
+                let mut s = 0.0f64;
+                for dy in -rad..=rad {
+                    for dx in -rad..=rad {
+                        let (yy, xx) = (refl(y + dy, h as i64), refl(x + dx, w as i64));
+                        s += kern(dx) * kern(dy) * img[(yy * w as i64 + xx) as usize] as f64;
+                    }
+                }
+                let want = s / (ksum * ksum);
+                assert!((out[(y * w as i64 + x) as usize] as f64 - want).abs() < 1e-3);
+            }
+        }
+        let mut c = vec![7.0f32; w * h];
+        gaussian_blur(&mut c, w, h, 1.5, &mut tmp);
+        assert!(c.iter().all(|v| (v - 7.0).abs() < 1e-4));
+    }
+
+    #[test]
+    fn sobel_of_a_ramp() {
+        let (w, h) = (7, 5);
+        let img: Vec<f32> = (0..w * h).map(|i| (i % w) as f32 * 2.0).collect();
+        let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
+        sobel(&img, w, h, 0.125, &mut gx, &mut gy);
+        for y in 0..h {
+            for x in 1..w - 1 {
+                assert!((gx[y * w + x] - 2.0).abs() < 1e-6);
+                assert!(gy[y * w + x].abs() < 1e-6);
+            }
+            // Reflect-101 makes the edge derivative zero.
+            assert_eq!(gx[y * w], 0.0);
+        }
+        sobel(&img, w, h, 1.0, &mut gx, &mut gy);
+        assert!((gx[2 * w + 3] - 16.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn resize_reproduces_linear_functions_inside() {
+        let (sw, sh) = (10, 6);
+        let src: Vec<f32> = (0..sw * sh)
+            .map(|i| (i % sw) as f32 + 3.0 * (i / sw) as f32)
+            .collect();
+        let (dw, dh) = (20, 12);
+        let xs = ResizeAxis::new(sw, dw);
+        let ys = ResizeAxis::new(sh, dh);
+        let mut dst = vec![0.0; dw * dh];
+        resize_bilinear(&src, sw, &xs, &ys, 2.0, &mut dst);
+        for y in 1..dh - 1 {
+            for x in 1..dw - 1 {
+                let sx = (x as f32 + 0.5) / 2.0 - 0.5;
+                let sy = (y as f32 + 0.5) / 2.0 - 0.5;
+                let want = 2.0 * (sx + 3.0 * sy);
+                assert!((dst[y * dw + x] - want).abs() < 1e-4);
+                let s = sample_clamped(&src, sw, sh, sx, sy);
+                assert!((2.0 * s - want).abs() < 1e-4);
+            }
+        }
+    }
+}

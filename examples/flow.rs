@@ -1,0 +1,250 @@
+//! Dense optical flow between two images with our DIS.
+//!
+//! ```text
+//! cargo run --release --example flow -- REF.png CUR.png [--preset P] [--threads N]
+//!     [--repeat N] --out flow.flo [--png flow.png] [--truth truth.flo]
+//!     [--set name=value ...]
+//! cargo run --release --example flow -- synth OUTDIR [--size WxH] [--max-disp D]
+//!     [--translate DX,DY] [--seed S]
+//! ```
+//!
+//! The first form writes the flow (Middlebury .flo), optionally a colour-wheel
+//! PNG, and prints `compute_ms: <median>` (flow computation only, median over
+//! `--repeat` runs after one warm-up); with `--truth` also the average
+//! endpoint error (16 px border excluded) and the mean error (bias).
+//! `--set` overrides one `DisParams` field (finest_scale, coarsest_scale,
+//! patch_size, patch_stride, iterations, mean_normalization,
+//! spatial_propagation, normalized_gradients, prefilter_sigma, backtracking,
+//! stripes). The second form renders a synthetic marker pair (ref.png,
+//! cur.png, truth.flo) to try it on.
+
+#[path = "../tests/support/mod.rs"]
+mod support;
+
+use std::io::Write;
+use std::path::Path;
+use std::time::Instant;
+
+use ndarray::Array2;
+use optical_tactile::flow::FlowField;
+use optical_tactile::flow::color::flow_to_rgb;
+use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
+use optical_tactile::{Error, Result};
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("error: {e}");
+        std::process::exit(1);
+    }
+}
+
+fn usage() -> Error {
+    Error::param(
+        "arguments",
+        "usage: flow REF.png CUR.png [--preset P] [--threads N] [--repeat N] --out flow.flo \
+         [--png flow.png] [--truth truth.flo] [--set name=value]... | flow synth OUTDIR \
+         [--size WxH] [--max-disp D] [--translate DX,DY] [--seed S]",
+    )
+}
+
+fn run() -> Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("synth") {
+        return synth(&args[1..]);
+    }
+    let mut pos = Vec::new();
+    let mut preset = DisPreset::Accurate;
+    let mut threads = 0usize;
+    let mut repeat = 5usize;
+    let (mut out, mut png, mut truth) = (None, None, None);
+    let mut sets = Vec::new();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut val = || it.next().cloned().ok_or_else(usage);
+        match a.as_str() {
+            "--preset" => preset = DisPreset::parse(&val()?)?,
+            "--threads" => threads = parse_num("threads", &val()?)?,
+            "--repeat" => repeat = parse_num::<usize>("repeat", &val()?)?.max(1),
+            "--out" => out = Some(val()?),
+            "--png" => png = Some(val()?),
+            "--truth" => truth = Some(val()?),
+            "--set" => sets.push(val()?),
+            _ if a.starts_with("--") => return Err(usage()),
+            _ => pos.push(a.clone()),
+        }
+    }
+    let (Some(out), [rp, cp]) = (out, pos.as_slice()) else {
+        return Err(usage());
+    };
+    let mut params = DisParams::preset(preset);
+    for s in &sets {
+        apply_set(&mut params, s)?;
+    }
+    let reference = read_gray(Path::new(rp))?;
+    let current = read_gray(Path::new(cp))?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::param("threads", e.to_string()))?;
+    let (flow, median_ms) = pool.install(|| -> Result<(FlowField, f64)> {
+        let mut dis = Dis::new(params)?;
+        dis.set_reference(&reference)?;
+        let mut flow = FlowField::zeros(1, 1);
+        dis.compute_into(&current, &mut flow)?; // warm-up
+        let mut times = Vec::with_capacity(repeat);
+        for _ in 0..repeat {
+            let t = Instant::now();
+            dis.compute_into(&current, &mut flow)?;
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        times.sort_by(f64::total_cmp);
+        Ok((flow, times[times.len() / 2]))
+    })?;
+    println!("compute_ms: {median_ms:.3}");
+    write_flo(Path::new(&out), &flow)?;
+    if let Some(p) = png {
+        let rgb = flow_to_rgb(&flow, None);
+        let (w, h) = flow.size();
+        image::save_buffer(&p, &rgb, w as u32, h as u32, image::ExtendedColorType::Rgb8).map_err(
+            |e| Error::Image {
+                path: p.into(),
+                source: e,
+            },
+        )?;
+    }
+    if let Some(t) = truth {
+        let truth = read_flo(Path::new(&t))?;
+        let aepe = flow.aepe(&truth, 16)?;
+        let (bu, bv) = support::mean_error(&flow, &truth, 16);
+        println!("aepe: {aepe:.4}");
+        println!("bias: {bu:+.4} {bv:+.4}");
+    }
+    Ok(())
+}
+
+fn parse_num<T: std::str::FromStr>(name: &str, s: &str) -> Result<T> {
+    s.parse()
+        .map_err(|_| Error::param(name, format!("`{s}` is not a number")))
+}
+
+fn apply_set(p: &mut DisParams, s: &str) -> Result<()> {
+    let (k, v) = s
+        .split_once('=')
+        .ok_or_else(|| Error::param("set", format!("`{s}` is not name=value")))?;
+    let b = |v: &str| matches!(v, "1" | "true" | "on");
+    match k {
+        "finest_scale" => p.finest_scale = parse_num(k, v)?,
+        "coarsest_scale" => p.coarsest_scale = Some(parse_num(k, v)?),
+        "patch_size" => p.patch_size = parse_num(k, v)?,
+        "patch_stride" => p.patch_stride = parse_num(k, v)?,
+        "iterations" => p.gradient_descent_iterations = parse_num(k, v)?,
+        "mean_normalization" => p.mean_normalization = b(v),
+        "spatial_propagation" => p.spatial_propagation = b(v),
+        "normalized_gradients" => p.normalized_gradients = b(v),
+        "prefilter_sigma" => p.prefilter_sigma = parse_num(k, v)?,
+        "backtracking" => p.backtracking = b(v),
+        "stripes" => p.stripes = parse_num(k, v)?,
+        _ => return Err(Error::param("set", format!("unknown parameter `{k}`"))),
+    }
+    Ok(())
+}
+
+/// Reads a PNG as grey levels 0..=255: 8/16-bit grey directly (16-bit / 257),
+/// colour through its green channel.
+fn read_gray(path: &Path) -> Result<Array2<f32>> {
+    let img = image::open(path).map_err(|e| Error::Image {
+        path: path.into(),
+        source: e,
+    })?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let data: Vec<f32> = match img {
+        image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(f32::from).collect(),
+        image::DynamicImage::ImageLuma16(b) => {
+            b.into_raw().into_iter().map(|v| v as f32 / 257.0).collect()
+        }
+        other => other.to_rgb8().pixels().map(|p| p.0[1] as f32).collect(),
+    };
+    Array2::from_shape_vec((h, w), data).map_err(|e| Error::param("image", e.to_string()))
+}
+
+/// Middlebury .flo: "PIEH", width, height (i32 LE), then interleaved u, v f32.
+fn write_flo(path: &Path, f: &FlowField) -> Result<()> {
+    let (w, h) = f.size();
+    let mut buf = Vec::with_capacity(12 + 8 * w * h);
+    buf.extend_from_slice(b"PIEH");
+    buf.extend_from_slice(&(w as i32).to_le_bytes());
+    buf.extend_from_slice(&(h as i32).to_le_bytes());
+    for (u, v) in f.u.iter().zip(f.v.iter()) {
+        buf.extend_from_slice(&u.to_le_bytes());
+        buf.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::File::create(path)
+        .and_then(|mut fh| fh.write_all(&buf))
+        .map_err(|e| Error::io(path, e))
+}
+
+fn read_flo(path: &Path) -> Result<FlowField> {
+    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    if b.len() < 12 || &b[..4] != b"PIEH" {
+        return Err(Error::format(path, None, "not a .flo file (bad magic)"));
+    }
+    let rd = |o: usize| i32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+    let (w, h) = (rd(4) as usize, rd(8) as usize);
+    if b.len() != 12 + 8 * w * h {
+        return Err(Error::format(path, None, "truncated .flo"));
+    }
+    let mut f = FlowField::zeros(w, h);
+    for (k, c) in b[12..].chunks_exact(8).enumerate() {
+        f.u[[k / w, k % w]] = f32::from_le_bytes(c[..4].try_into().unwrap());
+        f.v[[k / w, k % w]] = f32::from_le_bytes(c[4..].try_into().unwrap());
+    }
+    Ok(f)
+}
+
+/// Renders a synthetic marker pair and its true flow into `dir`.
+fn synth(args: &[String]) -> Result<()> {
+    let dir = args.first().ok_or_else(usage)?;
+    let (mut w, mut h, mut max_disp, mut seed) = (1920usize, 1080usize, 5.0f64, 1u64);
+    let mut translate = None;
+    let mut it = args[1..].iter();
+    while let Some(a) = it.next() {
+        let v = it.next().ok_or_else(usage)?;
+        match a.as_str() {
+            "--size" => {
+                let (a, b) = v.split_once('x').ok_or_else(usage)?;
+                (w, h) = (parse_num("size", a)?, parse_num("size", b)?);
+            }
+            "--max-disp" => max_disp = parse_num("max-disp", v)?,
+            "--seed" => seed = parse_num("seed", v)?,
+            "--translate" => {
+                let (a, b) = v.split_once(',').ok_or_else(usage)?;
+                translate = Some((parse_num("translate", a)?, parse_num("translate", b)?));
+            }
+            _ => return Err(usage()),
+        }
+    }
+    let motion = match translate {
+        Some((dx, dy)) => support::Motion::Translation(dx, dy),
+        None => support::press_motion(w, h, max_disp, seed),
+    };
+    let (r, c, t) = support::marker_pair(w, h, &motion, seed);
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let d = Path::new(dir);
+    for (name, img) in [("ref.png", &r), ("cur.png", &c)] {
+        let bytes: Vec<u8> = img
+            .iter()
+            .map(|v| v.round().clamp(0.0, 255.0) as u8)
+            .collect();
+        let p = d.join(name);
+        image::save_buffer(&p, &bytes, w as u32, h as u32, image::ExtendedColorType::L8).map_err(
+            |e| Error::Image {
+                path: p.clone(),
+                source: e,
+            },
+        )?;
+    }
+    write_flo(&d.join("truth.flo"), &t)?;
+    let maxm = t.magnitude().iter().cloned().fold(0.0f32, f32::max);
+    println!("wrote {dir}: {w}x{h}, max motion {maxm:.2} px");
+    Ok(())
+}

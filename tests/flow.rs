@@ -1,0 +1,258 @@
+//! Integration and property tests of `flow::Dis` on synthetic marker images
+//! and smooth textures moved by known analytic flows.
+
+mod support;
+
+use ndarray::Array2;
+use optical_tactile::Error;
+use optical_tactile::flow::FlowField;
+use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
+use proptest::prelude::*;
+use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+use support::{Motion, marker_pair, mean_error, press_motion, texture_pair};
+
+const W: usize = 192;
+const H: usize = 128;
+const BORDER: usize = 12;
+
+fn flow_of(preset: DisPreset, r: &Array2<f32>, c: &Array2<f32>) -> FlowField {
+    let mut dis = Dis::with_preset(preset);
+    dis.set_reference(r).unwrap();
+    dis.compute(c).unwrap()
+}
+
+fn aepe(preset: DisPreset, pair: &(Array2<f32>, Array2<f32>, FlowField)) -> f64 {
+    flow_of(preset, &pair.0, &pair.1)
+        .aepe(&pair.2, BORDER)
+        .unwrap()
+}
+
+/// A deterministic proptest runner: fixed seed, few cases.
+fn runner(cases: u32) -> TestRunner {
+    TestRunner::new_with_rng(
+        Config {
+            cases,
+            failure_persistence: None,
+            ..Config::default()
+        },
+        TestRng::from_seed(RngAlgorithm::ChaCha, &[7; 32]),
+    )
+}
+
+#[test]
+fn zero_motion_gives_zero_flow() {
+    for preset in DisPreset::ALL {
+        let m = marker_pair(W, H, &Motion::Translation(0.0, 0.0), 1);
+        let f = flow_of(preset, &m.0, &m.1);
+        let max = f.magnitude().iter().cloned().fold(0.0f32, f32::max);
+        assert!(
+            max < 1e-3,
+            "{preset:?}: max |flow| {max} for identical images"
+        );
+        let t = texture_pair(W, H, &Motion::Translation(0.0, 0.0), 2);
+        assert!(aepe(preset, &t) < 1e-3);
+    }
+}
+
+#[test]
+fn translations_of_markers() {
+    runner(6)
+        .run(
+            &(-3.0f64..3.0, -3.0f64..3.0, 0u64..1000),
+            |(dx, dy, seed)| {
+                let m = marker_pair(W, H, &Motion::Translation(dx, dy), seed);
+                let acc = aepe(DisPreset::Accurate, &m);
+                prop_assert!(acc < 0.05, "accurate AEPE {acc} for ({dx}, {dy})");
+                let fast = aepe(DisPreset::Fast, &m);
+                prop_assert!(fast < 0.25, "fast AEPE {fast} for ({dx}, {dy})");
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+#[test]
+fn translations_of_smooth_textures() {
+    runner(6)
+        .run(
+            &(-4.0f64..4.0, -4.0f64..4.0, 0u64..1000),
+            |(dx, dy, seed)| {
+                let t = texture_pair(W, H, &Motion::Translation(dx, dy), seed);
+                for preset in [DisPreset::Accurate, DisPreset::Medium, DisPreset::Fast] {
+                    let e = aepe(preset, &t);
+                    prop_assert!(e < 0.1, "{preset:?} AEPE {e} for ({dx}, {dy})");
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+#[test]
+fn rotations_and_affine_motions() {
+    runner(5)
+        .run(
+            &(-0.03f64..0.03, -0.02f64..0.02, -0.02f64..0.02, 0u64..1000),
+            |(angle, a, b, seed)| {
+                let (cx, cy) = (W as f64 / 2.0, H as f64 / 2.0);
+                let rot = Motion::Rotation { cx, cy, angle };
+                let aff = Motion::Affine {
+                    cx,
+                    cy,
+                    a: [a, b, -b, a],
+                    t: [0.7, -0.4],
+                };
+                for motion in [rot, aff] {
+                    let m = marker_pair(W, H, &motion, seed);
+                    let e = aepe(DisPreset::Accurate, &m);
+                    prop_assert!(e < 0.1, "markers {motion:?}: AEPE {e}");
+                    let t = texture_pair(W, H, &motion, seed);
+                    let e = aepe(DisPreset::Accurate, &t);
+                    prop_assert!(e < 0.1, "texture {motion:?}: AEPE {e}");
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+#[test]
+fn press_like_bumps() {
+    runner(5)
+        .run(&(0.3f64..5.0, 0u64..1000), |(max_disp, seed)| {
+            let motion = press_motion(W, H, max_disp, seed);
+            let m = marker_pair(W, H, &motion, seed);
+            let acc = aepe(DisPreset::Accurate, &m);
+            prop_assert!(acc < 0.15, "accurate AEPE {acc} at {max_disp} px");
+            let fast = aepe(DisPreset::Fast, &m);
+            prop_assert!(fast < 0.4, "fast AEPE {fast} at {max_disp} px");
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn subpixel_translation_bias_of_accurate() {
+    for (k, d) in [0.1, 0.25, 0.5, 1.0, 2.0].into_iter().enumerate() {
+        let m = marker_pair(W, H, &Motion::Translation(d, 0.0), 40 + k as u64);
+        let f = flow_of(DisPreset::Accurate, &m.0, &m.1);
+        let (bu, bv) = mean_error(&f, &m.2, BORDER);
+        assert!(
+            bu.abs() < 0.01 && bv.abs() < 0.01,
+            "bias ({bu}, {bv}) at {d} px"
+        );
+    }
+}
+
+#[test]
+fn result_does_not_depend_on_thread_count() {
+    let motion = press_motion(W, H, 3.0, 5);
+    let m = marker_pair(W, H, &motion, 5);
+    for preset in DisPreset::ALL {
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut dis = Dis::with_preset(preset);
+                dis.set_reference(&m.0).unwrap();
+                let f = dis.compute(&m.1).unwrap();
+                let native = dis.native_flow().unwrap().0.clone();
+                (f, native)
+            })
+        };
+        let (a, b) = (run(1), run(2));
+        // Bit-exact: compare the bit patterns, not within a tolerance.
+        let bits = |f: &FlowField| -> Vec<u32> {
+            f.u.iter().chain(f.v.iter()).map(|x| x.to_bits()).collect()
+        };
+        assert_eq!(bits(&a.0), bits(&b.0), "{preset:?}");
+        assert_eq!(bits(&a.1), bits(&b.1), "{preset:?}");
+    }
+}
+
+#[test]
+fn compute_into_reuses_and_matches_compute() {
+    let m = marker_pair(W, H, &Motion::Translation(1.3, -0.6), 9);
+    let mut dis = Dis::with_preset(DisPreset::Fast);
+    dis.set_reference(&m.0).unwrap();
+    let a = dis.compute(&m.1).unwrap();
+    let mut out = FlowField::zeros(1, 1);
+    dis.compute_into(&m.1, &mut out).unwrap();
+    assert_eq!(a, out);
+    let ptr = out.u.as_ptr();
+    dis.compute_into(&m.1, &mut out).unwrap();
+    assert_eq!(
+        ptr,
+        out.u.as_ptr(),
+        "steady state reuses the output buffers"
+    );
+    // The native flow is the finest level's, at scale 4 for `fast`.
+    let (native, scale) = dis.native_flow().unwrap();
+    assert_eq!(scale, 4);
+    assert_eq!(native.size(), (W / 4, H / 4));
+    let mid = native.u[[H / 8, W / 8]] * scale as f32;
+    assert!((mid - 1.3).abs() < 0.2, "{mid}");
+    // Non-contiguous views give the same answer.
+    let big_r = Array2::from_shape_fn((H, 2 * W), |(y, x)| m.0[[y, x / 2]]);
+    let big_c = Array2::from_shape_fn((H, 2 * W), |(y, x)| m.1[[y, x / 2]]);
+    let vr = big_r.slice(ndarray::s![.., ..;2]);
+    let vc = big_c.slice(ndarray::s![.., ..;2]);
+    let mut dis2 = Dis::with_preset(DisPreset::Fast);
+    dis2.set_reference(&vr).unwrap();
+    assert_eq!(dis2.compute(&vc).unwrap(), a);
+}
+
+#[test]
+fn bad_input_gives_typed_errors() {
+    let r = Array2::<f32>::from_elem((64, 80), 100.0);
+    let mut dis = Dis::with_preset(DisPreset::Fast);
+    assert!(matches!(dis.compute(&r), Err(Error::NoReference)));
+    dis.set_reference(&r).unwrap();
+    let other = Array2::<f32>::zeros((64, 81));
+    assert!(matches!(
+        dis.compute(&other),
+        Err(Error::ShapeMismatch { .. })
+    ));
+    let empty = Array2::<f32>::zeros((0, 0));
+    assert!(matches!(
+        Dis::with_preset(DisPreset::Fast).set_reference(&empty),
+        Err(Error::TooSmall { .. })
+    ));
+    // Scale 2 with 8-px patches needs at least 32x32.
+    let small = Array2::<f32>::zeros((31, 200));
+    assert!(matches!(
+        Dis::with_preset(DisPreset::Fast).set_reference(&small),
+        Err(Error::TooSmall { min_h: 32, .. })
+    ));
+    let mut nan = r.clone();
+    nan[[10, 20]] = f32::NAN;
+    match Dis::with_preset(DisPreset::Fast).set_reference(&nan) {
+        Err(Error::NonFinite { row, col, .. }) => assert_eq!((row, col), (10, 20)),
+        other => panic!("{other:?}"),
+    }
+    match dis.compute(&nan) {
+        Err(Error::NonFinite { row, col, .. }) => assert_eq!((row, col), (10, 20)),
+        other => panic!("{other:?}"),
+    }
+    // A pixel in the margin the 4x4 boxes do not cover is still checked.
+    let r2 = Array2::<f32>::from_elem((66, 83), 100.0);
+    let mut dis2 = Dis::with_preset(DisPreset::Fast);
+    dis2.set_reference(&r2).unwrap();
+    let mut inf = r2.clone();
+    inf[[65, 3]] = f32::INFINITY;
+    assert!(matches!(
+        dis2.compute(&inf),
+        Err(Error::NonFinite {
+            row: 65,
+            col: 3,
+            ..
+        })
+    ));
+    let bad = DisParams {
+        patch_size: 40,
+        ..DisParams::preset(DisPreset::Fast)
+    };
+    assert!(matches!(Dis::new(bad), Err(Error::InvalidParameter { .. })));
+}
