@@ -14,7 +14,13 @@ fn print_magnitudes() {
         let t3 = t.elapsed();
         let r2 = s.render_indexed(0, &[c], true).unwrap();
         let t4 = t.elapsed();
-        println!("disp {t1:?} render-empty {:?} render-contact {:?} with flow {:?} threads {}", t2 - t1, t3 - t2, t4 - t3, rayon::current_num_threads());
+        println!(
+            "disp {t1:?} render-empty {:?} render-contact {:?} with flow {:?} threads {}",
+            t2 - t1,
+            t3 - t2,
+            t4 - t3,
+            rayon::current_num_threads()
+        );
         std::hint::black_box((d, r0, r1, r2));
     }
 }

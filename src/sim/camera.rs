@@ -8,27 +8,23 @@
 //! and `y` linearly to image y.
 
 use crate::error::{Error, Result};
+use crate::geometry::SensorGeometry;
 
-/// The curved sensing skin (SPEC.md reference geometry by default).
+/// The curved sensing skin: the sensor geometry (SPEC.md reference by default)
+/// and the length of the sensing area along the arc.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Skin {
-    /// Radius of the arc, mm (220).
-    pub radius_mm: f64,
-    /// Distance from the arc's centre to the sensor-frame origin, mm (60).
-    pub offset_mm: f64,
-    /// Length of the sensing skin along the arc, mm (320).
+    /// Arc radius, frame offset, opening angle and width.
+    pub geometry: SensorGeometry,
+    /// Length of the sensing skin along the arc, mm (320; at most the arc).
     pub length_mm: f64,
-    /// Width of the skin across, mm (40).
-    pub width_mm: f64,
 }
 
 impl Default for Skin {
     fn default() -> Self {
         Skin {
-            radius_mm: 220.0,
-            offset_mm: 60.0,
+            geometry: SensorGeometry::default(),
             length_mm: 320.0,
-            width_mm: 40.0,
         }
     }
 }
@@ -36,40 +32,37 @@ impl Default for Skin {
 impl Skin {
     /// Checks that the numbers describe a real skin.
     pub fn validate(&self) -> Result<()> {
-        for (name, v) in [
-            ("radius_mm", self.radius_mm),
-            ("length_mm", self.length_mm),
-            ("width_mm", self.width_mm),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(Error::param(
-                    name,
-                    format!("must be finite and > 0, got {v}"),
-                ));
-            }
-        }
-        if !self.offset_mm.is_finite() {
-            return Err(Error::param("offset_mm", "must be finite"));
-        }
-        if self.length_mm / self.radius_mm >= std::f64::consts::PI {
+        self.geometry.validate()?;
+        let arc = 2.0 * self.geometry.half_arc_mm();
+        if !(self.length_mm.is_finite() && self.length_mm > 0.0 && self.length_mm <= arc + 1e-9) {
             return Err(Error::param(
                 "length_mm",
                 format!(
-                    "an arc of {} mm on radius {} mm spans 180 deg or more",
-                    self.length_mm, self.radius_mm
+                    "must lie in (0, {arc:.1}] (the arc's length), got {}",
+                    self.length_mm
                 ),
             ));
         }
         Ok(())
     }
 
-    /// Half the arc length, mm.
+    /// Arc radius, mm.
+    pub fn radius_mm(&self) -> f64 {
+        self.geometry.radius_mm
+    }
+
+    /// Width across, mm.
+    pub fn width_mm(&self) -> f64 {
+        self.geometry.width_mm
+    }
+
+    /// Half the arc length of the sensing area, mm.
     pub fn half_length(&self) -> f64 {
         0.5 * self.length_mm
     }
 
     /// Arc length of chord position `x_mm`: `s = R asin(x / R)`.
-    /// Errors if `x_mm` is not on the skin.
+    /// Errors if `x_mm` is not on the sensing area.
     pub fn chord_to_arc(&self, x_mm: f64) -> Result<f64> {
         let max_x = self.arc_to_chord(self.half_length());
         if !x_mm.is_finite() || x_mm.abs() > max_x + 1e-9 {
@@ -78,36 +71,23 @@ impl Skin {
                 format!("contact at chord {x_mm} mm is off the skin (|x| <= {max_x:.2} mm)"),
             ));
         }
-        Ok(self.radius_mm * (x_mm / self.radius_mm).clamp(-1.0, 1.0).asin())
+        Ok(self.geometry.chord_to_arc(x_mm))
     }
 
     /// Chord position of arc length `s_mm`: `x = R sin(s / R)`.
     pub fn arc_to_chord(&self, s_mm: f64) -> f64 {
-        self.radius_mm * (s_mm / self.radius_mm).sin()
+        self.geometry.arc_to_chord(s_mm)
     }
 
     /// Height of the skin surface at chord position `x`: `sqrt(R^2 - x^2) - d`.
     pub fn z_at(&self, x_mm: f64) -> f64 {
-        (self.radius_mm * self.radius_mm - x_mm * x_mm)
-            .max(0.0)
-            .sqrt()
-            - self.offset_mm
-    }
-
-    /// Local frame at chord position `x` as (tangent, across, outward normal),
-    /// each a unit vector in the sensor frame; `th = asin(x / R)`.
-    pub fn local_frame(&self, x_mm: f64) -> [[f64; 3]; 3] {
-        let th = (x_mm / self.radius_mm).clamp(-1.0, 1.0).asin();
-        let (s, c) = th.sin_cos();
-        [[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]]
+        self.geometry.z_at(x_mm)
     }
 
     /// Projects a sensor-frame force onto the local frame at `x_mm`:
     /// `(tangential along +s, across along +y, outward normal)`.
     pub fn force_to_local(&self, x_mm: f64, f: [f64; 3]) -> [f64; 3] {
-        let fr = self.local_frame(x_mm);
-        let dot = |a: [f64; 3]| a[0] * f[0] + a[1] * f[1] + a[2] * f[2];
-        [dot(fr[0]), dot(fr[1]), dot(fr[2])]
+        self.geometry.sensor_to_local(x_mm, f)
     }
 }
 
@@ -195,8 +175,8 @@ impl Camera {
         let h = skin.half_length();
         let x_end = self.s_to_px(skin, h);
         let x_start = self.s_to_px(skin, -h);
-        let y_top = self.y_to_px(-0.5 * skin.width_mm);
-        let y_bot = self.y_to_px(0.5 * skin.width_mm);
+        let y_top = self.y_to_px(-0.5 * skin.width_mm());
+        let y_bot = self.y_to_px(0.5 * skin.width_mm());
         if x_start < 0.0
             || x_end > self.strip_width as f64
             || y_top < 0.0
@@ -292,22 +272,22 @@ mod tests {
     }
 
     #[test]
-    fn local_frame_is_orthonormal_and_normal_points_out() {
+    fn force_projection_at_point_2() {
         let skin = Skin::default();
-        for x in [-140.0, -50.0, 0.0, 80.0] {
-            let f = skin.local_frame(x);
-            for i in 0..3 {
-                for j in 0..3 {
-                    let d: f64 = (0..3).map(|k| f[i][k] * f[j][k]).sum();
-                    let want = if i == j { 1.0 } else { 0.0 };
-                    assert!((d - want).abs() < 1e-12);
-                }
+        let x = skin.arc_to_chord(-120.0);
+        // A vertical press (0, 0, -F) on the sloped skin has a tangential part.
+        let l = skin.force_to_local(x, [0.0, 0.0, -1.0]);
+        let th = (x / 220.0).asin();
+        assert!((l[0] - th.sin()).abs() < 1e-12 && (l[2] + th.cos()).abs() < 1e-12);
+        assert!(l[1].abs() < 1e-15);
+        assert!(
+            Skin {
+                length_mm: 400.0,
+                ..skin
             }
-            // The outward normal is the radial direction from the arc's centre.
-            let p = [x, 0.0, skin.z_at(x) + skin.offset_mm];
-            let n = (p[0] * p[0] + p[2] * p[2]).sqrt();
-            assert!((f[2][0] - p[0] / n).abs() < 1e-12 && (f[2][2] - p[2] / n).abs() < 1e-12);
-        }
+            .validate()
+            .is_err()
+        );
     }
 
     #[test]

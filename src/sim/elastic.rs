@@ -37,9 +37,9 @@ pub struct Material {
 impl Default for Material {
     fn default() -> Self {
         Material {
-            youngs_kpa: 60.0,
+            youngs_kpa: 50.0,
             poisson: 0.47,
-            layer_mm: 5.0,
+            layer_mm: 6.0,
         }
     }
 }

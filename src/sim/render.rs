@@ -48,7 +48,10 @@ pub(crate) fn render(
 ) -> Rendered {
     let (width, height) = cfg.image_size();
     let origin = if cfg.full_frame {
-        (cfg.camera.strip_origin.0 as f32, cfg.camera.strip_origin.1 as f32)
+        (
+            cfg.camera.strip_origin.0 as f32,
+            cfg.camera.strip_origin.1 as f32,
+        )
     } else {
         (0.0, 0.0)
     };
@@ -58,8 +61,8 @@ pub(crate) fn render(
     let skin_box = (
         (cam.s_to_px(skin, -h) - 0.5) as f32 + origin.0,
         (cam.s_to_px(skin, h) + 0.5) as f32 + origin.0,
-        (cam.y_to_px(-0.5 * skin.width_mm) - 0.5) as f32 + origin.1,
-        (cam.y_to_px(0.5 * skin.width_mm) + 0.5) as f32 + origin.1,
+        (cam.y_to_px(-0.5 * skin.width_mm()) - 0.5) as f32 + origin.1,
+        (cam.y_to_px(0.5 * skin.width_mm()) + 0.5) as f32 + origin.1,
     );
     // Bucket markers by the row bands their spots touch.
     let nbands = height.div_ceil(BAND_ROWS);
@@ -125,7 +128,11 @@ impl Frame<'_> {
         let y_end = y_start + nrows - 1;
         let m = self.markers;
         // Weight sums for the truth flow: sum w, sum w du, sum w dv.
-        let mut acc = if flow.is_some() { vec![[0.0f32; 3]; rows.len()] } else { Vec::new() };
+        let mut acc = if flow.is_some() {
+            vec![[0.0f32; 3]; rows.len()]
+        } else {
+            Vec::new()
+        };
         let mut ex: Vec<f32> = Vec::with_capacity(32);
         for &i in &self.buckets[b] {
             let i = i as usize;
@@ -175,7 +182,10 @@ impl Frame<'_> {
         let (ox, oy) = if cfg.full_frame {
             (0.0, 0.0)
         } else {
-            (cfg.camera.strip_origin.0 as f32, cfg.camera.strip_origin.1 as f32)
+            (
+                cfg.camera.strip_origin.0 as f32,
+                cfg.camera.strip_origin.1 as f32,
+            )
         };
         let read2 = n.read * n.read;
         for r in 0..nrows {
@@ -187,7 +197,9 @@ impl Frame<'_> {
                 let inside = in_y && xf >= bx0 && xf <= bx1;
                 let bg = if inside { n.background } else { n.outside };
                 let k = r * w + x;
-                let light = (bg + rows[k]) * cfg.camera.vignetting(n.vignetting, xf + ox, yf + oy) * self.gain;
+                let light = (bg + rows[k])
+                    * cfg.camera.vignetting(n.vignetting, xf + ox, yf + oy)
+                    * self.gain;
                 let sd = (n.shot * light + read2).sqrt();
                 let z = approx_normal_from_bits(hash64(self.stream, (y * w + x) as u64));
                 rows[k] = (light + sd * z).round().clamp(0.0, 255.0);

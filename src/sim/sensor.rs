@@ -118,17 +118,26 @@ impl SimConfig {
         self.material.validate()?;
         let m = &self.markers;
         if let Some(0) = m.count {
-            return Err(Error::param("markers.count", "zero markers: nothing to see"));
+            return Err(Error::param(
+                "markers.count",
+                "zero markers: nothing to see",
+            ));
         }
         if m.count.is_none() && !(m.coverage.is_finite() && m.coverage > 0.0 && m.coverage < 0.95) {
             return Err(Error::param(
                 "markers.coverage",
-                format!("must lie in (0, 0.95), got {} (zero markers: nothing to see)", m.coverage),
+                format!(
+                    "must lie in (0, 0.95), got {} (zero markers: nothing to see)",
+                    m.coverage
+                ),
             ));
         }
         let range = |name: &str, (lo, hi): (f64, f64), min: f64| -> Result<()> {
             if !(lo.is_finite() && hi.is_finite() && lo >= min && hi >= lo) {
-                return Err(Error::param(name, format!("need {min} <= lo <= hi, got ({lo}, {hi})")));
+                return Err(Error::param(
+                    name,
+                    format!("need {min} <= lo <= hi, got ({lo}, {hi})"),
+                ));
             }
             Ok(())
         };
@@ -153,7 +162,10 @@ impl SimConfig {
             ("noise.flicker", n.flicker),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(Error::param(name, format!("must be finite and >= 0, got {v}")));
+                return Err(Error::param(
+                    name,
+                    format!("must be finite and >= 0, got {v}"),
+                ));
             }
         }
         if !(n.vignetting.is_finite() && (0.0..1.0).contains(&n.vignetting)) {
@@ -263,7 +275,10 @@ impl SyntheticSensor {
             .iter()
             .map(|c| {
                 if !c.force_n.iter().all(|f| f.is_finite()) {
-                    return Err(Error::param("force_n", format!("must be finite, got {:?}", c.force_n)));
+                    return Err(Error::param(
+                        "force_n",
+                        format!("must be finite, got {:?}", c.force_n),
+                    ));
                 }
                 if !(c.diameter_mm.is_finite() && c.diameter_mm > 0.0) {
                     return Err(Error::param(
@@ -284,8 +299,8 @@ impl SyntheticSensor {
                         ),
                     ));
                 }
-                let w = skin.width_mm;
-                let b = hertz_half_width(mat, 0.5 * c.diameter_mm, skin.radius_mm, f_in / w);
+                let w = skin.width_mm();
+                let b = hertz_half_width(mat, 0.5 * c.diameter_mm, skin.radius_mm(), f_in / w);
                 Ok(RodLoad {
                     s_mm: s,
                     y_lo: -0.5 * w,
@@ -325,7 +340,9 @@ impl SyntheticSensor {
     /// pixel positions in the strip image.
     pub fn marker_positions(&self) -> Vec<(f64, f64, f64, f64, f64)> {
         let m = &self.markers;
-        (0..m.s.len()).map(|i| (m.s[i], m.y[i], m.z[i], m.px[i], m.py[i])).collect()
+        (0..m.s.len())
+            .map(|i| (m.s[i], m.y[i], m.z[i], m.px[i], m.py[i]))
+            .collect()
     }
 
     /// Image motion (px) of a point at `(s, y)` displaced by `u` (mm, local).
@@ -352,13 +369,17 @@ impl SyntheticSensor {
 
     /// The motion field at the markers' mean depth, sampled every `step` strip
     /// pixels (the truth flow between markers). Returns `(nx, ny, du, dv)`.
-    pub(crate) fn mean_depth_grid(&self, loads: &[RodLoad], step: usize) -> (usize, usize, Vec<f32>, Vec<f32>) {
+    pub(crate) fn mean_depth_grid(
+        &self,
+        loads: &[RodLoad],
+        step: usize,
+    ) -> (usize, usize, Vec<f32>, Vec<f32>) {
         let cam = &self.config.camera;
         let skin = &self.config.skin;
         let nx = cam.strip_width.div_ceil(step) + 1;
         let ny = cam.strip_height.div_ceil(step) + 1;
         let depth = 0.5 * (self.config.markers.depth_mm.0 + self.config.markers.depth_mm.1);
-        let half_w = 0.5 * skin.width_mm;
+        let half_w = 0.5 * skin.width_mm();
         let h = skin.half_length();
         let pts: Vec<(f32, f32)> = (0..nx * ny)
             .into_par_iter()
@@ -395,12 +416,27 @@ impl SyntheticSensor {
 
     /// Renders frame number `index` (which fixes its noise and flicker) without
     /// touching the frame counter; the flow only when `with_flow`.
-    pub fn render_indexed(&self, index: u64, contacts: &[Contact], with_flow: bool) -> Result<Rendered> {
+    pub fn render_indexed(
+        &self,
+        index: u64,
+        contacts: &[Contact],
+        with_flow: bool,
+    ) -> Result<Rendered> {
         let loads = self.loads(contacts)?;
         let motion = self.marker_pixel_motion(&loads);
-        let grid = if with_flow { Some(self.mean_depth_grid(&loads, render::GRID_STEP)) } else { None };
+        let grid = if with_flow {
+            Some(self.mean_depth_grid(&loads, render::GRID_STEP))
+        } else {
+            None
+        };
         let stream = mix64(self.seed ^ 0xA076_1D64_78BD_642F) ^ mix64(index.wrapping_add(1));
-        Ok(render::render(&self.config, &self.markers, &motion, grid.as_ref(), stream))
+        Ok(render::render(
+            &self.config,
+            &self.markers,
+            &motion,
+            grid.as_ref(),
+            stream,
+        ))
     }
 }
 
@@ -411,13 +447,16 @@ fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
     let cam = &config.camera;
     let mut rng = SplitMix64::new(mix64(seed));
     let h = skin.half_length();
-    let half_w = 0.5 * skin.width_mm;
+    let half_w = 0.5 * skin.width_mm();
     let count = mc.count.unwrap_or_else(|| {
         // Covered fraction of randomly placed discs: 1 - exp(-n a / A).
-        let area_px = (cam.s_to_px(skin, h) - cam.s_to_px(skin, -h)) * cam.px_per_mm_y * skin.width_mm;
+        let area_px =
+            (cam.s_to_px(skin, h) - cam.s_to_px(skin, -h)) * cam.px_per_mm_y * skin.width_mm();
         let mean_d = 0.5 * (mc.fwhm_px.0 + mc.fwhm_px.1);
         let disc = std::f64::consts::PI * 0.25 * mean_d * mean_d;
-        ((-(1.0 - mc.coverage).ln()) * area_px / disc).round().max(1.0) as usize
+        ((-(1.0 - mc.coverage).ln()) * area_px / disc)
+            .round()
+            .max(1.0) as usize
     });
     let mut m = Markers::default();
     for _ in 0..count {
