@@ -12,9 +12,11 @@
 //! brightness flicker. It also returns the true dense motion.
 
 pub mod camera;
+pub mod cli;
 pub mod elastic;
 mod render;
 pub mod rng;
+pub mod scenario;
 mod sensor;
 
 pub use camera::{Camera, Skin};
