@@ -322,13 +322,23 @@ impl RodLoad {
     }
 
     /// Displacement (mm) of a marker at depth `z` in a layer of thickness
-    /// `mat.layer_mm` bonded to a rigid base: half-space at `z` minus half-space
-    /// at the base (Steinbrenner).
+    /// `T = mat.layer_mm` bonded to a rigid base.
+    ///
+    /// Normal component: half-space at `z` minus half-space at the base
+    /// (Steinbrenner's settlement correction), which cuts off the logarithmic
+    /// growth of the line-load solution and lets the layer bulge up beside the
+    /// contact as an incompressible layer does. Lateral components: the
+    /// half-space ones tapered linearly to zero at the bonded base,
+    /// `(1 - z/T)`. (Subtracting the base's lateral displacement as well would
+    /// be wrong here: in a half-space the sideways motion grows with depth up to
+    /// `z ~ |x|`, so the difference would point *inward* beside the contact,
+    /// whereas the gel squeezed out of a bonded layer moves outward.)
     #[inline]
     pub fn layer(&self, mat: &Material, q: &QuadratureCache, s: f64, y: f64, z: f64) -> [f64; 3] {
         let top = self.half_space(mat, q, s, y, z);
         let base = self.half_space(mat, q, s, y, mat.layer_mm);
-        [top[0] - base[0], top[1] - base[1], top[2] - base[2]]
+        let taper = (1.0 - z / mat.layer_mm).max(0.0);
+        [top[0] * taper, top[1] * taper, top[2] - base[2]]
     }
 }
 
