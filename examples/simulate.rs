@@ -69,7 +69,7 @@ fn fixtures(out: &Path, seed: u64) -> Result<()> {
         spacing_mm: 40.0,
         force_n: 2.0,
         force2_n: 1.5,
-        frames: 10,
+        frames: 8,
         indenter_mm: 5.0,
     };
     scenario::run(&Scenario::Pair(pair), &press)?;
@@ -77,7 +77,7 @@ fn fixtures(out: &Path, seed: u64) -> Result<()> {
     ch.seed = seed;
     ch.flow = false;
     let c = Characterization {
-        subset: Some(12),
+        subset: Some(6),
         ..Default::default()
     };
     scenario::run(&Scenario::Characterization(c), &ch)?;
@@ -98,7 +98,7 @@ fn pictures(dir: &Path, seed: u64) -> Result<()> {
 
     let contacts = [
         Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
-        Contact::rod(20.0, [0.3, 0.0, -1.5], 5.0),
+        Contact::rod(20.0, [0.0, 0.0, -1.5], 5.0),
     ];
     let (_, flow) = sensor.render(&contacts)?;
     let (x0, x1) = (560usize, 1040usize);

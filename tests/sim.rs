@@ -161,6 +161,9 @@ fn press_magnitudes_match_the_reference_range() {
     let tilted = Contact::rod(0.0, scenario::tilted_force(1.5, 0.0, 15.0), 5.0);
     let straight = max_marker_px(&s, press(0.0, 1.5));
     let t = max_marker_px(&s, tilted);
+    println!(
+        "max marker motion: 0.5 N {lo:.3} px, 3 N {hi:.3} px, 1.5 N {straight:.3} px, 1.5 N at 15 deg {t:.3} px"
+    );
     assert!(t > 1.3 * straight, "tilted {t} vs straight {straight}");
 }
 
