@@ -31,7 +31,8 @@ fn run(args: &[String]) -> Result<()> {
     let t0 = Instant::now();
     match cli::parse(args)? {
         Command::Help => print!("{}", cli::HELP),
-        Command::Run(sc, common) => {
+        Command::Run(run) => {
+            let (sc, common) = *run;
             if common.config.full_frame {
                 let (x, y, w, h) = common.config.camera.crop();
                 println!("full frame; the sensing strip is the crop x={x} y={y} w={w} h={h}");

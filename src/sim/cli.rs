@@ -31,9 +31,9 @@ COMMON OPTIONS:
     --fps F              frame rate for time stamps [50]
     --full-frame         render the full 1920x1080 camera frame with the strip
                          inside it (crop printed) instead of the 1600x200 strip
-    --youngs-kpa E       gel Young's modulus, kPa [50]
+    --youngs-kpa E       gel Young's modulus, kPa [40]
     --poisson NU         gel Poisson's ratio [0.47]
-    --layer-mm T         gel layer thickness over the rigid plate, mm [6]
+    --layer-mm T         gel layer thickness over the rigid plate, mm [8]
     --coverage C         fraction of the image covered by markers [0.3]
     --markers N          exact number of markers (overrides --coverage)
     --noise-read S       read-noise standard deviation, grey levels [1.0]
@@ -77,8 +77,8 @@ fixtures:
 pub enum Command {
     /// Print [`HELP`].
     Help,
-    /// Run one scenario.
-    Run(Scenario, Common),
+    /// Run one scenario (boxed: the options are large).
+    Run(Box<(Scenario, Common)>),
     /// Regenerate the fixtures under `out` (and the pictures under `docs`).
     Fixtures {
         /// Fixtures folder.
@@ -204,7 +204,7 @@ pub fn parse(args: &[String]) -> Result<Command> {
         });
     }
     common.out = out.ok_or_else(|| Error::param("out", "required: --out DIR"))?;
-    Ok(Command::Run(scenario, common))
+    Ok(Command::Run(Box::new((scenario, common))))
 }
 
 #[cfg(test)]
@@ -222,7 +222,10 @@ mod tests {
         ))
         .unwrap()
         {
-            Command::Run(Scenario::Single(o), c) => {
+            Command::Run(b) if matches!(b.0, Scenario::Single(_)) => {
+                let (Scenario::Single(o), c) = *b else {
+                    unreachable!()
+                };
                 assert_eq!((o.force_n, o.pitch_deg), (3.0, 15.0));
                 assert!(!c.flow && c.seed == 9);
             }
@@ -236,9 +239,10 @@ mod tests {
         assert!(parse(&args("single --out x --force-n abc")).is_err());
         assert!(parse(&[]).is_err());
         match parse(&args("characterization --out d --subset 12")).unwrap() {
-            Command::Run(Scenario::Characterization(o), c) => {
-                assert!(o.subset == Some(12) && !c.flow)
-            }
+            Command::Run(b) => match *b {
+                (Scenario::Characterization(o), c) => assert!(o.subset == Some(12) && !c.flow),
+                other => panic!("{other:?}"),
+            },
             other => panic!("{other:?}"),
         }
     }

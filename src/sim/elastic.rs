@@ -37,9 +37,11 @@ pub struct Material {
 impl Default for Material {
     fn default() -> Self {
         Material {
-            youngs_kpa: 50.0,
+            // Calibrated so that 0.5-3 N on a 40 mm rod moves markers by about
+            // 0.3-1.6 px at 5 px/mm (ELASTIC.md), at the soft end of gel moduli.
+            youngs_kpa: 40.0,
             poisson: 0.47,
-            layer_mm: 6.0,
+            layer_mm: 8.0,
         }
     }
 }
