@@ -1,1 +1,45 @@
-//! Physics-based synthetic tactile sensor: elastic layer, markers, rendering, scenarios.
+//! Physics-based synthetic tactile sensor: elastic layer, markers, rendering,
+//! scenarios.
+//!
+//! A [`SyntheticSensor`] is built from a [`SimConfig`] and a seed (which fixes
+//! the random marker layout). For any set of rod [`Contact`]s given in the
+//! sensor frame it computes each marker's displacement from linear elasticity
+//! ([`elastic`]: Boussinesq and Cerruti solutions integrated over the rod's
+//! Hertz footprint, with a rigid-base correction for the layer), maps it through
+//! the camera model ([`camera`]: unrolled skin to pixels, with a mild
+//! non-linearity) and re-renders every marker as a Gaussian spot at its moved
+//! position ([`render`]), with shot and read noise, vignetting and a per-frame
+//! brightness flicker. It also returns the true dense motion.
+//!
+//! [`scenario`] writes whole sequences (frames, `truth.jsonl`, `.flo` truth
+//! flow, `tests.csv`, `poses.csv`) in the DATASET.md formats; the `simulate`
+//! example is its command line ([`cli`]).
+//!
+//! Units and frames: contacts are given in the sensor frame (chord position
+//! `x_mm`, force `[Fx, Fy, Fz]` in N, a press has `Fz < 0`); internally the
+//! skin is unrolled (arc length `s = R asin(x / R)`, across `y`, depth into the
+//! gel) and the force is projected onto the local surface frame at the contact.
+//! Images are `Array2<f32>` on the 8-bit scale; flows are in pixels.
+//!
+//! ```
+//! use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+//! let sensor = SyntheticSensor::new(SimConfig::default(), 1)?;
+//! // A 5 mm rod pressing 1.5 N straight down, 30 mm left of centre.
+//! let rod = Contact::rod(-30.0, [0.0, 0.0, -1.5], 5.0);
+//! let loaded = sensor.render_indexed(1, &[rod], true)?;
+//! let truth = loaded.flow.expect("asked for the flow");
+//! assert_eq!(truth.size(), (1600, 200));
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
+
+pub mod camera;
+pub mod cli;
+pub mod elastic;
+mod render;
+pub mod rng;
+pub mod scenario;
+mod sensor;
+
+pub use camera::{Camera, Skin};
+pub use elastic::Material;
+pub use sensor::{Contact, MarkerConfig, NoiseConfig, Rendered, SimConfig, SyntheticSensor};

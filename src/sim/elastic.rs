@@ -1,0 +1,505 @@
+//! Linear-elastic response of the gel layer to surface loads
+//! (shared/reference/ELASTIC.md).
+//!
+//! Coordinates here are local to the unrolled skin: `x` along the arc (mm), `y`
+//! across (mm), `z` depth into the gel (mm, `z > 0`). Loads are
+//! `[f_x, f_y, f_n]` in N with `f_n` pressing *into* the gel; displacements are
+//! `[u_x, u_y, u_z]` in mm with `u_z` into the gel.
+//!
+//! A rod contact is a uniform load along `y` (the rod spans the skin's width)
+//! times an elliptical (Hertz) profile across it. The integral along the rod is
+//! done in closed form (antiderivatives of the Boussinesq and Cerruti kernels in
+//! `y`, derived below), which removes the `1/r` peak exactly; the remaining
+//! integral across the rod has the elliptical weight `sqrt(1 - t^2)`, which
+//! Gauss-Chebyshev quadrature of the second kind integrates without error for
+//! the weight itself, with a node count adapted to how close the marker is.
+//!
+//! Layer on a rigid base: the half-space displacement at depth `T` (the layer
+//! thickness) is subtracted (Steinbrenner's correction), so markers at the
+//! bonded base do not move and the logarithmic growth of the half-space line
+//! solution is cut off.
+
+use std::f64::consts::PI;
+
+use crate::error::{Error, Result};
+
+/// Mechanical properties of the gel layer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    /// Young's modulus, kPa (soft silicone gel: 50-100).
+    pub youngs_kpa: f64,
+    /// Poisson's ratio (nearly incompressible gel: 0.45-0.49).
+    pub poisson: f64,
+    /// Thickness of the layer above the rigid plate, mm.
+    pub layer_mm: f64,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            // Calibrated so that 0.5-3 N on a 40 mm rod moves markers by about
+            // 0.3-1.6 px at 5 px/mm (ELASTIC.md), at the soft end of gel moduli.
+            youngs_kpa: 40.0,
+            poisson: 0.47,
+            layer_mm: 8.0,
+        }
+    }
+}
+
+impl Material {
+    /// Checks the ranges: `E > 0`, `0 <= nu < 0.5`, `T > 0`.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.youngs_kpa.is_finite() && self.youngs_kpa > 0.0) {
+            return Err(Error::param(
+                "youngs_kpa",
+                format!("must be > 0, got {}", self.youngs_kpa),
+            ));
+        }
+        if !(self.poisson.is_finite() && (0.0..0.5).contains(&self.poisson)) {
+            return Err(Error::param(
+                "poisson",
+                format!("must lie in [0, 0.5), got {}", self.poisson),
+            ));
+        }
+        if !(self.layer_mm.is_finite() && self.layer_mm > 0.0) {
+            return Err(Error::param(
+                "layer_mm",
+                format!("must be > 0, got {}", self.layer_mm),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Shear modulus `G = E / (2 (1 + nu))` in N/mm^2 (1 kPa = 1e-3 N/mm^2).
+    pub fn shear_modulus(&self) -> f64 {
+        self.youngs_kpa * 1e-3 / (2.0 * (1.0 + self.poisson))
+    }
+
+    /// Plane-strain modulus `E* = E / (1 - nu^2)` in N/mm^2.
+    pub fn plane_strain_modulus(&self) -> f64 {
+        self.youngs_kpa * 1e-3 / (1.0 - self.poisson * self.poisson)
+    }
+}
+
+/// Half-space displacement at `p = [x, y, z]` (z > 0) due to a point force
+/// `f = [f_x, f_y, f_n]` at the surface origin: Boussinesq + Cerruti
+/// (ELASTIC.md table). The slow, obviously-correct oracle of the integrated
+/// kernels.
+pub fn point_displacement(mat: &Material, f: [f64; 3], p: [f64; 3]) -> [f64; 3] {
+    let nu = mat.poisson;
+    let a = 1.0 - 2.0 * nu;
+    let [x, y, z] = p;
+    let r = (x * x + y * y + z * z).sqrt();
+    let r3 = r * r * r;
+    let rz = r + z;
+    let k = 1.0 / (4.0 * PI * mat.shear_modulus());
+    // Boussinesq.
+    let bn = [
+        x * z / r3 - a * x / (r * rz),
+        y * z / r3 - a * y / (r * rz),
+        z * z / r3 + 2.0 * (1.0 - nu) / r,
+    ];
+    // Cerruti, force along x.
+    let cx = [
+        1.0 / r + x * x / r3 + a * (1.0 / rz - x * x / (r * rz * rz)),
+        x * y / r3 - a * x * y / (r * rz * rz),
+        x * z / r3 + a * x / (r * rz),
+    ];
+    // Cerruti, force along y (x and y swapped).
+    let cy = [
+        x * y / r3 - a * x * y / (r * rz * rz),
+        1.0 / r + y * y / r3 + a * (1.0 / rz - y * y / (r * rz * rz)),
+        y * z / r3 + a * y / (r * rz),
+    ];
+    let mut u = [0.0; 3];
+    for i in 0..3 {
+        u[i] = k * (f[0] * cx[i] + f[1] * cy[i] + f[2] * bn[i]);
+    }
+    u
+}
+
+/// `atan(t) / t`, finite at 0.
+#[inline]
+fn atanc(t: f64) -> f64 {
+    if t.abs() < 1e-4 {
+        1.0 - t * t / 3.0
+    } else {
+        t.atan() / t
+    }
+}
+
+/// Antiderivatives in `y` of the point kernels (without `1/(4 pi G)`), as a
+/// matrix `m[load][component]` with loads (f_x, f_y, f_n). With
+/// `A = x^2 + z^2`, `r = sqrt(A + y^2)`:
+/// - `∫ dy/r = asinh(y/sqrt A)`, `∫ dy/r^3 = y/(A r)`, `∫ y dy/r^3 = -1/r`,
+/// - `∫ y dy/(r (r+z)) = ln(r+z)`, `∫ y dy/(r (r+z)^2) = -1/(r+z)`,
+/// - `J1 = ∫ dy/(r (r+z)) = (1/x) atan(x y (r-z) / (x^2 r + z y^2))`,
+/// - `∫ x^2 dy/(r (r+z)^2) = y/(r+z) - z J1` and `∫ dy/(r+z) = asinh - z J1`,
+/// - `∫ y^2 dy/(r (r+z)^2) = -y/(r+z) + ∫ dy/(r+z)` (by parts).
+#[inline]
+fn primitive(nu: f64, x: f64, y: f64, z: f64) -> [[f64; 3]; 3] {
+    let a = 1.0 - 2.0 * nu;
+    let aa = x * x + z * z;
+    let r = (aa + y * y).sqrt();
+    let rz = r + z;
+    let l = (y / aa.sqrt()).asinh();
+    let ln_rz = rz.ln();
+    // J1, written so that it has no cancellation (r - z = (x^2 + y^2)/(r + z)).
+    let j1 = {
+        let den = x * x * r + z * y * y;
+        if den <= 0.0 {
+            0.0
+        } else {
+            let q = y * (x * x + y * y) / rz / den;
+            q * atanc(x * q)
+        }
+    };
+    let yar = y / (aa * r);
+    let inv_r = 1.0 / r;
+    let inv_rz = 1.0 / rz;
+    let cross = -x * inv_r + a * x * inv_rz;
+    [
+        // f_x (Cerruti)
+        [
+            l + x * x * yar + a * (l - y * inv_rz),
+            cross,
+            x * z * yar + a * x * j1,
+        ],
+        // f_y (Cerruti, swapped)
+        [
+            cross,
+            2.0 * l - y * inv_r + a * y * inv_rz,
+            -z * inv_r + a * ln_rz,
+        ],
+        // f_n (Boussinesq)
+        [
+            x * z * yar - a * x * j1,
+            -z * inv_r - a * ln_rz,
+            z * z * yar + 2.0 * (1.0 - nu) * l,
+        ],
+    ]
+}
+
+/// Half-space displacement (mm) at `(x, ·, z)` from a uniform line load of
+/// `f = [f_x, f_y, f_n]` N per mm on the surface line `x = 0`, `y` from the
+/// marker's `y - y_hi` to `y - y_lo` measured relative to the marker, i.e.
+/// the load covers `y' in [y1, y2]` of the relative coordinate `y' = y_m - eta`.
+/// Closed form (see [`primitive`]).
+#[inline]
+pub fn line_segment_displacement(
+    mat: &Material,
+    f: [f64; 3],
+    x: f64,
+    y1: f64,
+    y2: f64,
+    z: f64,
+) -> [f64; 3] {
+    let p2 = primitive(mat.poisson, x, y2, z);
+    let p1 = primitive(mat.poisson, x, y1, z);
+    let k = 1.0 / (4.0 * PI * mat.shear_modulus());
+    let mut u = [0.0; 3];
+    for load in 0..3 {
+        if f[load] != 0.0 {
+            for c in 0..3 {
+                u[c] += k * f[load] * (p2[load][c] - p1[load][c]);
+            }
+        }
+    }
+    u
+}
+
+/// Gauss-Chebyshev (second kind) nodes and weights on [-1, 1] for the weight
+/// `(2/pi) sqrt(1 - t^2)` (weights sum to 1): exact for polynomials of degree
+/// `2n - 1` times that weight.
+pub fn chebyshev2_rule(n: usize) -> Vec<(f64, f64)> {
+    let n = n.max(1);
+    let h = PI / (n as f64 + 1.0);
+    (1..=n)
+        .map(|i| {
+            let th = i as f64 * h;
+            (th.cos(), 2.0 / PI * h * th.sin().powi(2))
+        })
+        .collect()
+}
+
+/// Hertz half-width `b` (mm) of a rigid cylinder of radius `rod_radius_mm`
+/// pressed with line load `line_load` (N/mm) on a convex skin of radius
+/// `skin_radius_mm`: `b = sqrt(4 P' R_eff / (pi E*))`, `1/R_eff = 1/R_rod + 1/R_skin`.
+pub fn hertz_half_width(
+    mat: &Material,
+    rod_radius_mm: f64,
+    skin_radius_mm: f64,
+    line_load: f64,
+) -> f64 {
+    let r_eff = 1.0 / (1.0 / rod_radius_mm + 1.0 / skin_radius_mm);
+    (4.0 * line_load.max(0.0) * r_eff / (PI * mat.plane_strain_modulus())).sqrt()
+}
+
+/// A rod load on the unrolled skin, ready to evaluate at markers.
+#[derive(Debug, Clone)]
+pub struct RodLoad {
+    /// Arc position of the rod's axis, mm.
+    pub s_mm: f64,
+    /// Across extent of the load, mm (`y_lo < y_hi`).
+    pub y_lo: f64,
+    /// Upper across bound, mm.
+    pub y_hi: f64,
+    /// Hertz half-width across the rod, mm (0 gives a line load).
+    pub half_width: f64,
+    /// Total local force `[f_t, f_y, f_n]`, N (`f_n` into the gel).
+    pub force: [f64; 3],
+}
+
+/// Rules cached by node count, so that evaluation never recomputes cos/sin.
+#[derive(Debug, Clone)]
+pub struct QuadratureCache {
+    rules: Vec<Vec<(f64, f64)>>,
+}
+
+/// Largest node count used across a rod.
+pub const MAX_NODES: usize = 48;
+
+impl Default for QuadratureCache {
+    fn default() -> Self {
+        QuadratureCache {
+            rules: (0..=MAX_NODES).map(chebyshev2_rule).collect(),
+        }
+    }
+}
+
+impl QuadratureCache {
+    /// Node count for a marker at distance `rho` (in the x-z plane) from a rod
+    /// of half-width `b`: enough nodes that their spacing (~ pi b / n) stays
+    /// well below `rho`, where the kernel's scale is.
+    #[inline]
+    pub fn nodes_for(b: f64, rho: f64) -> usize {
+        if b <= 0.0 {
+            return 1;
+        }
+        let n = (2.0 + 5.0 * b / rho).ceil();
+        (n as usize).clamp(2, MAX_NODES)
+    }
+
+    /// The rule with `n` nodes.
+    #[inline]
+    pub fn rule(&self, n: usize) -> &[(f64, f64)] {
+        &self.rules[n.clamp(1, MAX_NODES)]
+    }
+}
+
+impl RodLoad {
+    /// Half-space displacement (mm) at marker `(s, y, z)`, z > 0.
+    #[inline]
+    pub fn half_space(
+        &self,
+        mat: &Material,
+        q: &QuadratureCache,
+        s: f64,
+        y: f64,
+        z: f64,
+    ) -> [f64; 3] {
+        let len = self.y_hi - self.y_lo;
+        let f = [
+            self.force[0] / len,
+            self.force[1] / len,
+            self.force[2] / len,
+        ];
+        let x0 = s - self.s_mm;
+        let y1 = y - self.y_hi;
+        let y2 = y - self.y_lo;
+        let b = self.half_width;
+        let rho = (x0 * x0 + z * z).sqrt();
+        let n = QuadratureCache::nodes_for(b, rho);
+        let mut u = [0.0; 3];
+        if b <= 0.0 {
+            return line_segment_displacement(mat, f, x0, y1, y2, z);
+        }
+        for &(t, w) in q.rule(n) {
+            let d = line_segment_displacement(mat, f, x0 - b * t, y1, y2, z);
+            for c in 0..3 {
+                u[c] += w * d[c];
+            }
+        }
+        u
+    }
+
+    /// Displacement (mm) of a marker at depth `z` in a layer of thickness
+    /// `T = mat.layer_mm` bonded to a rigid base.
+    ///
+    /// Normal component: half-space at `z` minus half-space at the base
+    /// (Steinbrenner's settlement correction), which cuts off the logarithmic
+    /// growth of the line-load solution and lets the layer bulge up beside the
+    /// contact as an incompressible layer does. Lateral components: the
+    /// half-space ones tapered linearly to zero at the bonded base,
+    /// `(1 - z/T)`. (Subtracting the base's lateral displacement as well would
+    /// be wrong here: in a half-space the sideways motion grows with depth up to
+    /// `z ~ |x|`, so the difference would point *inward* beside the contact,
+    /// whereas the gel squeezed out of a bonded layer moves outward.)
+    #[inline]
+    pub fn layer(&self, mat: &Material, q: &QuadratureCache, s: f64, y: f64, z: f64) -> [f64; 3] {
+        let top = self.half_space(mat, q, s, y, z);
+        let base = self.half_space(mat, q, s, y, mat.layer_mm);
+        let taper = (1.0 - z / mat.layer_mm).max(0.0);
+        [top[0] * taper, top[1] * taper, top[2] - base[2]]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mat() -> Material {
+        Material::default()
+    }
+
+    /// Brute force: midpoint sum of the point solution along y with a sinh
+    /// substitution (dense near the peak).
+    fn brute_line(mat: &Material, f: [f64; 3], x: f64, y1: f64, y2: f64, z: f64) -> [f64; 3] {
+        let c = (x * x + z * z).sqrt();
+        let (t1, t2) = ((y1 / c).asinh(), (y2 / c).asinh());
+        let n = 20_000;
+        let h = (t2 - t1) / n as f64;
+        let mut u = [0.0; 3];
+        for i in 0..n {
+            let t = t1 + (i as f64 + 0.5) * h;
+            let y = c * t.sinh();
+            let dy = c * t.cosh() * h;
+            let p = point_displacement(mat, f, [x, y, z]);
+            for k in 0..3 {
+                u[k] += p[k] * dy;
+            }
+        }
+        u
+    }
+
+    #[test]
+    fn closed_form_line_integral_matches_brute_force() {
+        let m = mat();
+        for &(x, y1, y2, z) in &[
+            (0.0, -20.0, 20.0, 1.0),
+            (0.7, -3.0, 37.0, 0.5),
+            (-2.5, -39.0, 1.0, 2.0),
+            (10.0, 5.0, 45.0, 4.0),
+            (1e-7, -20.0, 20.0, 0.5),
+        ] {
+            for f in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
+                let a = line_segment_displacement(&m, f, x, y1, y2, z);
+                let b = brute_line(&m, f, x, y1, y2, z);
+                let scale = b.iter().fold(1e-3f64, |s, v| s.max(v.abs()));
+                for k in 0..3 {
+                    assert!(
+                        (a[k] - b[k]).abs() < 1e-5 * scale,
+                        "x={x} y=[{y1},{y2}] z={z} f={f:?} k={k}: {} vs {}",
+                        a[k],
+                        b[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn point_solution_symmetries() {
+        let m = mat();
+        let fz = [0.0, 0.0, 1.0];
+        let u = point_displacement(&m, fz, [1.0, 0.5, 2.0]);
+        let v = point_displacement(&m, fz, [-1.0, 0.5, 2.0]);
+        let w = point_displacement(&m, fz, [0.5, 1.0, 2.0]);
+        // Mirror in x flips u_x; rotation by 90 deg swaps x and y.
+        assert!(
+            (u[0] + v[0]).abs() < 1e-12
+                && (u[1] - v[1]).abs() < 1e-12
+                && (u[2] - v[2]).abs() < 1e-12
+        );
+        assert!((u[0] - w[1]).abs() < 1e-12 && (u[2] - w[2]).abs() < 1e-12);
+        // Pressing pushes the gel in and, below the surface, outward.
+        assert!(u[2] > 0.0 && u[0] > 0.0 && v[0] < 0.0);
+    }
+
+    #[test]
+    fn rod_footprint_matches_brute_force_2d_sum() {
+        let m = mat();
+        let q = QuadratureCache::default();
+        for (b, s_m, z) in [
+            (1.2, 0.3, 0.5),
+            (2.2, 1.5, 1.0),
+            (0.6, -4.0, 0.5),
+            (1.5, 9.0, 3.0),
+            (2.0, 0.0, 0.5),
+        ] {
+            let rod = RodLoad {
+                s_mm: 0.0,
+                y_lo: -20.0,
+                y_hi: 20.0,
+                half_width: b,
+                force: [0.3, 0.1, 1.0],
+            };
+            let got = rod.half_space(&m, &q, s_m, 3.0, z);
+            // Brute force across the rod: fine midpoint sum of the elliptical
+            // pressure (with the sin substitution xi = b sin phi that makes the
+            // weight smooth), each strip by the closed-form line integral
+            // (checked against the point solution above).
+            let n = 4000;
+            let mut want = [0.0; 3];
+            let len = rod.y_hi - rod.y_lo;
+            for i in 0..n {
+                let phi = -PI / 2.0 + (i as f64 + 0.5) * PI / n as f64;
+                let xi = b * phi.sin();
+                let w = 2.0 / PI * phi.cos().powi(2) * PI / n as f64;
+                let f = [rod.force[0] / len, rod.force[1] / len, rod.force[2] / len];
+                let d = line_segment_displacement(&m, f, s_m - xi, 3.0 - 20.0, 3.0 + 20.0, z);
+                for k in 0..3 {
+                    want[k] += w * d[k];
+                }
+            }
+            let scale = want.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+            for k in 0..3 {
+                assert!(
+                    (got[k] - want[k]).abs() < 2e-3 * scale,
+                    "b={b} s={s_m} z={z} k={k}: {} vs {}",
+                    got[k],
+                    want[k]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn hertz_width_grows_with_load_and_radius() {
+        let m = mat();
+        let b1 = hertz_half_width(&m, 5.0, 220.0, 1.0 / 40.0);
+        let b3 = hertz_half_width(&m, 5.0, 220.0, 3.0 / 40.0);
+        let b1s = hertz_half_width(&m, 1.0, 220.0, 1.0 / 40.0);
+        assert!((b3 / b1 - 3f64.sqrt()).abs() < 1e-12);
+        assert!(b1s < b1 && b1 > 0.5 && b1 < 3.0, "{b1}");
+    }
+
+    #[test]
+    fn material_ranges() {
+        assert!(
+            Material {
+                poisson: 0.5,
+                ..mat()
+            }
+            .validate()
+            .is_err()
+        );
+        assert!(
+            Material {
+                youngs_kpa: -1.0,
+                ..mat()
+            }
+            .validate()
+            .is_err()
+        );
+        assert!(
+            Material {
+                layer_mm: 0.0,
+                ..mat()
+            }
+            .validate()
+            .is_err()
+        );
+        mat().validate().unwrap();
+    }
+}

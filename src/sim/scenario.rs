@@ -1,0 +1,731 @@
+//! Scenarios: sequences of frames with ground truth, written to a folder in the
+//! DATASET.md formats.
+//!
+//! Every scenario writes its frames as 8-bit grey PNG. Sequences (`single`,
+//! `pair`, `perches`, `mapping`) write `000000.png, 000001.png, ...` (frame 0
+//! is the unloaded reference), `truth.jsonl` (one line per frame with the true
+//! contacts) and, unless disabled, the true dense motion of each frame as
+//! `flow/000000.flo`. `characterization` writes `tests.csv` and
+//! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::rng::{SplitMix64, mix64};
+use super::sensor::{Contact, SimConfig, SyntheticSensor};
+use crate::error::{Error, Result};
+use crate::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
+
+/// Options shared by every scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Common {
+    /// Output folder (created if missing).
+    pub out: PathBuf,
+    /// Seed: fixes the marker layout, the noise and every random choice.
+    pub seed: u64,
+    /// Write the true dense motion (`.flo`) of every frame.
+    pub flow: bool,
+    /// Frame rate for the `t_s` time stamps.
+    pub fps: f64,
+    /// The synthetic sensor's configuration.
+    pub config: SimConfig,
+}
+
+impl Common {
+    /// Defaults for `out`: seed 1, flow on, 50 fps, default sensor.
+    pub fn new(out: impl Into<PathBuf>) -> Self {
+        Common {
+            out: out.into(),
+            seed: 1,
+            flow: true,
+            fps: 50.0,
+            config: SimConfig::default(),
+        }
+    }
+}
+
+/// One indenter pressing with a force ramp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Single {
+    /// Chord position, mm.
+    pub x_mm: f64,
+    /// Peak force magnitude, N.
+    pub force_n: f64,
+    /// Number of frames including the unloaded reference (frame 0).
+    pub frames: usize,
+    /// Rod diameter, mm.
+    pub indenter_mm: f64,
+    /// Tilt of the force in the y-z plane, degrees.
+    pub yaw_deg: f64,
+    /// Tilt of the force in the x-z plane, degrees.
+    pub pitch_deg: f64,
+}
+
+impl Default for Single {
+    fn default() -> Self {
+        Single {
+            x_mm: 0.0,
+            force_n: 2.0,
+            frames: 10,
+            indenter_mm: 5.0,
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+        }
+    }
+}
+
+/// Two indenters at a given spacing, pressing together with force ramps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pair {
+    /// Chord position of the midpoint between the rods, mm.
+    pub x_mm: f64,
+    /// Distance between the rods along the arc, mm.
+    pub spacing_mm: f64,
+    /// Peak force of the first (left) rod, N.
+    pub force_n: f64,
+    /// Peak force of the second (right) rod, N.
+    pub force2_n: f64,
+    /// Number of frames including the reference.
+    pub frames: usize,
+    /// Rod diameter, mm.
+    pub indenter_mm: f64,
+}
+
+impl Default for Pair {
+    fn default() -> Self {
+        Pair {
+            x_mm: 0.0,
+            spacing_mm: 40.0,
+            force_n: 2.0,
+            force2_n: 1.5,
+            frames: 10,
+            indenter_mm: 5.0,
+        }
+    }
+}
+
+/// The characterization protocol (SPEC.md).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Characterization {
+    /// Only a random subset of this many tests (all when `None`).
+    pub subset: Option<usize>,
+    /// Repetitions per (point, indenter, tilt, force).
+    pub repeats: u32,
+    /// Load-cell noise, N (standard deviation per axis).
+    pub load_cell_noise_n: f64,
+}
+
+impl Default for Characterization {
+    fn default() -> Self {
+        Characterization {
+            subset: None,
+            repeats: 5,
+            load_cell_noise_n: 0.01,
+        }
+    }
+}
+
+/// Two perches of different stiffness under a descending body.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Perches {
+    /// Chord positions of the two rods, mm.
+    pub x_mm: [f64; 2],
+    /// Stiffness of the two rods, N/mm (force = stiffness x penetration).
+    pub stiffness_n_per_mm: [f64; 2],
+    /// Deepest penetration of the skin, mm.
+    pub max_penetration_mm: f64,
+    /// Number of frames including the reference.
+    pub frames: usize,
+    /// Rod diameter, mm.
+    pub indenter_mm: f64,
+}
+
+impl Default for Perches {
+    fn default() -> Self {
+        Perches {
+            x_mm: [-60.0, 50.0],
+            stiffness_n_per_mm: [1.0, 2.0],
+            max_penetration_mm: 1.5,
+            frames: 12,
+            indenter_mm: 10.0,
+        }
+    }
+}
+
+/// Touch, move, touch along a trajectory over rods at known world positions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mapping {
+    /// World x of each rod's axis, m (rods lie along world y).
+    pub rods_x_m: Vec<f64>,
+    /// Height of the rods' tops, m.
+    pub rods_top_m: f64,
+    /// Touches per rod (each at a new random place on the skin).
+    pub touches: usize,
+    /// Peak force of a touch, N.
+    pub force_n: f64,
+    /// Rod diameter, mm.
+    pub indenter_mm: f64,
+}
+
+impl Default for Mapping {
+    fn default() -> Self {
+        Mapping {
+            rods_x_m: vec![0.4, 0.9, 1.35, 1.9, 2.5],
+            rods_top_m: 1.0,
+            touches: 2,
+            force_n: 1.5,
+            indenter_mm: 10.0,
+        }
+    }
+}
+
+/// A scenario and its options.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Scenario {
+    /// One indenter, force ramp, optional tilt.
+    Single(Single),
+    /// Two indenters at a given spacing.
+    Pair(Pair),
+    /// The characterization protocol in the `tests.csv` format.
+    Characterization(Characterization),
+    /// Two perches of different stiffness.
+    Perches(Perches),
+    /// Touch mapping with poses.
+    Mapping(Mapping),
+}
+
+/// What a scenario wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    /// The output folder.
+    pub out: PathBuf,
+    /// Number of PNG frames written.
+    pub frames: usize,
+}
+
+/// The force of magnitude `f` pressing along the world vertical on a sensor
+/// tilted by `(yaw, pitch)` degrees, in the sensor frame: pitch turns it in the
+/// x-z plane (positive pitch gives positive `Fx`), yaw in the y-z plane.
+pub fn tilted_force(f: f64, yaw_deg: f64, pitch_deg: f64) -> [f64; 3] {
+    let (sy, cy) = yaw_deg.to_radians().sin_cos();
+    let (sp, cp) = pitch_deg.to_radians().sin_cos();
+    [f * sp * cy, f * sy, -f * cp * cy]
+}
+
+fn check_force(name: &str, f: f64) -> Result<()> {
+    if !(f.is_finite() && f >= 0.0) {
+        return Err(Error::param(
+            name,
+            format!("force magnitude must be finite and >= 0, got {f}"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_frames(n: usize) -> Result<()> {
+    if n < 2 {
+        return Err(Error::param(
+            "frames",
+            format!("need at least 2 (reference + one loaded), got {n}"),
+        ));
+    }
+    Ok(())
+}
+
+fn create_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    // Creating succeeds on an existing read-only folder: probe that we can write.
+    let probe = dir.join(".write-probe");
+    std::fs::write(&probe, b"").map_err(|e| Error::io(dir, e))?;
+    std::fs::remove_file(&probe).map_err(|e| Error::io(&probe, e))
+}
+
+/// Writes frames + truth of a contact sequence.
+struct SequenceWriter {
+    out: PathBuf,
+    flow: bool,
+    fps: f64,
+    truth: io::JsonlWriter,
+    n: usize,
+}
+
+impl SequenceWriter {
+    fn new(c: &Common) -> Result<Self> {
+        create_dir(&c.out)?;
+        if c.flow {
+            create_dir(&c.out.join("flow"))?;
+        }
+        Ok(SequenceWriter {
+            out: c.out.clone(),
+            flow: c.flow,
+            fps: c.fps,
+            truth: io::JsonlWriter::create(c.out.join("truth.jsonl"))?,
+            n: 0,
+        })
+    }
+
+    fn name(&self) -> String {
+        format!("{:06}.png", self.n)
+    }
+
+    fn frame(&mut self, sensor: &SyntheticSensor, contacts: &[Contact]) -> Result<String> {
+        let name = self.name();
+        let r = sensor.render_indexed(self.n as u64, contacts, self.flow)?;
+        io::write_gray_png(self.out.join(&name), &r.frame)?;
+        if let Some(flow) = &r.flow {
+            io::write_flo(
+                self.out.join("flow").join(format!("{:06}.flo", self.n)),
+                flow,
+            )?;
+        }
+        let rec = FrameRecord {
+            frame: name.clone(),
+            t_s: self.n as f64 / self.fps,
+            contacts: contacts.iter().map(|c| truth_record(sensor, c)).collect(),
+            latency_ms: None,
+        };
+        self.truth.write(&rec)?;
+        self.n += 1;
+        Ok(name)
+    }
+}
+
+/// The DATASET.md record of a true contact (pixel position in the strip image).
+pub fn truth_record(sensor: &SyntheticSensor, c: &Contact) -> ContactRecord {
+    let cfg = sensor.config();
+    let s = cfg.skin.geometry.chord_to_arc(c.x_mm);
+    ContactRecord {
+        x_mm: c.x_mm,
+        y_mm: 0.0,
+        z_mm: cfg.skin.z_at(c.x_mm),
+        fx_n: c.force_n[0],
+        fy_n: c.force_n[1],
+        fz_n: c.force_n[2],
+        x_px: Some(cfg.camera.s_to_px(&cfg.skin, s)),
+        y_px: Some(cfg.camera.y_to_px(0.0)),
+        ..Default::default()
+    }
+}
+
+/// Runs a scenario, writing everything into `common.out`.
+pub fn run(scenario: &Scenario, common: &Common) -> Result<Summary> {
+    if !(common.fps.is_finite() && common.fps > 0.0) {
+        return Err(Error::param(
+            "fps",
+            format!("must be > 0, got {}", common.fps),
+        ));
+    }
+    // Check every option before touching the disk.
+    match scenario {
+        Scenario::Single(o) => {
+            check_force("force_n", o.force_n)?;
+            check_frames(o.frames)?;
+        }
+        Scenario::Pair(o) => {
+            check_force("force_n", o.force_n)?;
+            check_force("force2_n", o.force2_n)?;
+            check_frames(o.frames)?;
+            if !(o.spacing_mm.is_finite() && o.spacing_mm > 0.0) {
+                return Err(Error::param(
+                    "spacing_mm",
+                    format!("must be > 0, got {}", o.spacing_mm),
+                ));
+            }
+        }
+        Scenario::Characterization(o) => {
+            if o.repeats == 0 {
+                return Err(Error::param("repeats", "need at least 1"));
+            }
+            if o.subset == Some(0) {
+                return Err(Error::param("subset", "need at least 1 test"));
+            }
+            check_force("load_cell_noise_n", o.load_cell_noise_n)?;
+        }
+        Scenario::Perches(o) => {
+            check_frames(o.frames)?;
+            for k in o.stiffness_n_per_mm {
+                if !(k.is_finite() && k > 0.0) {
+                    return Err(Error::param(
+                        "stiffness_n_per_mm",
+                        format!("must be > 0, got {k}"),
+                    ));
+                }
+            }
+            if !(o.max_penetration_mm.is_finite() && o.max_penetration_mm >= 0.0) {
+                return Err(Error::param("max_penetration_mm", "must be >= 0"));
+            }
+        }
+        Scenario::Mapping(o) => {
+            check_force("force_n", o.force_n)?;
+            if o.rods_x_m.is_empty() || o.touches == 0 {
+                return Err(Error::param(
+                    "rods_x_m",
+                    "need at least one rod and one touch",
+                ));
+            }
+            if o.rods_x_m.iter().any(|x| !x.is_finite()) || !o.rods_top_m.is_finite() {
+                return Err(Error::param("rods_x_m", "rod positions must be finite"));
+            }
+        }
+    }
+    let sensor = SyntheticSensor::new(common.config, common.seed)?;
+    match scenario {
+        Scenario::Single(o) => single(&sensor, common, o),
+        Scenario::Pair(o) => pair(&sensor, common, o),
+        Scenario::Characterization(o) => characterization(&sensor, common, o),
+        Scenario::Perches(o) => perches(&sensor, common, o),
+        Scenario::Mapping(o) => mapping(&sensor, common, o),
+    }
+}
+
+/// Ramp fraction for frame `k` of `n` (frame 0 unloaded, last frame full).
+fn ramp(k: usize, n: usize) -> f64 {
+    k as f64 / (n - 1) as f64
+}
+
+fn single(sensor: &SyntheticSensor, c: &Common, o: &Single) -> Result<Summary> {
+    let f = tilted_force(1.0, o.yaw_deg, o.pitch_deg);
+    // Reject a bad contact before writing anything.
+    sensor.loads(&[Contact::rod(o.x_mm, f, o.indenter_mm)])?;
+    let mut w = SequenceWriter::new(c)?;
+    for k in 0..o.frames {
+        let a = o.force_n * ramp(k, o.frames);
+        let contacts = if k == 0 {
+            vec![]
+        } else {
+            vec![Contact::rod(o.x_mm, f.map(|v| v * a), o.indenter_mm)]
+        };
+        w.frame(sensor, &contacts)?;
+    }
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
+fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair) -> Result<Summary> {
+    let skin = &c.config.skin;
+    let s_mid = skin.chord_to_arc(o.x_mm)?;
+    let xs = [
+        skin.arc_to_chord(s_mid - 0.5 * o.spacing_mm),
+        skin.arc_to_chord(s_mid + 0.5 * o.spacing_mm),
+    ];
+    let peaks = [o.force_n, o.force2_n];
+    let at = |k: usize| -> Vec<Contact> {
+        if k == 0 {
+            return vec![];
+        }
+        (0..2)
+            .map(|i| {
+                Contact::rod(
+                    xs[i],
+                    [0.0, 0.0, -peaks[i] * ramp(k, o.frames)],
+                    o.indenter_mm,
+                )
+            })
+            .collect()
+    };
+    sensor.loads(&at(o.frames - 1))?;
+    // Both rods must really be on the skin (arc_to_chord never fails).
+    for s in [s_mid - 0.5 * o.spacing_mm, s_mid + 0.5 * o.spacing_mm] {
+        if s.abs() > skin.half_length() {
+            return Err(Error::param(
+                "spacing_mm",
+                format!("a rod at arc length {s:.1} mm is off the skin"),
+            ));
+        }
+    }
+    let mut w = SequenceWriter::new(c)?;
+    for k in 0..o.frames {
+        w.frame(sensor, &at(k))?;
+    }
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
+/// Measuring points and their split (SPEC.md): points 2-14; 5, 8, 11 are
+/// validation; the test split repeats points 5, 8, 11.
+const TRAIN_POINTS: [u32; 10] = [2, 3, 4, 6, 7, 9, 10, 12, 13, 14];
+const HELD_OUT_POINTS: [u32; 3] = [5, 8, 11];
+const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
+const TILTS_DEG: [(f64, f64); 5] = [
+    (0.0, 0.0),
+    (0.0, 15.0),
+    (0.0, -15.0),
+    (15.0, 0.0),
+    (-15.0, 0.0),
+];
+const FORCES_N: [f64; 6] = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
+
+/// One planned characterization test.
+#[derive(Debug, Clone, Copy)]
+struct Planned {
+    point: u32,
+    indenter: f64,
+    tilt: (f64, f64),
+    repeat: u32,
+    force: f64,
+    split: Split,
+}
+
+fn protocol(repeats: u32) -> Vec<Planned> {
+    let mut v = Vec::new();
+    let groups: [(&[u32], Split); 3] = [
+        (&TRAIN_POINTS, Split::Train),
+        (&HELD_OUT_POINTS, Split::Val),
+        (&HELD_OUT_POINTS, Split::Test),
+    ];
+    for (points, split) in groups {
+        for &point in points {
+            for &indenter in &INDENTERS_MM {
+                for &tilt in &TILTS_DEG {
+                    for repeat in 1..=repeats {
+                        for &force in &FORCES_N {
+                            v.push(Planned {
+                                point,
+                                indenter,
+                                tilt,
+                                repeat,
+                                force,
+                                split,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+    v
+}
+
+fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) -> Result<Summary> {
+    let all = protocol(o.repeats);
+    let mut ids: Vec<usize> = (0..all.len()).collect();
+    if let Some(n) = o.subset {
+        // Partial Fisher-Yates with its own stream, then back to protocol order.
+        let mut rng = SplitMix64::new(mix64(c.seed ^ 0x5EB5_E7C0_FFEE_0001));
+        let n = n.min(ids.len());
+        for i in 0..n {
+            let j = i + rng.below((ids.len() - i) as u64) as usize;
+            ids.swap(i, j);
+        }
+        ids.truncate(n);
+        ids.sort_unstable();
+    }
+    create_dir(&c.out)?;
+    create_dir(&c.out.join("frames"))?;
+    if c.flow {
+        create_dir(&c.out.join("flow"))?;
+    }
+    let skin = &c.config.skin;
+    let mut rows = Vec::with_capacity(ids.len());
+    for (done, &id) in ids.iter().enumerate() {
+        let p = all[id];
+        let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
+        let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
+        let contact = Contact::rod(x, f, p.indenter);
+        // Fresh noise and flicker for each image: frame indices from the test id.
+        let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
+        let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
+        let frame = format!("frames/t{id:04}.png");
+        let refname = format!("frames/t{id:04}_ref.png");
+        io::write_gray_png(c.out.join(&refname), &reference.frame)?;
+        io::write_gray_png(c.out.join(&frame), &loaded.frame)?;
+        if let Some(flow) = &loaded.flow {
+            io::write_flo(c.out.join(format!("flow/t{id:04}.flo")), flow)?;
+        }
+        // The load cell reads the true force plus a little noise.
+        let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(id as u64 ^ 0x10AD_CE11)));
+        let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
+        rows.push(TestRow {
+            test: id,
+            frame,
+            reference: refname,
+            point: p.point,
+            indenter_mm: p.indenter,
+            yaw_deg: p.tilt.0,
+            pitch_deg: p.tilt.1,
+            repeat: p.repeat,
+            force_n: p.force,
+            split: p.split,
+            x_mm: x,
+            y_mm: 0.0,
+            fx_n: noisy[0],
+            fy_n: noisy[1],
+            fz_n: noisy[2],
+        });
+        if (done + 1) % 200 == 0 {
+            eprintln!("characterization: {} / {} tests", done + 1, ids.len());
+        }
+    }
+    io::write_tests_csv(c.out.join("tests.csv"), &rows)?;
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: 2 * rows.len(),
+    })
+}
+
+#[derive(Serialize)]
+struct PerchInfo {
+    x_mm: f64,
+    stiffness_n_per_mm: f64,
+    diameter_mm: f64,
+}
+
+fn perches(sensor: &SyntheticSensor, c: &Common, o: &Perches) -> Result<Summary> {
+    let at = |k: usize| -> Vec<Contact> {
+        let pen = o.max_penetration_mm * ramp(k, o.frames);
+        (0..2)
+            .filter(|_| k > 0)
+            .map(|i| {
+                Contact::rod(
+                    o.x_mm[i],
+                    [0.0, 0.0, -o.stiffness_n_per_mm[i] * pen],
+                    o.indenter_mm,
+                )
+            })
+            .collect()
+    };
+    sensor.loads(&at(o.frames - 1))?;
+    let mut w = SequenceWriter::new(c)?;
+    for k in 0..o.frames {
+        w.frame(sensor, &at(k))?;
+    }
+    let info: Vec<PerchInfo> = (0..2)
+        .map(|i| PerchInfo {
+            x_mm: o.x_mm[i],
+            stiffness_n_per_mm: o.stiffness_n_per_mm[i],
+            diameter_mm: o.indenter_mm,
+        })
+        .collect();
+    write_json(&c.out.join("perches.json"), &info)?;
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
+fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<()> {
+    let s =
+        serde_json::to_string_pretty(v).map_err(|e| Error::format(path, None, e.to_string()))?;
+    std::fs::write(path, s + "\n").map_err(|e| Error::io(path, e))
+}
+
+#[derive(Serialize)]
+struct RodInfo {
+    x_m: f64,
+    top_m: f64,
+    diameter_mm: f64,
+}
+
+#[derive(Serialize)]
+struct WorldInfo {
+    /// Rods lie along the world y axis.
+    rods: Vec<RodInfo>,
+    /// Rotation of the sensor frame in the body frame (rows), and its offset, m.
+    sensor_in_body_rotation: [[f64; 3]; 3],
+    sensor_in_body_offset_m: [f64; 3],
+    note: &'static str,
+}
+
+/// The sensor hangs under the body with its skin facing down: sensor x = body
+/// x, sensor y = -body y, sensor z = -body z (180 deg about x).
+const SENSOR_IN_BODY: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]];
+
+fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary> {
+    let skin = &c.config.skin;
+    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x3A99_1F6E));
+    let mut w = SequenceWriter::new(c)?;
+    let mut poses = Vec::new();
+    let hover = 0.05; // m above the touching height while travelling
+    let mut push = |w: &mut SequenceWriter, pose: [f64; 3], contacts: &[Contact]| -> Result<()> {
+        let name = w.frame(sensor, contacts)?;
+        poses.push(PoseRow {
+            frame: name,
+            t_s: (w.n - 1) as f64 / w.fps,
+            x_m: pose[0],
+            y_m: pose[1],
+            z_m: pose[2],
+            qw: 1.0,
+            qx: 0.0,
+            qy: 0.0,
+            qz: 0.0,
+        });
+        Ok(())
+    };
+    // Reference: hovering before the first rod.
+    let first = o.rods_x_m[0];
+    push(&mut w, [first - 0.2, 0.0, o.rods_top_m + 0.3], &[])?;
+    let reach = 0.8 * skin.arc_to_chord(skin.half_length()); // mm of chord used
+    for &rod in &o.rods_x_m {
+        for _ in 0..o.touches {
+            let x_mm = rng.uniform(-reach, reach);
+            let px = rod - x_mm * 1e-3;
+            // Skin touches the rod's top when the body is this high.
+            let touch_z = o.rods_top_m + skin.z_at(x_mm) * 1e-3;
+            push(&mut w, [px, 0.0, touch_z + hover], &[])?;
+            for (k, frac) in [0.33, 0.67, 1.0].into_iter().enumerate() {
+                let f = o.force_n * frac;
+                // Deeper press, deeper body (1 mm per N of the skin's response).
+                let z = touch_z - (k as f64 + 1.0) * 0.3e-3;
+                push(
+                    &mut w,
+                    [px, 0.0, z],
+                    &[Contact::rod(x_mm, [0.0, 0.0, -f], o.indenter_mm)],
+                )?;
+            }
+            push(&mut w, [px, 0.0, touch_z + hover], &[])?;
+        }
+    }
+    io::write_poses_csv(c.out.join("poses.csv"), &poses)?;
+    let info = WorldInfo {
+        rods: o
+            .rods_x_m
+            .iter()
+            .map(|&x| RodInfo {
+                x_m: x,
+                top_m: o.rods_top_m,
+                diameter_mm: o.indenter_mm,
+            })
+            .collect(),
+        sensor_in_body_rotation: SENSOR_IN_BODY,
+        sensor_in_body_offset_m: [0.0, 0.0, 0.0],
+        note: "rods lie along world y; a contact at sensor (x_mm, y_mm, z_mm) is at world \
+               p + R_body * (S * [x, y, z] / 1000) with S = sensor_in_body_rotation",
+    };
+    write_json(&c.out.join("rods.json"), &info)?;
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dataset_example_row_force() {
+        let f = tilted_force(1.5, 0.0, 15.0);
+        assert!((f[0] - 0.39).abs() < 0.005 && f[1].abs() < 1e-12 && (f[2] + 1.45).abs() < 0.005);
+        let g = tilted_force(2.0, -15.0, 0.0);
+        assert!(g[0].abs() < 1e-12 && g[1] < 0.0);
+        assert!(((g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn protocol_counts() {
+        let p = protocol(5);
+        // (10 train + 3 val + 3 test points) x 3 indenters x 5 tilts x 5 repeats x 6 forces
+        assert_eq!(p.len(), 16 * 3 * 5 * 5 * 6);
+        assert_eq!(p.iter().filter(|t| t.split == Split::Train).count(), 4500);
+        assert!(
+            p.iter()
+                .filter(|t| t.split != Split::Train)
+                .all(|t| [5, 8, 11].contains(&t.point))
+        );
+    }
+}

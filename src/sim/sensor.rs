@@ -1,0 +1,477 @@
+//! [`SyntheticSensor`]: configuration, markers, contacts -> marker motion.
+
+use crate::error::{Error, Result};
+use crate::flow::FlowField;
+use ndarray::Array2;
+use rayon::prelude::*;
+
+use super::camera::{Camera, Skin};
+use super::elastic::{Material, QuadratureCache, RodLoad, hertz_half_width};
+use super::render;
+use super::rng::{SplitMix64, mix64};
+
+/// One rod contact, given in the sensor frame (SPEC.md): the rod lies across the
+/// whole width of the skin at chord position `x_mm`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Contact {
+    /// Chord position of the rod's axis, mm (sensor x).
+    pub x_mm: f64,
+    /// Force the rod applies on the skin, sensor frame, N: `[Fx, Fy, Fz]`; a
+    /// press has `Fz < 0`.
+    pub force_n: [f64; 3],
+    /// Rod (indenter) diameter, mm (2-10 in the characterization).
+    pub diameter_mm: f64,
+}
+
+impl Contact {
+    /// A rod of `diameter_mm` at chord `x_mm` applying `force_n` (sensor frame).
+    pub fn rod(x_mm: f64, force_n: [f64; 3], diameter_mm: f64) -> Self {
+        Contact {
+            x_mm,
+            force_n,
+            diameter_mm,
+        }
+    }
+}
+
+/// How the markers are scattered and how they look.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MarkerConfig {
+    /// Fraction of the skin image covered by spots (0.25-0.35 looks like the real
+    /// sensor); sets the marker count unless `count` is given.
+    pub coverage: f64,
+    /// Explicit marker count (overrides `coverage`).
+    pub count: Option<usize>,
+    /// Range of spot full widths at half maximum, px.
+    pub fwhm_px: (f64, f64),
+    /// Range of marker depths below the contact surface, mm.
+    pub depth_mm: (f64, f64),
+    /// Range of peak spot brightness, 8-bit grey levels.
+    pub brightness: (f64, f64),
+}
+
+impl Default for MarkerConfig {
+    fn default() -> Self {
+        MarkerConfig {
+            coverage: 0.3,
+            count: None,
+            fwhm_px: (2.5, 3.0),
+            depth_mm: (0.5, 4.0),
+            brightness: (70.0, 200.0),
+        }
+    }
+}
+
+/// Camera noise and lighting.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseConfig {
+    /// Grey level of the gel between markers (black coating seen through it).
+    pub background: f32,
+    /// Grey level outside the skin (strip margins, rest of the full frame).
+    pub outside: f32,
+    /// Shot-noise variance per grey level (variance = `shot * I + read^2`).
+    pub shot: f32,
+    /// Read-noise standard deviation, grey levels.
+    pub read: f32,
+    /// Relative standard deviation of the per-frame brightness flicker.
+    pub flicker: f32,
+    /// Vignetting strength: gain `1 - v r^2` at relative radius `r` in the full frame.
+    pub vignetting: f32,
+}
+
+impl Default for NoiseConfig {
+    fn default() -> Self {
+        NoiseConfig {
+            background: 14.0,
+            outside: 4.0,
+            shot: 0.15,
+            read: 1.0,
+            flicker: 0.01,
+            vignetting: 0.35,
+        }
+    }
+}
+
+/// Everything that defines a synthetic sensor (all with sensible defaults).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SimConfig {
+    /// Skin geometry.
+    pub skin: Skin,
+    /// Camera mapping and image sizes.
+    pub camera: Camera,
+    /// Gel material.
+    pub material: Material,
+    /// Marker layout and look.
+    pub markers: MarkerConfig,
+    /// Noise and lighting.
+    pub noise: NoiseConfig,
+    /// Render the full camera frame (e.g. 1920x1080) with the strip inside it,
+    /// instead of the strip alone; [`Camera::crop`] gives the strip's rectangle.
+    pub full_frame: bool,
+}
+
+impl SimConfig {
+    /// Checks every parameter; the error names the first bad one.
+    pub fn validate(&self) -> Result<()> {
+        self.skin.validate()?;
+        self.camera.validate(&self.skin)?;
+        self.material.validate()?;
+        let m = &self.markers;
+        if let Some(0) = m.count {
+            return Err(Error::param(
+                "markers.count",
+                "zero markers: nothing to see",
+            ));
+        }
+        if m.count.is_none() && !(m.coverage.is_finite() && m.coverage > 0.0 && m.coverage < 0.95) {
+            return Err(Error::param(
+                "markers.coverage",
+                format!(
+                    "must lie in (0, 0.95), got {} (zero markers: nothing to see)",
+                    m.coverage
+                ),
+            ));
+        }
+        let range = |name: &str, (lo, hi): (f64, f64), min: f64| -> Result<()> {
+            if !(lo.is_finite() && hi.is_finite() && lo >= min && hi >= lo) {
+                return Err(Error::param(
+                    name,
+                    format!("need {min} <= lo <= hi, got ({lo}, {hi})"),
+                ));
+            }
+            Ok(())
+        };
+        range("markers.fwhm_px", m.fwhm_px, 0.5)?;
+        range("markers.depth_mm", m.depth_mm, 1e-3)?;
+        range("markers.brightness", m.brightness, 0.0)?;
+        if m.depth_mm.1 >= self.material.layer_mm {
+            return Err(Error::param(
+                "markers.depth_mm",
+                format!(
+                    "markers down to {} mm do not fit in a {} mm layer",
+                    m.depth_mm.1, self.material.layer_mm
+                ),
+            ));
+        }
+        let n = &self.noise;
+        for (name, v) in [
+            ("noise.background", n.background),
+            ("noise.outside", n.outside),
+            ("noise.shot", n.shot),
+            ("noise.read", n.read),
+            ("noise.flicker", n.flicker),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::param(
+                    name,
+                    format!("must be finite and >= 0, got {v}"),
+                ));
+            }
+        }
+        if !(n.vignetting.is_finite() && (0.0..1.0).contains(&n.vignetting)) {
+            return Err(Error::param("noise.vignetting", "must lie in [0, 1)"));
+        }
+        Ok(())
+    }
+
+    /// Image size `(width, height)` of the rendered frames.
+    pub fn image_size(&self) -> (usize, usize) {
+        if self.full_frame {
+            self.camera.frame_size
+        } else {
+            (self.camera.strip_width, self.camera.strip_height)
+        }
+    }
+}
+
+/// Markers as structure of arrays (hot loops read one field at a time).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Markers {
+    pub s: Vec<f64>,
+    pub y: Vec<f64>,
+    pub z: Vec<f64>,
+    /// Rest position in strip pixels.
+    pub px: Vec<f64>,
+    pub py: Vec<f64>,
+    pub amp: Vec<f32>,
+    pub sigma: Vec<f32>,
+}
+
+/// A frame and its true dense motion.
+#[derive(Debug, Clone)]
+pub struct Rendered {
+    /// The grey image (0..=255, integer-valued like an 8-bit camera frame).
+    pub frame: Array2<f32>,
+    /// True motion from the unloaded state, px (see [`SyntheticSensor::render`]);
+    /// `None` when not requested.
+    pub flow: Option<FlowField>,
+}
+
+/// A synthetic marker-based tactile sensor: build it once from a config and a
+/// seed (which fixes the marker layout), then render frames for any contacts.
+///
+/// ```
+/// use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+/// let mut sensor = SyntheticSensor::new(SimConfig::default(), 42)?;
+/// let reference = sensor.render(&[])?.0;
+/// let press = Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0);
+/// let (frame, truth) = sensor.render(&[press])?;
+/// assert_eq!(frame.dim(), reference.dim());
+/// assert!(truth.magnitude().iter().cloned().fold(0.0, f32::max) > 0.3);
+/// # Ok::<(), optical_tactile::Error>(())
+/// ```
+#[derive(Debug, Clone)]
+pub struct SyntheticSensor {
+    config: SimConfig,
+    seed: u64,
+    markers: Markers,
+    quad: QuadratureCache,
+    next_index: u64,
+}
+
+/// Displacement of the markers in image pixels `(du, dv)`, one per marker.
+pub(crate) type PixelMotion = Vec<(f32, f32)>;
+
+impl SyntheticSensor {
+    /// Builds the sensor: validates `config` and scatters the markers from `seed`.
+    pub fn new(config: SimConfig, seed: u64) -> Result<Self> {
+        config.validate()?;
+        let markers = scatter_markers(&config, seed);
+        Ok(SyntheticSensor {
+            config,
+            seed,
+            markers,
+            quad: QuadratureCache::default(),
+            next_index: 0,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    /// The seed the sensor was built with.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// Number of markers.
+    pub fn marker_count(&self) -> usize {
+        self.markers.s.len()
+    }
+
+    /// Index of the next frame [`SyntheticSensor::render`] makes (noise and
+    /// flicker are drawn per frame index).
+    pub fn frame_index(&self) -> u64 {
+        self.next_index
+    }
+
+    /// Turns contacts into rod loads on the unrolled skin, checking them.
+    pub fn loads(&self, contacts: &[Contact]) -> Result<Vec<RodLoad>> {
+        let skin = &self.config.skin;
+        let mat = &self.config.material;
+        contacts
+            .iter()
+            .map(|c| {
+                if !c.force_n.iter().all(|f| f.is_finite()) {
+                    return Err(Error::param(
+                        "force_n",
+                        format!("must be finite, got {:?}", c.force_n),
+                    ));
+                }
+                if !(c.diameter_mm.is_finite() && c.diameter_mm > 0.0) {
+                    return Err(Error::param(
+                        "diameter_mm",
+                        format!("rod diameter must be > 0, got {}", c.diameter_mm),
+                    ));
+                }
+                let s = skin.chord_to_arc(c.x_mm)?;
+                let local = skin.force_to_local(c.x_mm, c.force_n);
+                let f_in = -local[2];
+                if f_in < -1e-12 {
+                    return Err(Error::param(
+                        "force_n",
+                        format!(
+                            "the force {:?} at x = {} mm pulls the skin outward (normal component \
+                             {:.3} N out of the gel); a rod can only press",
+                            c.force_n, c.x_mm, local[2]
+                        ),
+                    ));
+                }
+                let w = skin.width_mm();
+                let b = hertz_half_width(mat, 0.5 * c.diameter_mm, skin.radius_mm(), f_in / w);
+                Ok(RodLoad {
+                    s_mm: s,
+                    y_lo: -0.5 * w,
+                    y_hi: 0.5 * w,
+                    half_width: b,
+                    force: [local[0], local[1], f_in],
+                })
+            })
+            .collect()
+    }
+
+    /// Displacement (mm, local frame `[along s, across, into the gel]`) at a point
+    /// of the gel `(s, y, depth)` under `loads`.
+    pub fn displacement_at(&self, loads: &[RodLoad], s: f64, y: f64, depth: f64) -> [f64; 3] {
+        let mut u = [0.0; 3];
+        for l in loads {
+            let d = l.layer(&self.config.material, &self.quad, s, y, depth);
+            for k in 0..3 {
+                u[k] += d[k];
+            }
+        }
+        u
+    }
+
+    /// Every marker's displacement (mm, local frame) under `contacts`.
+    pub fn marker_displacements(&self, contacts: &[Contact]) -> Result<Vec<[f64; 3]>> {
+        let loads = self.loads(contacts)?;
+        let m = &self.markers;
+        Ok((0..m.s.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| self.displacement_at(&loads, m.s[i], m.y[i], m.z[i]))
+            .collect())
+    }
+
+    /// Rest positions of the markers: `(s_mm, y_mm, depth_mm, x_px, y_px)` with
+    /// pixel positions in the strip image.
+    pub fn marker_positions(&self) -> Vec<(f64, f64, f64, f64, f64)> {
+        let m = &self.markers;
+        (0..m.s.len())
+            .map(|i| (m.s[i], m.y[i], m.z[i], m.px[i], m.py[i]))
+            .collect()
+    }
+
+    /// Image motion (px) of a point at `(s, y)` displaced by `u` (mm, local).
+    #[inline]
+    fn to_pixels(&self, s: f64, u: [f64; 3]) -> (f32, f32) {
+        let cam = &self.config.camera;
+        let skin = &self.config.skin;
+        let du = cam.s_to_px(skin, s + u[0]) - cam.s_to_px(skin, s);
+        let dv = cam.px_per_mm_y * u[1];
+        (du as f32, dv as f32)
+    }
+
+    pub(crate) fn marker_pixel_motion(&self, loads: &[RodLoad]) -> PixelMotion {
+        let m = &self.markers;
+        if loads.is_empty() {
+            return vec![(0.0, 0.0); m.s.len()];
+        }
+        (0..m.s.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| self.to_pixels(m.s[i], self.displacement_at(loads, m.s[i], m.y[i], m.z[i])))
+            .collect()
+    }
+
+    /// The motion field at the markers' mean depth, sampled every `step` strip
+    /// pixels (the truth flow between markers). Returns `(nx, ny, du, dv)`.
+    pub(crate) fn mean_depth_grid(
+        &self,
+        loads: &[RodLoad],
+        step: usize,
+    ) -> (usize, usize, Vec<f32>, Vec<f32>) {
+        let cam = &self.config.camera;
+        let skin = &self.config.skin;
+        let nx = cam.strip_width.div_ceil(step) + 1;
+        let ny = cam.strip_height.div_ceil(step) + 1;
+        let depth = 0.5 * (self.config.markers.depth_mm.0 + self.config.markers.depth_mm.1);
+        let half_w = 0.5 * skin.width_mm();
+        let h = skin.half_length();
+        let pts: Vec<(f32, f32)> = (0..nx * ny)
+            .into_par_iter()
+            .with_min_len(64)
+            .map(|k| {
+                if loads.is_empty() {
+                    return (0.0, 0.0);
+                }
+                let (gx, gy) = (k % nx, k / nx);
+                // Clamp to the skin: outside it the field is that of its edge.
+                let s = cam.px_to_s(skin, (gx * step) as f64).clamp(-h, h);
+                let y = cam.px_to_y((gy * step) as f64).clamp(-half_w, half_w);
+                self.to_pixels(s, self.displacement_at(loads, s, y, depth))
+            })
+            .collect();
+        let (du, dv) = pts.into_iter().unzip();
+        (nx, ny, du, dv)
+    }
+
+    /// Renders the next frame (frame index advancing by one per call) for
+    /// `contacts`, with its true dense motion.
+    ///
+    /// The truth flow at a pixel is the brightness-weighted mean image motion of
+    /// the marker spots covering it, blended smoothly (weight of a faint spot)
+    /// with the motion field at the markers' mean depth, which is what remains
+    /// between markers. It is the motion from the unloaded skin, i.e. what a
+    /// flow from an unloaded reference frame should find.
+    pub fn render(&mut self, contacts: &[Contact]) -> Result<(Array2<f32>, FlowField)> {
+        let r = self.render_indexed(self.next_index, contacts, true)?;
+        self.next_index += 1;
+        let flow = r.flow.expect("flow requested");
+        Ok((r.frame, flow))
+    }
+
+    /// Renders frame number `index` (which fixes its noise and flicker) without
+    /// touching the frame counter; the flow only when `with_flow`.
+    pub fn render_indexed(
+        &self,
+        index: u64,
+        contacts: &[Contact],
+        with_flow: bool,
+    ) -> Result<Rendered> {
+        let loads = self.loads(contacts)?;
+        let motion = self.marker_pixel_motion(&loads);
+        let grid = if with_flow {
+            Some(self.mean_depth_grid(&loads, render::GRID_STEP))
+        } else {
+            None
+        };
+        let stream = mix64(self.seed ^ 0xA076_1D64_78BD_642F) ^ mix64(index.wrapping_add(1));
+        Ok(render::render(
+            &self.config,
+            &self.markers,
+            &motion,
+            grid.as_ref(),
+            stream,
+        ))
+    }
+}
+
+/// Scatters markers uniformly over the skin (Poisson-like random layout).
+fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
+    let mc = &config.markers;
+    let skin = &config.skin;
+    let cam = &config.camera;
+    let mut rng = SplitMix64::new(mix64(seed));
+    let h = skin.half_length();
+    let half_w = 0.5 * skin.width_mm();
+    let count = mc.count.unwrap_or_else(|| {
+        // Covered fraction of randomly placed discs: 1 - exp(-n a / A).
+        let area_px =
+            (cam.s_to_px(skin, h) - cam.s_to_px(skin, -h)) * cam.px_per_mm_y * skin.width_mm();
+        let mean_d = 0.5 * (mc.fwhm_px.0 + mc.fwhm_px.1);
+        let disc = std::f64::consts::PI * 0.25 * mean_d * mean_d;
+        ((-(1.0 - mc.coverage).ln()) * area_px / disc)
+            .round()
+            .max(1.0) as usize
+    });
+    let mut m = Markers::default();
+    for _ in 0..count {
+        let s = rng.uniform(-h, h);
+        let y = rng.uniform(-half_w, half_w);
+        let z = rng.uniform(mc.depth_mm.0, mc.depth_mm.1);
+        let fwhm = rng.uniform(mc.fwhm_px.0, mc.fwhm_px.1);
+        let amp = rng.uniform(mc.brightness.0, mc.brightness.1);
+        m.s.push(s);
+        m.y.push(y);
+        m.z.push(z);
+        m.px.push(cam.s_to_px(skin, s));
+        m.py.push(cam.y_to_px(y));
+        m.amp.push(amp as f32);
+        m.sigma.push((fwhm / (8.0 * 2f64.ln()).sqrt()) as f32);
+    }
+    m
+}
