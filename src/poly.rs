@@ -183,6 +183,17 @@ impl PolySpec {
                 format!("total order {n}, at most {MAX_ORDER} is supported"),
             ));
         }
+        // Counting walks every combination of group degrees: bound it first.
+        let combos = self
+            .groups
+            .iter()
+            .fold(1u64, |a, g| a.saturating_mul(u64::from(g.max_order) + 1));
+        if combos > 1_000_000 {
+            return Err(Error::param(
+                "orders",
+                format!("{combos} combinations of group degrees; use fewer groups or lower orders"),
+            ));
+        }
         let n = self.count_terms();
         if n > MAX_TERMS {
             return Err(Error::param(
@@ -298,8 +309,11 @@ impl PolySpec {
     /// The exponent rows of the spec's terms, one row per term with one
     /// exponent per variable. Order: ascending total degree, then descending
     /// lexicographic on the exponents (constant, `x1`, `x2`, ..., `x1^2`,
-    /// `x1 x2`, ...), so the list is deterministic.
-    pub fn terms(&self) -> Vec<Vec<u32>> {
+    /// `x1 x2`, ...), so the list is deterministic. Errors if the spec is
+    /// invalid (see [`PolySpec::new`]; the fields are public, so a spec may
+    /// have been built without it).
+    pub fn terms(&self) -> Result<Vec<Vec<u32>>> {
+        self.validate()?;
         // Per group: every exponent tuple of total degree <= max_order.
         fn tuples(k: usize, max: u32) -> Vec<Vec<u32>> {
             let mut out = Vec::new();
@@ -355,12 +369,13 @@ impl PolySpec {
             let db: u32 = b.iter().sum();
             da.cmp(&db).then_with(|| b.cmp(a))
         });
-        terms
+        Ok(terms)
     }
 
-    /// Number of terms.
-    pub fn n_terms(&self) -> usize {
-        self.count_terms()
+    /// Number of terms (errors like [`PolySpec::terms`]).
+    pub fn n_terms(&self) -> Result<usize> {
+        self.validate()?;
+        Ok(self.count_terms())
     }
 }
 
@@ -937,7 +952,7 @@ pub fn fit(
     }
     let nv = spec.n_variables();
     check_data(x, y, nv, "fit")?;
-    let terms = spec.terms();
+    let terms = spec.terms()?;
     let (n, m) = (x.nrows(), terms.len());
     if n < m {
         return Err(Error::Numerical {
@@ -1245,7 +1260,7 @@ pub fn search_orders(
                     );
                 }
             };
-            let n_terms = s.n_terms();
+            let n_terms = s.count_terms();
             match fit(&s, train.x, train.y, options)
                 .and_then(|(p, st)| Ok((mae(&p, val.x, val.y)?, p, st)))
             {
@@ -1349,20 +1364,20 @@ mod tests {
                 cross,
                 ..spec.clone()
             };
-            assert_eq!(s.terms().len(), s.n_terms(), "{cross:?}");
+            assert_eq!(s.terms().unwrap().len(), s.n_terms().unwrap(), "{cross:?}");
         }
         // Full tensor product: C(6,3) * C(4,2) * C(2,1) = 20 * 6 * 2.
         let s = PolySpec {
             cross: CrossTerms::Full,
             ..spec.clone()
         };
-        assert_eq!(s.n_terms(), 240);
+        assert_eq!(s.n_terms().unwrap(), 240);
         // No cross terms: 1 + (20-1) + (6-1) + (2-1).
         let s = PolySpec {
             cross: CrossTerms::None,
             ..spec
         };
-        assert_eq!(s.n_terms(), 26);
+        assert_eq!(s.n_terms().unwrap(), 26);
     }
 
     #[test]
