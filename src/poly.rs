@@ -861,6 +861,20 @@ pub struct FitOptions {
     /// Accept a rank-deficient design (e.g. a variable that is constant in the
     /// data) and return the minimum-norm solution; if false it is an error.
     pub allow_rank_deficient: bool,
+    /// Robust fitting: `Some(k)` down-weights residuals beyond `k` robust
+    /// standard deviations (Huber loss, iteratively reweighted least squares;
+    /// 1.345 is the classic choice). `None` (default): plain least squares, as
+    /// the paper. Helps when a few samples are gross outliers (a mis-detected
+    /// contact), at the cost of one SVD per iteration.
+    #[serde(default)]
+    pub huber: Option<f64>,
+    /// Largest number of reweighting iterations of the robust fit.
+    #[serde(default = "default_irls_iterations")]
+    pub irls_iterations: u32,
+}
+
+fn default_irls_iterations() -> u32 {
+    30
 }
 
 impl Default for FitOptions {
@@ -869,6 +883,8 @@ impl Default for FitOptions {
             normalize: true,
             rcond: 1e-10,
             allow_rank_deficient: false,
+            huber: None,
+            irls_iterations: default_irls_iterations(),
         }
     }
 }
@@ -944,6 +960,14 @@ pub fn fit(
     options: &FitOptions,
 ) -> Result<(Polynomial, FitStats)> {
     spec.validate()?;
+    if let Some(k) = options.huber
+        && !(k.is_finite() && k > 0.0)
+    {
+        return Err(Error::param(
+            "huber",
+            format!("must be finite and > 0, got {k}"),
+        ));
+    }
     if !(options.rcond.is_finite() && options.rcond >= 0.0 && options.rcond < 1.0) {
         return Err(Error::param(
             "rcond",
@@ -1020,49 +1044,55 @@ pub fn fit(
         }
     }
     let b = nalgebra::DVector::from_iterator(n, y.iter().copied());
-    let scaled = a.clone();
-    let svd = nalgebra::SVD::try_new(a, true, true, f64::EPSILON, 10_000).ok_or_else(|| {
-        Error::Numerical {
-            what: "polynomial fit".into(),
-            message: "the SVD did not converge".into(),
-        }
-    })?;
-    let s = &svd.singular_values;
-    let smax = s.iter().copied().fold(0.0, f64::max);
-    let tol = options.rcond * smax;
-    let rank = s.iter().filter(|&&v| v > tol && v > 0.0).count();
-    if rank < m && !options.allow_rank_deficient {
-        return Err(Error::Numerical {
-            what: "polynomial fit".into(),
-            message: format!(
-                "rank-deficient design: rank {rank} for {m} terms (orders {:?}); a variable is \
-                 (nearly) constant or the samples do not vary enough for this order",
-                spec.orders()
-            ),
-        });
+    let rank_error = |rank: usize| Error::Numerical {
+        what: "polynomial fit".into(),
+        message: format!(
+            "rank-deficient design: rank {rank} for {m} terms (orders {:?}); a variable is \
+             (nearly) constant or the samples do not vary enough for this order",
+            spec.orders()
+        ),
+    };
+    let mut sol = solve_scaled(&a, &b, options.rcond)?;
+    if sol.rank < m && !options.allow_rank_deficient {
+        return Err(rank_error(sol.rank));
     }
-    let smin_kept = s
-        .iter()
-        .copied()
-        .filter(|&v| v > tol && v > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let u = svd.u.as_ref().expect("U was requested");
-    let v_t = svd.v_t.as_ref().expect("V^T was requested");
-    let solve = |rhs: &nalgebra::DVector<f64>| {
-        let utb = u.transpose() * rhs;
-        let mut z = nalgebra::DVector::<f64>::zeros(m);
-        for (i, &sv) in s.iter().enumerate() {
-            if sv > tol && sv > 0.0 {
-                z += v_t.row(i).transpose() * (utb[i] / sv);
+    if let Some(k) = options.huber {
+        // Iteratively reweighted least squares with Huber weights: residuals
+        // beyond k robust standard deviations (1.4826 * median |r|) get weight
+        // k * sigma / |r|, so a few gross outliers cannot drag the fit.
+        let mut z_prev = sol.z.clone();
+        for _ in 0..options.irls_iterations {
+            let r = &b - &a * &sol.z;
+            let mut abs: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+            abs.sort_by(f64::total_cmp);
+            let sigma = 1.4826 * abs[abs.len() / 2];
+            if sigma <= f64::EPSILON * b.amax().max(1.0) {
+                break; // (nearly) exact fit: nothing to down-weight
+            }
+            let w: Vec<f64> = r
+                .iter()
+                .map(|v| {
+                    let t = v.abs() / (k * sigma);
+                    if t <= 1.0 { 1.0 } else { (1.0 / t).sqrt() }
+                })
+                .collect();
+            let mut aw = a.clone();
+            for (i, wi) in w.iter().enumerate() {
+                aw.row_mut(i).scale_mut(*wi);
+            }
+            let bw = nalgebra::DVector::from_iterator(n, b.iter().zip(&w).map(|(v, wi)| v * wi));
+            sol = solve_scaled(&aw, &bw, options.rcond)?;
+            if sol.rank < m && !options.allow_rank_deficient {
+                return Err(rank_error(sol.rank));
+            }
+            let step = (&sol.z - &z_prev).amax();
+            z_prev = sol.z.clone();
+            if step <= 1e-12 * sol.z.amax().max(1e-300) {
+                break;
             }
         }
-        z
-    };
-    let mut z = solve(&b);
-    // One step of iterative refinement on the residual: recovers the digits
-    // the SVD's rounding lost (exact data is then fitted to ~1e-15).
-    let r = &b - &scaled * &z;
-    z += solve(&r);
+    }
+    let (z, rank, smax, smin_kept) = (sol.z, sol.rank, sol.smax, sol.smin_kept);
     let coefficients: Vec<f64> = (0..m).map(|k| z[k] / col_norm[k]).collect();
     if let Some(k) = coefficients.iter().position(|c| !c.is_finite()) {
         return Err(Error::Numerical {
@@ -1097,6 +1127,60 @@ pub fn fit(
         train_rmse: (sq / n as f64).sqrt(),
     };
     Ok((poly, stats))
+}
+
+/// Solution of a column-scaled least-squares problem.
+struct Solution {
+    z: nalgebra::DVector<f64>,
+    rank: usize,
+    smax: f64,
+    smin_kept: f64,
+}
+
+/// Minimum-norm least squares `a z ≈ b` by SVD, singular values below
+/// `rcond * largest` dropped, plus one step of iterative refinement on the
+/// residual (recovers the digits the SVD's rounding lost: exact data is then
+/// fitted to ~1e-15).
+fn solve_scaled(a: &DMatrix<f64>, b: &nalgebra::DVector<f64>, rcond: f64) -> Result<Solution> {
+    let m = a.ncols();
+    let svd =
+        nalgebra::SVD::try_new(a.clone(), true, true, f64::EPSILON, 10_000).ok_or_else(|| {
+            Error::Numerical {
+                what: "polynomial fit".into(),
+                message: "the SVD did not converge".into(),
+            }
+        })?;
+    let s = &svd.singular_values;
+    let smax = s.iter().copied().fold(0.0, f64::max);
+    let tol = rcond * smax;
+    let kept = |v: f64| v > tol && v > 0.0;
+    let rank = s.iter().filter(|&&v| kept(v)).count();
+    let smin_kept = s
+        .iter()
+        .copied()
+        .filter(|&v| kept(v))
+        .fold(f64::INFINITY, f64::min);
+    let u = svd.u.as_ref().expect("U was requested");
+    let v_t = svd.v_t.as_ref().expect("V^T was requested");
+    let solve = |rhs: &nalgebra::DVector<f64>| {
+        let utb = u.transpose() * rhs;
+        let mut z = nalgebra::DVector::<f64>::zeros(m);
+        for (i, &sv) in s.iter().enumerate() {
+            if kept(sv) {
+                z += v_t.row(i).transpose() * (utb[i] / sv);
+            }
+        }
+        z
+    };
+    let mut z = solve(b);
+    let r = b - a * &z;
+    z += solve(&r);
+    Ok(Solution {
+        z,
+        rank,
+        smax,
+        smin_kept,
+    })
 }
 
 /// Mean absolute error of `p` on `(x, y)`.

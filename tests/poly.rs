@@ -673,3 +673,53 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn huber_fit_resists_gross_outliers() {
+    let mut rng = Rng(31);
+    let n = 400;
+    let x = Array2::from_shape_fn((n, 1), |_| rng.uniform(-1.0, 1.0));
+    let truth = [1.0, 2.0, -1.0];
+    let mut y: Array1<f64> = x
+        .column(0)
+        .iter()
+        .map(|&v| truth[0] + truth[1] * v + truth[2] * v * v + 0.01 * rng.normal())
+        .collect();
+    // 5 % gross outliers, all on one side (a biased mis-detection).
+    for i in (0..n).step_by(20) {
+        y[i] += rng.uniform(5.0, 10.0);
+    }
+    let spec = PolySpec::single("x", 2).unwrap();
+    let plain = FitOptions {
+        normalize: false,
+        ..FitOptions::default()
+    };
+    let robust = FitOptions {
+        huber: Some(1.345),
+        ..plain.clone()
+    };
+    let (p_ls, _) = fit(&spec, x.view(), y.view(), &plain).unwrap();
+    let (p_h, _) = fit(&spec, x.view(), y.view(), &robust).unwrap();
+    let err = |p: &Polynomial| {
+        p.coefficients()
+            .iter()
+            .zip(truth)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    };
+    assert!(err(&p_ls) > 0.2, "plain LS error {}", err(&p_ls));
+    assert!(err(&p_h) < 0.01, "Huber error {}", err(&p_h));
+    // On exact data the robust fit is the plain one.
+    let ye: Array1<f64> = x.column(0).mapv(|v| 1.0 + 2.0 * v - v * v);
+    let (q, _) = fit(&spec, x.view(), ye.view(), &robust).unwrap();
+    assert!(err(&q) < 1e-12);
+    // Bad parameter.
+    let bad = FitOptions {
+        huber: Some(-1.0),
+        ..plain
+    };
+    assert!(matches!(
+        fit(&spec, x.view(), y.view(), &bad),
+        Err(Error::InvalidParameter { .. })
+    ));
+}
