@@ -405,10 +405,12 @@ pub struct Polynomial {
     /// Derived: used length of the power table.
     pow_len: usize,
     /// Derived: for every term, the power-table indices of its non-zero
-    /// factors, concatenated; term k's factors are
-    /// `factors[term_end[k-1]..term_end[k]]`.
+    /// factors, `width` per term, padded with index 0 (which always holds
+    /// `t_0^0 = 1`, so padding multiplies by exactly 1 and changes no bit).
+    /// A fixed width lets evaluation run a branch-free loop per term.
     factors: Vec<u16>,
-    term_end: Vec<u32>,
+    /// Derived: factors per term (at least 1).
+    width: usize,
 }
 
 impl Polynomial {
@@ -519,15 +521,21 @@ impl Polynomial {
             off += m as usize + 1;
         }
         debug_assert!(off <= POW_TABLE);
-        let mut factors = Vec::new();
-        let mut term_end = Vec::with_capacity(exponents.len());
+        let width = exponents
+            .iter()
+            .map(|row| row.iter().filter(|&&e| e > 0).count())
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        let mut factors = Vec::with_capacity(exponents.len() * width);
         for row in &exponents {
+            let start = factors.len();
             for (j, &e) in row.iter().enumerate() {
                 if e > 0 {
                     factors.push((pow_offset[j] + e as usize) as u16);
                 }
             }
-            term_end.push(factors.len() as u32);
+            factors.resize(start + width, 0);
         }
         Ok(Polynomial {
             variables,
@@ -539,7 +547,7 @@ impl Polynomial {
             max_exp,
             pow_len: off,
             factors,
-            term_end,
+            width,
         })
     }
 
@@ -602,19 +610,38 @@ impl Polynomial {
         }
     }
 
-    /// Sum of the terms, powers already in the table.
+    /// Sum of the terms, powers already in the table. Dispatches to a loop
+    /// specialized for the factor width (the calibration maps have 1-3).
     #[inline]
     fn sum_terms(&self, pow: &[f64]) -> f64 {
+        match self.width {
+            1 => self.sum_fixed::<1>(pow),
+            2 => self.sum_fixed::<2>(pow),
+            3 => self.sum_fixed::<3>(pow),
+            4 => self.sum_fixed::<4>(pow),
+            w => {
+                let mut sum = 0.0;
+                for (&c, f) in self.coefficients.iter().zip(self.factors.chunks_exact(w)) {
+                    let mut p = c;
+                    for &i in f {
+                        p *= pow[i as usize];
+                    }
+                    sum += p;
+                }
+                sum
+            }
+        }
+    }
+
+    #[inline]
+    fn sum_fixed<const W: usize>(&self, pow: &[f64]) -> f64 {
         let mut sum = 0.0;
-        let mut start = 0usize;
-        for (k, &c) in self.coefficients.iter().enumerate() {
-            let end = self.term_end[k] as usize;
+        for (&c, f) in self.coefficients.iter().zip(self.factors.chunks_exact(W)) {
             let mut p = c;
-            for &f in &self.factors[start..end] {
-                p *= pow[f as usize];
+            for &i in f {
+                p *= pow[i as usize];
             }
             sum += p;
-            start = end;
         }
         sum
     }
@@ -1024,15 +1051,12 @@ pub fn fit(
             *b = v;
         }
         unit.powers(&buf[..nv], &mut pow);
-        let mut start = 0usize;
-        for k in 0..m {
-            let end = unit.term_end[k] as usize;
+        for (k, f) in unit.factors.chunks_exact(unit.width).enumerate() {
             let mut p = 1.0;
-            for &f in &unit.factors[start..end] {
-                p *= pow[f as usize];
+            for &idx in f {
+                p *= pow[idx as usize];
             }
             a[(i, k)] = p;
-            start = end;
         }
     }
     let mut col_norm = vec![1.0; m];
