@@ -573,6 +573,8 @@ fn serde_round_trip_is_bit_exact_and_validated() {
     )
     .unwrap();
     assert_eq!(q.evaluate(&[3.0]).unwrap(), 1.5 - 18.0);
+    assert_eq!(q.to_formula(), "1.5 - 2*t(x)^2");
+    assert_eq!(q.degree(), 2);
     // Exponent row of the wrong width: an error with a position.
     let e = serde_json::from_str::<Polynomial>(
         r#"{"variables":["x","y"],"input_shift":[0,0],"input_scale":[1,1],"exponents":[[0,0],[1]],"coefficients":[1,2]}"#,
