@@ -183,6 +183,17 @@ impl PolySpec {
                 format!("total order {n}, at most {MAX_ORDER} is supported"),
             ));
         }
+        // Counting walks every combination of group degrees: bound it first.
+        let combos = self
+            .groups
+            .iter()
+            .fold(1u64, |a, g| a.saturating_mul(u64::from(g.max_order) + 1));
+        if combos > 1_000_000 {
+            return Err(Error::param(
+                "orders",
+                format!("{combos} combinations of group degrees; use fewer groups or lower orders"),
+            ));
+        }
         let n = self.count_terms();
         if n > MAX_TERMS {
             return Err(Error::param(
@@ -298,8 +309,11 @@ impl PolySpec {
     /// The exponent rows of the spec's terms, one row per term with one
     /// exponent per variable. Order: ascending total degree, then descending
     /// lexicographic on the exponents (constant, `x1`, `x2`, ..., `x1^2`,
-    /// `x1 x2`, ...), so the list is deterministic.
-    pub fn terms(&self) -> Vec<Vec<u32>> {
+    /// `x1 x2`, ...), so the list is deterministic. Errors if the spec is
+    /// invalid (see [`PolySpec::new`]; the fields are public, so a spec may
+    /// have been built without it).
+    pub fn terms(&self) -> Result<Vec<Vec<u32>>> {
+        self.validate()?;
         // Per group: every exponent tuple of total degree <= max_order.
         fn tuples(k: usize, max: u32) -> Vec<Vec<u32>> {
             let mut out = Vec::new();
@@ -355,12 +369,13 @@ impl PolySpec {
             let db: u32 = b.iter().sum();
             da.cmp(&db).then_with(|| b.cmp(a))
         });
-        terms
+        Ok(terms)
     }
 
-    /// Number of terms.
-    pub fn n_terms(&self) -> usize {
-        self.count_terms()
+    /// Number of terms (errors like [`PolySpec::terms`]).
+    pub fn n_terms(&self) -> Result<usize> {
+        self.validate()?;
+        Ok(self.count_terms())
     }
 }
 
@@ -390,10 +405,12 @@ pub struct Polynomial {
     /// Derived: used length of the power table.
     pow_len: usize,
     /// Derived: for every term, the power-table indices of its non-zero
-    /// factors, concatenated; term k's factors are
-    /// `factors[term_end[k-1]..term_end[k]]`.
+    /// factors, `width` per term, padded with index 0 (which always holds
+    /// `t_0^0 = 1`, so padding multiplies by exactly 1 and changes no bit).
+    /// A fixed width lets evaluation run a branch-free loop per term.
     factors: Vec<u16>,
-    term_end: Vec<u32>,
+    /// Derived: factors per term (at least 1).
+    width: usize,
 }
 
 impl Polynomial {
@@ -504,15 +521,21 @@ impl Polynomial {
             off += m as usize + 1;
         }
         debug_assert!(off <= POW_TABLE);
-        let mut factors = Vec::new();
-        let mut term_end = Vec::with_capacity(exponents.len());
+        let width = exponents
+            .iter()
+            .map(|row| row.iter().filter(|&&e| e > 0).count())
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        let mut factors = Vec::with_capacity(exponents.len() * width);
         for row in &exponents {
+            let start = factors.len();
             for (j, &e) in row.iter().enumerate() {
                 if e > 0 {
                     factors.push((pow_offset[j] + e as usize) as u16);
                 }
             }
-            term_end.push(factors.len() as u32);
+            factors.resize(start + width, 0);
         }
         Ok(Polynomial {
             variables,
@@ -524,7 +547,7 @@ impl Polynomial {
             max_exp,
             pow_len: off,
             factors,
-            term_end,
+            width,
         })
     }
 
@@ -587,19 +610,38 @@ impl Polynomial {
         }
     }
 
-    /// Sum of the terms, powers already in the table.
+    /// Sum of the terms, powers already in the table. Dispatches to a loop
+    /// specialized for the factor width (the calibration maps have 1-3).
     #[inline]
     fn sum_terms(&self, pow: &[f64]) -> f64 {
+        match self.width {
+            1 => self.sum_fixed::<1>(pow),
+            2 => self.sum_fixed::<2>(pow),
+            3 => self.sum_fixed::<3>(pow),
+            4 => self.sum_fixed::<4>(pow),
+            w => {
+                let mut sum = 0.0;
+                for (&c, f) in self.coefficients.iter().zip(self.factors.chunks_exact(w)) {
+                    let mut p = c;
+                    for &i in f {
+                        p *= pow[i as usize];
+                    }
+                    sum += p;
+                }
+                sum
+            }
+        }
+    }
+
+    #[inline]
+    fn sum_fixed<const W: usize>(&self, pow: &[f64]) -> f64 {
         let mut sum = 0.0;
-        let mut start = 0usize;
-        for (k, &c) in self.coefficients.iter().enumerate() {
-            let end = self.term_end[k] as usize;
+        for (&c, f) in self.coefficients.iter().zip(self.factors.chunks_exact(W)) {
             let mut p = c;
-            for &f in &self.factors[start..end] {
-                p *= pow[f as usize];
+            for &i in f {
+                p *= pow[i as usize];
             }
             sum += p;
-            start = end;
         }
         sum
     }
@@ -846,6 +888,20 @@ pub struct FitOptions {
     /// Accept a rank-deficient design (e.g. a variable that is constant in the
     /// data) and return the minimum-norm solution; if false it is an error.
     pub allow_rank_deficient: bool,
+    /// Robust fitting: `Some(k)` down-weights residuals beyond `k` robust
+    /// standard deviations (Huber loss, iteratively reweighted least squares;
+    /// 1.345 is the classic choice). `None` (default): plain least squares, as
+    /// the paper. Helps when a few samples are gross outliers (a mis-detected
+    /// contact), at the cost of one SVD per iteration.
+    #[serde(default)]
+    pub huber: Option<f64>,
+    /// Largest number of reweighting iterations of the robust fit.
+    #[serde(default = "default_irls_iterations")]
+    pub irls_iterations: u32,
+}
+
+fn default_irls_iterations() -> u32 {
+    30
 }
 
 impl Default for FitOptions {
@@ -854,6 +910,8 @@ impl Default for FitOptions {
             normalize: true,
             rcond: 1e-10,
             allow_rank_deficient: false,
+            huber: None,
+            irls_iterations: default_irls_iterations(),
         }
     }
 }
@@ -929,6 +987,14 @@ pub fn fit(
     options: &FitOptions,
 ) -> Result<(Polynomial, FitStats)> {
     spec.validate()?;
+    if let Some(k) = options.huber
+        && !(k.is_finite() && k > 0.0)
+    {
+        return Err(Error::param(
+            "huber",
+            format!("must be finite and > 0, got {k}"),
+        ));
+    }
     if !(options.rcond.is_finite() && options.rcond >= 0.0 && options.rcond < 1.0) {
         return Err(Error::param(
             "rcond",
@@ -937,7 +1003,7 @@ pub fn fit(
     }
     let nv = spec.n_variables();
     check_data(x, y, nv, "fit")?;
-    let terms = spec.terms();
+    let terms = spec.terms()?;
     let (n, m) = (x.nrows(), terms.len());
     if n < m {
         return Err(Error::Numerical {
@@ -985,15 +1051,12 @@ pub fn fit(
             *b = v;
         }
         unit.powers(&buf[..nv], &mut pow);
-        let mut start = 0usize;
-        for k in 0..m {
-            let end = unit.term_end[k] as usize;
+        for (k, f) in unit.factors.chunks_exact(unit.width).enumerate() {
             let mut p = 1.0;
-            for &f in &unit.factors[start..end] {
-                p *= pow[f as usize];
+            for &idx in f {
+                p *= pow[idx as usize];
             }
             a[(i, k)] = p;
-            start = end;
         }
     }
     let mut col_norm = vec![1.0; m];
@@ -1005,49 +1068,55 @@ pub fn fit(
         }
     }
     let b = nalgebra::DVector::from_iterator(n, y.iter().copied());
-    let scaled = a.clone();
-    let svd = nalgebra::SVD::try_new(a, true, true, f64::EPSILON, 10_000).ok_or_else(|| {
-        Error::Numerical {
-            what: "polynomial fit".into(),
-            message: "the SVD did not converge".into(),
-        }
-    })?;
-    let s = &svd.singular_values;
-    let smax = s.iter().copied().fold(0.0, f64::max);
-    let tol = options.rcond * smax;
-    let rank = s.iter().filter(|&&v| v > tol && v > 0.0).count();
-    if rank < m && !options.allow_rank_deficient {
-        return Err(Error::Numerical {
-            what: "polynomial fit".into(),
-            message: format!(
-                "rank-deficient design: rank {rank} for {m} terms (orders {:?}); a variable is \
-                 (nearly) constant or the samples do not vary enough for this order",
-                spec.orders()
-            ),
-        });
+    let rank_error = |rank: usize| Error::Numerical {
+        what: "polynomial fit".into(),
+        message: format!(
+            "rank-deficient design: rank {rank} for {m} terms (orders {:?}); a variable is \
+             (nearly) constant or the samples do not vary enough for this order",
+            spec.orders()
+        ),
+    };
+    let mut sol = solve_scaled(&a, &b, options.rcond)?;
+    if sol.rank < m && !options.allow_rank_deficient {
+        return Err(rank_error(sol.rank));
     }
-    let smin_kept = s
-        .iter()
-        .copied()
-        .filter(|&v| v > tol && v > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let u = svd.u.as_ref().expect("U was requested");
-    let v_t = svd.v_t.as_ref().expect("V^T was requested");
-    let solve = |rhs: &nalgebra::DVector<f64>| {
-        let utb = u.transpose() * rhs;
-        let mut z = nalgebra::DVector::<f64>::zeros(m);
-        for (i, &sv) in s.iter().enumerate() {
-            if sv > tol && sv > 0.0 {
-                z += v_t.row(i).transpose() * (utb[i] / sv);
+    if let Some(k) = options.huber {
+        // Iteratively reweighted least squares with Huber weights: residuals
+        // beyond k robust standard deviations (1.4826 * median |r|) get weight
+        // k * sigma / |r|, so a few gross outliers cannot drag the fit.
+        let mut z_prev = sol.z.clone();
+        for _ in 0..options.irls_iterations {
+            let r = &b - &a * &sol.z;
+            let mut abs: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+            abs.sort_by(f64::total_cmp);
+            let sigma = 1.4826 * abs[abs.len() / 2];
+            if sigma <= f64::EPSILON * b.amax().max(1.0) {
+                break; // (nearly) exact fit: nothing to down-weight
+            }
+            let w: Vec<f64> = r
+                .iter()
+                .map(|v| {
+                    let t = v.abs() / (k * sigma);
+                    if t <= 1.0 { 1.0 } else { (1.0 / t).sqrt() }
+                })
+                .collect();
+            let mut aw = a.clone();
+            for (i, wi) in w.iter().enumerate() {
+                aw.row_mut(i).scale_mut(*wi);
+            }
+            let bw = nalgebra::DVector::from_iterator(n, b.iter().zip(&w).map(|(v, wi)| v * wi));
+            sol = solve_scaled(&aw, &bw, options.rcond)?;
+            if sol.rank < m && !options.allow_rank_deficient {
+                return Err(rank_error(sol.rank));
+            }
+            let step = (&sol.z - &z_prev).amax();
+            z_prev = sol.z.clone();
+            if step <= 1e-12 * sol.z.amax().max(1e-300) {
+                break;
             }
         }
-        z
-    };
-    let mut z = solve(&b);
-    // One step of iterative refinement on the residual: recovers the digits
-    // the SVD's rounding lost (exact data is then fitted to ~1e-15).
-    let r = &b - &scaled * &z;
-    z += solve(&r);
+    }
+    let (z, rank, smax, smin_kept) = (sol.z, sol.rank, sol.smax, sol.smin_kept);
     let coefficients: Vec<f64> = (0..m).map(|k| z[k] / col_norm[k]).collect();
     if let Some(k) = coefficients.iter().position(|c| !c.is_finite()) {
         return Err(Error::Numerical {
@@ -1082,6 +1151,60 @@ pub fn fit(
         train_rmse: (sq / n as f64).sqrt(),
     };
     Ok((poly, stats))
+}
+
+/// Solution of a column-scaled least-squares problem.
+struct Solution {
+    z: nalgebra::DVector<f64>,
+    rank: usize,
+    smax: f64,
+    smin_kept: f64,
+}
+
+/// Minimum-norm least squares `a z ≈ b` by SVD, singular values below
+/// `rcond * largest` dropped, plus one step of iterative refinement on the
+/// residual (recovers the digits the SVD's rounding lost: exact data is then
+/// fitted to ~1e-15).
+fn solve_scaled(a: &DMatrix<f64>, b: &nalgebra::DVector<f64>, rcond: f64) -> Result<Solution> {
+    let m = a.ncols();
+    let svd =
+        nalgebra::SVD::try_new(a.clone(), true, true, f64::EPSILON, 10_000).ok_or_else(|| {
+            Error::Numerical {
+                what: "polynomial fit".into(),
+                message: "the SVD did not converge".into(),
+            }
+        })?;
+    let s = &svd.singular_values;
+    let smax = s.iter().copied().fold(0.0, f64::max);
+    let tol = rcond * smax;
+    let kept = |v: f64| v > tol && v > 0.0;
+    let rank = s.iter().filter(|&&v| kept(v)).count();
+    let smin_kept = s
+        .iter()
+        .copied()
+        .filter(|&v| kept(v))
+        .fold(f64::INFINITY, f64::min);
+    let u = svd.u.as_ref().expect("U was requested");
+    let v_t = svd.v_t.as_ref().expect("V^T was requested");
+    let solve = |rhs: &nalgebra::DVector<f64>| {
+        let utb = u.transpose() * rhs;
+        let mut z = nalgebra::DVector::<f64>::zeros(m);
+        for (i, &sv) in s.iter().enumerate() {
+            if kept(sv) {
+                z += v_t.row(i).transpose() * (utb[i] / sv);
+            }
+        }
+        z
+    };
+    let mut z = solve(b);
+    let r = b - a * &z;
+    z += solve(&r);
+    Ok(Solution {
+        z,
+        rank,
+        smax,
+        smin_kept,
+    })
 }
 
 /// Mean absolute error of `p` on `(x, y)`.
@@ -1245,7 +1368,7 @@ pub fn search_orders(
                     );
                 }
             };
-            let n_terms = s.n_terms();
+            let n_terms = s.count_terms();
             match fit(&s, train.x, train.y, options)
                 .and_then(|(p, st)| Ok((mae(&p, val.x, val.y)?, p, st)))
             {
@@ -1349,20 +1472,20 @@ mod tests {
                 cross,
                 ..spec.clone()
             };
-            assert_eq!(s.terms().len(), s.n_terms(), "{cross:?}");
+            assert_eq!(s.terms().unwrap().len(), s.n_terms().unwrap(), "{cross:?}");
         }
         // Full tensor product: C(6,3) * C(4,2) * C(2,1) = 20 * 6 * 2.
         let s = PolySpec {
             cross: CrossTerms::Full,
             ..spec.clone()
         };
-        assert_eq!(s.n_terms(), 240);
+        assert_eq!(s.n_terms().unwrap(), 240);
         // No cross terms: 1 + (20-1) + (6-1) + (2-1).
         let s = PolySpec {
             cross: CrossTerms::None,
             ..spec
         };
-        assert_eq!(s.n_terms(), 26);
+        assert_eq!(s.n_terms().unwrap(), 26);
     }
 
     #[test]

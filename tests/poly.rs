@@ -74,7 +74,12 @@ fn proptest_config(cases: u32) -> Config {
 fn cross_term_rules_on_a_small_example() {
     // Group a (order 2) and b (order 1); exponents are [a, b].
     let groups = vec![VarGroup::new("A", &["a"], 2), VarGroup::new("B", &["b"], 1)];
-    let terms = |cross| PolySpec::new(groups.clone(), cross).unwrap().terms();
+    let terms = |cross| {
+        PolySpec::new(groups.clone(), cross)
+            .unwrap()
+            .terms()
+            .unwrap()
+    };
     assert_eq!(
         terms(CrossTerms::MaxOfGroups),
         vec![vec![0, 0], vec![1, 0], vec![0, 1], vec![2, 0], vec![1, 1]]
@@ -104,13 +109,13 @@ fn cross_term_rules_on_a_small_example() {
 fn within_a_group_the_order_limits_the_total_degree() {
     let s = PolySpec::new(vec![VarGroup::new("g", &["u", "v"], 2)], CrossTerms::None).unwrap();
     // 1, u, v, u^2, uv, v^2
-    assert_eq!(s.n_terms(), 6);
-    for t in s.terms() {
+    assert_eq!(s.n_terms().unwrap(), 6);
+    for t in s.terms().unwrap() {
         assert!(t.iter().sum::<u32>() <= 2);
     }
     // MaxOfGroups: no term of the 6-variable spec exceeds the largest involved order.
     let s = spec3(3, 1, 2, CrossTerms::MaxOfGroups);
-    for t in s.terms() {
+    for t in s.terms().unwrap() {
         let (d, l, p) = (t[0] + t[1] + t[2], t[3] + t[4], t[5]);
         assert!(d <= 3 && l <= 1 && p <= 2, "{t:?}");
         let max_involved = [(d, 3), (l, 1), (p, 2)]
@@ -121,14 +126,14 @@ fn within_a_group_the_order_limits_the_total_degree() {
             .unwrap_or(0);
         assert!(d + l + p <= max_involved, "{t:?}");
     }
-    assert_eq!(s.terms().len(), s.n_terms());
+    assert_eq!(s.terms().unwrap().len(), s.n_terms().unwrap());
 }
 
 #[test]
 fn exact_polynomial_coefficients_are_recovered() {
     // Raw variables (no normalization): the fitted coefficients are the true ones.
     let spec = spec3(2, 1, 1, CrossTerms::MaxOfGroups);
-    let terms = spec.terms();
+    let terms = spec.terms().unwrap();
     let mut rng = Rng(7);
     let truth: Vec<f64> = (0..terms.len()).map(|_| rng.uniform(-2.0, 2.0)).collect();
     let p_true = Polynomial::raw(
@@ -225,7 +230,7 @@ fn noisy_fit_matches_the_normal_equations() {
         CrossTerms::MaxOfGroups,
     )
     .unwrap();
-    let terms = spec.terms();
+    let terms = spec.terms().unwrap();
     let mut rng = Rng(3);
     let n = 80;
     let x = Array2::from_shape_fn((n, 3), |_| rng.uniform(-1.0, 1.0));
@@ -389,7 +394,7 @@ fn candidates_too_big_for_the_data_are_skipped_and_reported() {
 #[test]
 fn too_few_rows_says_how_many_are_needed() {
     let spec = spec3(2, 1, 1, CrossTerms::MaxOfGroups);
-    let m = spec.n_terms();
+    let m = spec.n_terms().unwrap();
     let x = Array2::<f64>::zeros((m - 1, 6));
     let y = Array1::<f64>::zeros(m - 1);
     let e = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap_err();
@@ -492,6 +497,24 @@ fn bad_specs_and_inputs_are_rejected() {
         .is_err()
     );
     assert!(PolySpec::single("x", 99).is_err());
+    // A spec built from its public fields is checked when used.
+    let raw = PolySpec {
+        groups: vec![VarGroup::new("g", &["a", "a"], 1)],
+        cross: CrossTerms::Full,
+    };
+    assert!(raw.terms().is_err());
+    let huge = PolySpec {
+        groups: vec![VarGroup::new("g", &["a"], u32::MAX)],
+        cross: CrossTerms::Full,
+    };
+    assert!(huge.n_terms().is_err());
+    // Sixteen one-variable groups of order 16: refused before counting (17^16 combinations).
+    let names: Vec<String> = (0..16).map(|i| format!("w{i}")).collect();
+    let groups = names
+        .iter()
+        .map(|n| VarGroup::new(n, &[n.as_str()], 16))
+        .collect();
+    assert!(PolySpec::new(groups, CrossTerms::Total(2)).is_err());
     let many: Vec<String> = (0..16).map(|i| format!("v{i}")).collect();
     let many: Vec<&str> = many.iter().map(|s| s.as_str()).collect();
     let e = PolySpec::new(vec![VarGroup::new("g", &many, 8)], CrossTerms::Full).unwrap_err();
@@ -550,6 +573,8 @@ fn serde_round_trip_is_bit_exact_and_validated() {
     )
     .unwrap();
     assert_eq!(q.evaluate(&[3.0]).unwrap(), 1.5 - 18.0);
+    assert_eq!(q.to_formula(), "1.5 - 2*t(x)^2");
+    assert_eq!(q.degree(), 2);
     // Exponent row of the wrong width: an error with a position.
     let e = serde_json::from_str::<Polynomial>(
         r#"{"variables":["x","y"],"input_shift":[0,0],"input_scale":[1,1],"exponents":[[0,0],[1]],"coefficients":[1,2]}"#,
@@ -606,7 +631,7 @@ proptest! {
     ) {
         let spec = spec3(a, b, c, cross);
         let mut rng = Rng(seed);
-        let terms = spec.terms();
+        let terms = spec.terms().unwrap();
         let coef: Vec<f64> = (0..terms.len()).map(|_| rng.uniform(-3.0, 3.0)).collect();
         let shift: Vec<f64> = (0..6).map(|_| rng.uniform(-100.0, 100.0)).collect();
         let scale: Vec<f64> = (0..6).map(|_| rng.uniform(0.5, 200.0)).collect();
@@ -624,7 +649,7 @@ proptest! {
             vec![VarGroup::new("loc", &["x", "y"], order)],
             CrossTerms::MaxOfGroups,
         ).unwrap();
-        let terms = spec.terms();
+        let terms = spec.terms().unwrap();
         let coef: Vec<f64> = (0..terms.len()).map(|_| rng.uniform(-1.0, 1.0)).collect();
         let p = Polynomial::new(spec.variables(), terms.clone(), coef, vec![500.0, 100.0], vec![400.0, 80.0]).unwrap();
         let n = 3 * terms.len() + 5;
@@ -649,4 +674,54 @@ proptest! {
             prop_assert_eq!(a.to_bits(), b.to_bits());
         }
     }
+}
+
+#[test]
+fn huber_fit_resists_gross_outliers() {
+    let mut rng = Rng(31);
+    let n = 400;
+    let x = Array2::from_shape_fn((n, 1), |_| rng.uniform(-1.0, 1.0));
+    let truth = [1.0, 2.0, -1.0];
+    let mut y: Array1<f64> = x
+        .column(0)
+        .iter()
+        .map(|&v| truth[0] + truth[1] * v + truth[2] * v * v + 0.01 * rng.normal())
+        .collect();
+    // 5 % gross outliers, all on one side (a biased mis-detection).
+    for i in (0..n).step_by(20) {
+        y[i] += rng.uniform(5.0, 10.0);
+    }
+    let spec = PolySpec::single("x", 2).unwrap();
+    let plain = FitOptions {
+        normalize: false,
+        ..FitOptions::default()
+    };
+    let robust = FitOptions {
+        huber: Some(1.345),
+        ..plain.clone()
+    };
+    let (p_ls, _) = fit(&spec, x.view(), y.view(), &plain).unwrap();
+    let (p_h, _) = fit(&spec, x.view(), y.view(), &robust).unwrap();
+    let err = |p: &Polynomial| {
+        p.coefficients()
+            .iter()
+            .zip(truth)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    };
+    assert!(err(&p_ls) > 0.2, "plain LS error {}", err(&p_ls));
+    assert!(err(&p_h) < 0.01, "Huber error {}", err(&p_h));
+    // On exact data the robust fit is the plain one.
+    let ye: Array1<f64> = x.column(0).mapv(|v| 1.0 + 2.0 * v - v * v);
+    let (q, _) = fit(&spec, x.view(), ye.view(), &robust).unwrap();
+    assert!(err(&q) < 1e-12);
+    // Bad parameter.
+    let bad = FitOptions {
+        huber: Some(-1.0),
+        ..plain
+    };
+    assert!(matches!(
+        fit(&spec, x.view(), y.view(), &bad),
+        Err(Error::InvalidParameter { .. })
+    ));
 }
