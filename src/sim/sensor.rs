@@ -368,16 +368,17 @@ impl SyntheticSensor {
     }
 
     /// The motion field at the markers' mean depth, sampled every `step` strip
-    /// pixels (the truth flow between markers). Returns `(nx, ny, du, dv)`.
+    /// pixels along x and y (the truth flow between markers). Returns
+    /// `(nx, ny, du, dv)`.
     pub(crate) fn mean_depth_grid(
         &self,
         loads: &[RodLoad],
-        step: usize,
+        step: (usize, usize),
     ) -> (usize, usize, Vec<f32>, Vec<f32>) {
         let cam = &self.config.camera;
         let skin = &self.config.skin;
-        let nx = cam.strip_width.div_ceil(step) + 1;
-        let ny = cam.strip_height.div_ceil(step) + 1;
+        let nx = cam.strip_width.div_ceil(step.0) + 1;
+        let ny = cam.strip_height.div_ceil(step.1) + 1;
         let depth = 0.5 * (self.config.markers.depth_mm.0 + self.config.markers.depth_mm.1);
         let half_w = 0.5 * skin.width_mm();
         let h = skin.half_length();
@@ -390,8 +391,8 @@ impl SyntheticSensor {
                 }
                 let (gx, gy) = (k % nx, k / nx);
                 // Clamp to the skin: outside it the field is that of its edge.
-                let s = cam.px_to_s(skin, (gx * step) as f64).clamp(-h, h);
-                let y = cam.px_to_y((gy * step) as f64).clamp(-half_w, half_w);
+                let s = cam.px_to_s(skin, (gx * step.0) as f64).clamp(-h, h);
+                let y = cam.px_to_y((gy * step.1) as f64).clamp(-half_w, half_w);
                 self.to_pixels(s, self.displacement_at(loads, s, y, depth))
             })
             .collect();
