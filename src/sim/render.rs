@@ -21,7 +21,7 @@ pub(crate) const GRID_STEP: (usize, usize) = (4, 8);
 const BAND_ROWS: usize = 16;
 /// Spots are drawn out to this many standard deviations (the tail beyond is
 /// below half a grey level for the brightest spots).
-const SPOT_RADIUS_SIGMAS: f32 = 3.5;
+pub(crate) const SPOT_RADIUS_SIGMAS: f32 = 3.5;
 
 /// The mean-depth motion grid: `(nx, ny, du, dv)`, node `(i, j)` at strip pixel
 /// `(i * GRID_STEP.0, j * GRID_STEP.1)`.
@@ -234,7 +234,7 @@ impl Frame<'_> {
 
 /// Bilinear sample of the motion grid at strip pixel `(x, y)`.
 #[inline]
-fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
+pub(crate) fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
     let (nx, ny, du, dv) = grid;
     let gx = (x / GRID_STEP.0 as f32).clamp(0.0, (*nx - 1) as f32);
     let gy = (y / GRID_STEP.1 as f32).clamp(0.0, (*ny - 1) as f32);
