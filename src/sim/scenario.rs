@@ -6,7 +6,9 @@
 //! is the unloaded reference), `truth.jsonl` (one line per frame with the true
 //! contacts) and, unless disabled, the true dense motion of each frame as
 //! `flow/000000.flo`. `characterization` writes `tests.csv` and
-//! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test.
+//! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test (and, with `flow`,
+//! `flow/tNNNN.flo`). With the full-frame option every scenario also writes
+//! `crop.json`, the strip's rectangle `{x, y, width, height}` in the frame.
 
 use std::path::{Path, PathBuf};
 
@@ -233,6 +235,32 @@ fn check_frames(n: usize) -> Result<()> {
     Ok(())
 }
 
+/// The strip's rectangle in a full frame, written as `crop.json` beside
+/// full-frame output so that a user (or the pipeline) can crop it.
+#[derive(Serialize)]
+struct Crop {
+    x: usize,
+    y: usize,
+    width: usize,
+    height: usize,
+}
+
+fn write_crop(c: &Common) -> Result<()> {
+    if c.config.full_frame {
+        let (x, y, width, height) = c.config.camera.crop();
+        write_json(
+            &c.out.join("crop.json"),
+            &Crop {
+                x,
+                y,
+                width,
+                height,
+            },
+        )?;
+    }
+    Ok(())
+}
+
 fn create_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     // Creating succeeds on an existing read-only folder: probe that we can write.
@@ -256,6 +284,7 @@ impl SequenceWriter {
         if c.flow {
             create_dir(&c.out.join("flow"))?;
         }
+        write_crop(c)?;
         Ok(SequenceWriter {
             out: c.out.clone(),
             flow: c.flow,
@@ -520,6 +549,7 @@ fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) 
     if c.flow {
         create_dir(&c.out.join("flow"))?;
     }
+    write_crop(c)?;
     let skin = &c.config.skin;
     let mut rows = Vec::with_capacity(ids.len());
     for (done, &id) in ids.iter().enumerate() {
