@@ -527,6 +527,36 @@ fn perches_and_mapping_write_their_extras() {
     std::fs::remove_dir_all(&out).unwrap();
 }
 
+#[test]
+fn committed_fixtures_are_what_the_simulator_makes() {
+    // If this fails, the simulator changed: regenerate the fixtures with the
+    // command in fixtures/README.md.
+    let out = tmp("fixtures");
+    scenario::fixtures(&out, 1).unwrap();
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    for f in ["press/truth.jsonl", "characterization/tests.csv"] {
+        let a = std::fs::read_to_string(out.join(f)).unwrap();
+        let b = std::fs::read_to_string(repo.join(f)).unwrap();
+        assert_eq!(a, b, "{f}");
+    }
+    let mut n = 0;
+    for dir in ["press", "characterization/frames"] {
+        for p in io::list_frames(out.join(dir)).unwrap() {
+            let name = p.strip_prefix(&out).unwrap();
+            let a = io::read_gray(&p).unwrap();
+            let b = io::read_gray(repo.join(name)).unwrap();
+            assert!(
+                a == b,
+                "{} differs from the committed fixture",
+                name.display()
+            );
+            n += 1;
+        }
+    }
+    assert_eq!(n, 8 + 12);
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, rng_seed: proptest::test_runner::RngSeed::Fixed(11), failure_persistence: None, ..ProptestConfig::default() })]
 

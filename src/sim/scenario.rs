@@ -733,6 +733,33 @@ fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary>
     })
 }
 
+/// The repository's fixtures under `out`: `press/` (two 5 mm rods 40 mm apart
+/// ramping to 2.0 and 1.5 N over 8 frames, no flow) and `characterization/`
+/// (a 6-test subset of the protocol, no flow). See `fixtures/README.md`.
+pub fn fixtures(out: &Path, seed: u64) -> Result<()> {
+    let mut press = Common::new(out.join("press"));
+    press.seed = seed;
+    press.flow = false;
+    let pair = Pair {
+        x_mm: 0.0,
+        spacing_mm: 40.0,
+        force_n: 2.0,
+        force2_n: 1.5,
+        frames: 8,
+        indenter_mm: 5.0,
+    };
+    run(&Scenario::Pair(pair), &press)?;
+    let mut ch = Common::new(out.join("characterization"));
+    ch.seed = seed;
+    ch.flow = false;
+    let c = Characterization {
+        subset: Some(6),
+        ..Default::default()
+    };
+    run(&Scenario::Characterization(c), &ch)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
