@@ -168,6 +168,34 @@ fn press_magnitudes_match_the_reference_range() {
 }
 
 #[test]
+fn shear_moves_markers_along_the_force() {
+    // Sensor x is image x and sensor y is image y; a tangential force drags
+    // the gel (and the markers) its way.
+    let s = sensor();
+    for (yaw, pitch, axis, sign) in [
+        (0.0, 15.0, 0, 1.0),
+        (0.0, -15.0, 0, -1.0),
+        (15.0, 0.0, 1, 1.0),
+        (-15.0, 0.0, 1, -1.0),
+    ] {
+        let c = Contact::rod(0.0, scenario::tilted_force(2.0, yaw, pitch), 5.0);
+        let d = s.marker_displacements(&[c]).unwrap();
+        let near: Vec<f64> = s
+            .marker_positions()
+            .iter()
+            .zip(&d)
+            .filter(|(p, _)| p.0.abs() < 5.0 && p.1.abs() < 15.0)
+            .map(|(_, u)| u[axis])
+            .collect();
+        let mean = near.iter().sum::<f64>() / near.len() as f64;
+        assert!(
+            mean * sign > 0.02,
+            "yaw {yaw} pitch {pitch}: mean {mean} mm"
+        );
+    }
+}
+
+#[test]
 fn identical_output_for_any_thread_count() {
     let s = sensor();
     let c = [press(-20.0, 2.0), Contact::rod(30.0, [0.2, 0.1, -1.0], 2.0)];

@@ -11,6 +11,9 @@
 //! `crop.json`, the strip's rectangle `{x, y, width, height}` in the frame.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use rayon::prelude::*;
 
 use serde::Serialize;
 
@@ -551,46 +554,53 @@ fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) 
     }
     write_crop(c)?;
     let skin = &c.config.skin;
-    let mut rows = Vec::with_capacity(ids.len());
-    for (done, &id) in ids.iter().enumerate() {
-        let p = all[id];
-        let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
-        let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
-        let contact = Contact::rod(x, f, p.indenter);
-        // Fresh noise and flicker for each image: frame indices from the test id.
-        let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
-        let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
-        let frame = format!("frames/t{id:04}.png");
-        let refname = format!("frames/t{id:04}_ref.png");
-        io::write_gray_png(c.out.join(&refname), &reference.frame)?;
-        io::write_gray_png(c.out.join(&frame), &loaded.frame)?;
-        if let Some(flow) = &loaded.flow {
-            io::write_flo(c.out.join(format!("flow/t{id:04}.flo")), flow)?;
-        }
-        // The load cell reads the true force plus a little noise.
-        let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(id as u64 ^ 0x10AD_CE11)));
-        let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
-        rows.push(TestRow {
-            test: id,
-            frame,
-            reference: refname,
-            point: p.point,
-            indenter_mm: p.indenter,
-            yaw_deg: p.tilt.0,
-            pitch_deg: p.tilt.1,
-            repeat: p.repeat,
-            force_n: p.force,
-            split: p.split,
-            x_mm: x,
-            y_mm: 0.0,
-            fx_n: noisy[0],
-            fy_n: noisy[1],
-            fz_n: noisy[2],
-        });
-        if (done + 1) % 200 == 0 {
-            eprintln!("characterization: {} / {} tests", done + 1, ids.len());
-        }
-    }
+    // Tests are independent (each has its own frame indices and noise), so they
+    // are made in parallel; PNG encoding would otherwise leave a core idle.
+    // The rows come back in protocol order whatever the thread count.
+    let done = AtomicUsize::new(0);
+    let rows: Vec<TestRow> = ids
+        .par_iter()
+        .map(|&id| -> Result<TestRow> {
+            let p = all[id];
+            let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
+            let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
+            let contact = Contact::rod(x, f, p.indenter);
+            // Fresh noise and flicker for each image: frame indices from the test id.
+            let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
+            let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
+            let frame = format!("frames/t{id:04}.png");
+            let refname = format!("frames/t{id:04}_ref.png");
+            io::write_gray_png(c.out.join(&refname), &reference.frame)?;
+            io::write_gray_png(c.out.join(&frame), &loaded.frame)?;
+            if let Some(flow) = &loaded.flow {
+                io::write_flo(c.out.join(format!("flow/t{id:04}.flo")), flow)?;
+            }
+            // The load cell reads the true force plus a little noise.
+            let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(id as u64 ^ 0x10AD_CE11)));
+            let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
+            let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+            if k % 200 == 0 {
+                eprintln!("characterization: {k} / {} tests", ids.len());
+            }
+            Ok(TestRow {
+                test: id,
+                frame,
+                reference: refname,
+                point: p.point,
+                indenter_mm: p.indenter,
+                yaw_deg: p.tilt.0,
+                pitch_deg: p.tilt.1,
+                repeat: p.repeat,
+                force_n: p.force,
+                split: p.split,
+                x_mm: x,
+                y_mm: 0.0,
+                fx_n: noisy[0],
+                fy_n: noisy[1],
+                fz_n: noisy[2],
+            })
+        })
+        .collect::<Result<_>>()?;
     io::write_tests_csv(c.out.join("tests.csv"), &rows)?;
     Ok(Summary {
         out: c.out.clone(),
