@@ -142,6 +142,15 @@ impl SimConfig {
             Ok(())
         };
         range("markers.fwhm_px", m.fwhm_px, 0.5)?;
+        if m.fwhm_px.1 > 20.0 {
+            return Err(Error::param(
+                "markers.fwhm_px",
+                format!(
+                    "spots wider than 20 px are not markers, got {}",
+                    m.fwhm_px.1
+                ),
+            ));
+        }
         range("markers.depth_mm", m.depth_mm, 1e-3)?;
         range("markers.brightness", m.brightness, 0.0)?;
         if m.depth_mm.1 >= self.material.layer_mm {
