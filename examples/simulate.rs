@@ -12,7 +12,7 @@ use std::time::Instant;
 use ndarray::{Array2, s};
 use optical_tactile::Result;
 use optical_tactile::sim::cli::{self, Command};
-use optical_tactile::sim::scenario::{self, Characterization, Common, Pair, Scenario};
+use optical_tactile::sim::scenario;
 use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::viz::{Canvas, Rgb, colormap};
 
@@ -46,7 +46,7 @@ fn run(args: &[String]) -> Result<()> {
             );
         }
         Command::Fixtures { out, docs, seed } => {
-            fixtures(&out, seed)?;
+            scenario::fixtures(&out, seed)?;
             if let Some(d) = docs {
                 pictures(&d, seed)?;
             }
@@ -57,31 +57,6 @@ fn run(args: &[String]) -> Result<()> {
             );
         }
     }
-    Ok(())
-}
-
-/// The repository's fixtures: a two-contact press and a characterization subset.
-fn fixtures(out: &Path, seed: u64) -> Result<()> {
-    let mut press = Common::new(out.join("press"));
-    press.seed = seed;
-    press.flow = false;
-    let pair = Pair {
-        x_mm: 0.0,
-        spacing_mm: 40.0,
-        force_n: 2.0,
-        force2_n: 1.5,
-        frames: 8,
-        indenter_mm: 5.0,
-    };
-    scenario::run(&Scenario::Pair(pair), &press)?;
-    let mut ch = Common::new(out.join("characterization"));
-    ch.seed = seed;
-    ch.flow = false;
-    let c = Characterization {
-        subset: Some(6),
-        ..Default::default()
-    };
-    scenario::run(&Scenario::Characterization(c), &ch)?;
     Ok(())
 }
 

@@ -168,6 +168,34 @@ fn press_magnitudes_match_the_reference_range() {
 }
 
 #[test]
+fn shear_moves_markers_along_the_force() {
+    // Sensor x is image x and sensor y is image y; a tangential force drags
+    // the gel (and the markers) its way.
+    let s = sensor();
+    for (yaw, pitch, axis, sign) in [
+        (0.0, 15.0, 0, 1.0),
+        (0.0, -15.0, 0, -1.0),
+        (15.0, 0.0, 1, 1.0),
+        (-15.0, 0.0, 1, -1.0),
+    ] {
+        let c = Contact::rod(0.0, scenario::tilted_force(2.0, yaw, pitch), 5.0);
+        let d = s.marker_displacements(&[c]).unwrap();
+        let near: Vec<f64> = s
+            .marker_positions()
+            .iter()
+            .zip(&d)
+            .filter(|(p, _)| p.0.abs() < 5.0 && p.1.abs() < 15.0)
+            .map(|(_, u)| u[axis])
+            .collect();
+        let mean = near.iter().sum::<f64>() / near.len() as f64;
+        assert!(
+            mean * sign > 0.02,
+            "yaw {yaw} pitch {pitch}: mean {mean} mm"
+        );
+    }
+}
+
+#[test]
 fn identical_output_for_any_thread_count() {
     let s = sensor();
     let c = [press(-20.0, 2.0), Contact::rod(30.0, [0.2, 0.1, -1.0], 2.0)];
@@ -524,6 +552,36 @@ fn perches_and_mapping_write_their_extras() {
     }
     assert!(touched.len() >= 2);
     assert!(out.join("rods.json").exists());
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn committed_fixtures_are_what_the_simulator_makes() {
+    // If this fails, the simulator changed: regenerate the fixtures with the
+    // command in fixtures/README.md.
+    let out = tmp("fixtures");
+    scenario::fixtures(&out, 1).unwrap();
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    for f in ["press/truth.jsonl", "characterization/tests.csv"] {
+        let a = std::fs::read_to_string(out.join(f)).unwrap();
+        let b = std::fs::read_to_string(repo.join(f)).unwrap();
+        assert_eq!(a, b, "{f}");
+    }
+    let mut n = 0;
+    for dir in ["press", "characterization/frames"] {
+        for p in io::list_frames(out.join(dir)).unwrap() {
+            let name = p.strip_prefix(&out).unwrap();
+            let a = io::read_gray(&p).unwrap();
+            let b = io::read_gray(repo.join(name)).unwrap();
+            assert!(
+                a == b,
+                "{} differs from the committed fixture",
+                name.display()
+            );
+            n += 1;
+        }
+    }
+    assert_eq!(n, 8 + 12);
     std::fs::remove_dir_all(&out).unwrap();
 }
 

@@ -9,15 +9,27 @@
 //! A rod contact is a uniform load along `y` (the rod spans the skin's width)
 //! times an elliptical (Hertz) profile across it. The integral along the rod is
 //! done in closed form (antiderivatives of the Boussinesq and Cerruti kernels in
-//! `y`, derived below), which removes the `1/r` peak exactly; the remaining
+//! `y`, listed below), which removes the `1/r` peak exactly; the remaining
 //! integral across the rod has the elliptical weight `sqrt(1 - t^2)`, which
 //! Gauss-Chebyshev quadrature of the second kind integrates without error for
 //! the weight itself, with a node count adapted to how close the marker is.
 //!
-//! Layer on a rigid base: the half-space displacement at depth `T` (the layer
-//! thickness) is subtracted (Steinbrenner's correction), so markers at the
-//! bonded base do not move and the logarithmic growth of the half-space line
-//! solution is cut off.
+//! With `A = x^2 + z^2`, `r = sqrt(A + y^2)`, the antiderivatives used are
+//! - `∫ dy/r = asinh(y/sqrt A)`, `∫ dy/r^3 = y/(A r)`, `∫ y dy/r^3 = -1/r`,
+//! - `∫ y dy/(r (r+z)) = ln(r+z)`, `∫ y dy/(r (r+z)^2) = -1/(r+z)`,
+//! - `J1 = ∫ dy/(r (r+z)) = (1/x) atan(x y (r-z) / (x^2 r + z y^2))`,
+//! - `∫ x^2 dy/(r (r+z)^2) = y/(r+z) - z J1` and `∫ dy/(r+z) = asinh - z J1`,
+//! - `∫ y^2 dy/(r (r+z)^2) = -y/(r+z) + ∫ dy/(r+z)` (by parts),
+//!
+//! so that, e.g., the Cerruti `u_x` term `a (1/(r+z) - x^2/(r (r+z)^2))`
+//! integrates to `a (asinh - y/(r+z))`. Each is checked against a brute-force
+//! sum of the point solutions in the tests.
+//!
+//! Layer on a rigid base (thickness `T`): the normal displacement is the
+//! half-space one minus its value at depth `T` (Steinbrenner's correction),
+//! which cuts off the logarithmic growth of the half-space line solution; the
+//! lateral displacements are the half-space ones tapered linearly to zero at
+//! the bonded base (see [`RodLoad::layer`] for why not the same subtraction).
 
 use std::f64::consts::PI;
 
@@ -26,7 +38,7 @@ use crate::error::{Error, Result};
 /// Mechanical properties of the gel layer.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Material {
-    /// Young's modulus, kPa (soft silicone gel: 50-100).
+    /// Young's modulus, kPa (soft silicone gels: tens of kPa; default 40).
     pub youngs_kpa: f64,
     /// Poisson's ratio (nearly incompressible gel: 0.45-0.49).
     pub poisson: f64,
@@ -129,13 +141,7 @@ fn atanc(t: f64) -> f64 {
 }
 
 /// Antiderivatives in `y` of the point kernels (without `1/(4 pi G)`), as a
-/// matrix `m[load][component]` with loads (f_x, f_y, f_n). With
-/// `A = x^2 + z^2`, `r = sqrt(A + y^2)`:
-/// - `∫ dy/r = asinh(y/sqrt A)`, `∫ dy/r^3 = y/(A r)`, `∫ y dy/r^3 = -1/r`,
-/// - `∫ y dy/(r (r+z)) = ln(r+z)`, `∫ y dy/(r (r+z)^2) = -1/(r+z)`,
-/// - `J1 = ∫ dy/(r (r+z)) = (1/x) atan(x y (r-z) / (x^2 r + z y^2))`,
-/// - `∫ x^2 dy/(r (r+z)^2) = y/(r+z) - z J1` and `∫ dy/(r+z) = asinh - z J1`,
-/// - `∫ y^2 dy/(r (r+z)^2) = -y/(r+z) + ∫ dy/(r+z)` (by parts).
+/// matrix `m[load][component]` with loads (f_x, f_y, f_n); see the module docs.
 #[inline]
 fn primitive(nu: f64, x: f64, y: f64, z: f64) -> [[f64; 3]; 3] {
     let a = 1.0 - 2.0 * nu;
@@ -180,11 +186,11 @@ fn primitive(nu: f64, x: f64, y: f64, z: f64) -> [[f64; 3]; 3] {
     ]
 }
 
-/// Half-space displacement (mm) at `(x, ·, z)` from a uniform line load of
-/// `f = [f_x, f_y, f_n]` N per mm on the surface line `x = 0`, `y` from the
-/// marker's `y - y_hi` to `y - y_lo` measured relative to the marker, i.e.
-/// the load covers `y' in [y1, y2]` of the relative coordinate `y' = y_m - eta`.
-/// Closed form (see [`primitive`]).
+/// Half-space displacement (mm) of a point at depth `z` from a uniform line
+/// load of `f = [f_x, f_y, f_n]` N per mm lying on the surface along `y`, with
+/// the point at in-plane offset `x` from the line and the load covering the
+/// relative coordinate `y' = y_point - eta` from `y1` to `y2`. Closed form: the
+/// antiderivatives of the module docs, evaluated at `y2` and `y1`.
 #[inline]
 pub fn line_segment_displacement(
     mat: &Material,
@@ -269,14 +275,20 @@ impl Default for QuadratureCache {
 
 impl QuadratureCache {
     /// Node count for a marker at distance `rho` (in the x-z plane) from a rod
-    /// of half-width `b`: enough nodes that their spacing (~ pi b / n) stays
-    /// well below `rho`, where the kernel's scale is.
+    /// of half-width `b`. Far away the footprint acts as a line load: one node
+    /// errs by ~`(b/rho)^2`, two (exact to cubic order) by ~`(b/rho)^4`; close
+    /// by, enough nodes that their spacing (~ pi b / n) stays below `rho`, the
+    /// kernel's scale.
     #[inline]
     pub fn nodes_for(b: f64, rho: f64) -> usize {
-        if b <= 0.0 {
+        let ratio = b / rho;
+        if ratio < 0.05 {
             return 1;
         }
-        let n = (2.0 + 5.0 * b / rho).ceil();
+        if ratio < 0.2 {
+            return 2;
+        }
+        let n = (2.0 + 5.0 * ratio).ceil();
         (n as usize).clamp(2, MAX_NODES)
     }
 
@@ -460,6 +472,49 @@ mod tests {
                     got[k],
                     want[k]
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn far_field_with_few_nodes_is_accurate() {
+        let m = mat();
+        let q = QuadratureCache::default();
+        let rod = RodLoad {
+            s_mm: 0.0,
+            y_lo: -20.0,
+            y_hi: 20.0,
+            half_width: 2.2,
+            force: [0.5, 0.0, 3.0],
+        };
+        for off in [8.0, 12.0, 20.0, 45.0, 100.0] {
+            for z in [0.5, 2.0, 8.0] {
+                let got = rod.half_space(&m, &q, off, 5.0, z);
+                let n = 2000;
+                let mut want = [0.0; 3];
+                for i in 0..n {
+                    let phi = -PI / 2.0 + (i as f64 + 0.5) * PI / n as f64;
+                    let w = 2.0 / PI * phi.cos().powi(2) * PI / n as f64;
+                    let f = [0.5 / 40.0, 0.0, 3.0 / 40.0];
+                    let d = line_segment_displacement(
+                        &m,
+                        f,
+                        off - 2.2 * phi.sin(),
+                        5.0 - 20.0,
+                        5.0 + 20.0,
+                        z,
+                    );
+                    for k in 0..3 {
+                        want[k] += w * d[k];
+                    }
+                }
+                let scale = want.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+                for k in 0..3 {
+                    assert!(
+                        (got[k] - want[k]).abs() < 5e-3 * scale,
+                        "off={off} z={z} k={k}"
+                    );
+                }
             }
         }
     }

@@ -8,7 +8,7 @@
 //! Hertz footprint, with a rigid-base correction for the layer), maps it through
 //! the camera model ([`camera`]: unrolled skin to pixels, with a mild
 //! non-linearity) and re-renders every marker as a Gaussian spot at its moved
-//! position ([`render`]), with shot and read noise, vignetting and a per-frame
+//! position (module `render`), with shot and read noise, vignetting and a per-frame
 //! brightness flicker. It also returns the true dense motion.
 //!
 //! [`scenario`] writes whole sequences (frames, `truth.jsonl`, `.flo` truth

@@ -13,16 +13,18 @@ use super::rng::{SplitMix64, approx_normal_from_bits, hash64};
 use super::sensor::{Markers, Rendered, SimConfig};
 use crate::flow::FlowField;
 
-/// Sampling step (strip px) of the mean-depth motion field used between markers.
-pub(crate) const GRID_STEP: usize = 4;
+/// Sampling steps (strip px, along x and y) of the mean-depth motion field used
+/// between markers; coarser across, where the field of a rod changes only near
+/// its ends.
+pub(crate) const GRID_STEP: (usize, usize) = (4, 8);
 /// Rows per parallel band.
 const BAND_ROWS: usize = 16;
 /// Spots are drawn out to this many standard deviations (the tail beyond is
 /// below half a grey level for the brightest spots).
-const SPOT_RADIUS_SIGMAS: f32 = 3.5;
+pub(crate) const SPOT_RADIUS_SIGMAS: f32 = 3.5;
 
 /// The mean-depth motion grid: `(nx, ny, du, dv)`, node `(i, j)` at strip pixel
-/// `(i * GRID_STEP, j * GRID_STEP)`.
+/// `(i * GRID_STEP.0, j * GRID_STEP.1)`.
 pub(crate) type MotionGrid = (usize, usize, Vec<f32>, Vec<f32>);
 
 struct Frame<'a> {
@@ -232,10 +234,10 @@ impl Frame<'_> {
 
 /// Bilinear sample of the motion grid at strip pixel `(x, y)`.
 #[inline]
-fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
+pub(crate) fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
     let (nx, ny, du, dv) = grid;
-    let gx = (x / GRID_STEP as f32).clamp(0.0, (*nx - 1) as f32);
-    let gy = (y / GRID_STEP as f32).clamp(0.0, (*ny - 1) as f32);
+    let gx = (x / GRID_STEP.0 as f32).clamp(0.0, (*nx - 1) as f32);
+    let gy = (y / GRID_STEP.1 as f32).clamp(0.0, (*ny - 1) as f32);
     let i0 = (gx as usize).min(nx - 2);
     let j0 = (gy as usize).min(ny - 2);
     let (fx, fy) = (gx - i0 as f32, gy - j0 as f32);

@@ -6,9 +6,14 @@
 //! is the unloaded reference), `truth.jsonl` (one line per frame with the true
 //! contacts) and, unless disabled, the true dense motion of each frame as
 //! `flow/000000.flo`. `characterization` writes `tests.csv` and
-//! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test.
+//! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test (and, with `flow`,
+//! `flow/tNNNN.flo`). With the full-frame option every scenario also writes
+//! `crop.json`, the strip's rectangle `{x, y, width, height}` in the frame.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use rayon::prelude::*;
 
 use serde::Serialize;
 
@@ -233,6 +238,32 @@ fn check_frames(n: usize) -> Result<()> {
     Ok(())
 }
 
+/// The strip's rectangle in a full frame, written as `crop.json` beside
+/// full-frame output so that a user (or the pipeline) can crop it.
+#[derive(Serialize)]
+struct Crop {
+    x: usize,
+    y: usize,
+    width: usize,
+    height: usize,
+}
+
+fn write_crop(c: &Common) -> Result<()> {
+    if c.config.full_frame {
+        let (x, y, width, height) = c.config.camera.crop();
+        write_json(
+            &c.out.join("crop.json"),
+            &Crop {
+                x,
+                y,
+                width,
+                height,
+            },
+        )?;
+    }
+    Ok(())
+}
+
 fn create_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     // Creating succeeds on an existing read-only folder: probe that we can write.
@@ -256,6 +287,7 @@ impl SequenceWriter {
         if c.flow {
             create_dir(&c.out.join("flow"))?;
         }
+        write_crop(c)?;
         Ok(SequenceWriter {
             out: c.out.clone(),
             flow: c.flow,
@@ -520,47 +552,55 @@ fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) 
     if c.flow {
         create_dir(&c.out.join("flow"))?;
     }
+    write_crop(c)?;
     let skin = &c.config.skin;
-    let mut rows = Vec::with_capacity(ids.len());
-    for (done, &id) in ids.iter().enumerate() {
-        let p = all[id];
-        let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
-        let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
-        let contact = Contact::rod(x, f, p.indenter);
-        // Fresh noise and flicker for each image: frame indices from the test id.
-        let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
-        let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
-        let frame = format!("frames/t{id:04}.png");
-        let refname = format!("frames/t{id:04}_ref.png");
-        io::write_gray_png(c.out.join(&refname), &reference.frame)?;
-        io::write_gray_png(c.out.join(&frame), &loaded.frame)?;
-        if let Some(flow) = &loaded.flow {
-            io::write_flo(c.out.join(format!("flow/t{id:04}.flo")), flow)?;
-        }
-        // The load cell reads the true force plus a little noise.
-        let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(id as u64 ^ 0x10AD_CE11)));
-        let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
-        rows.push(TestRow {
-            test: id,
-            frame,
-            reference: refname,
-            point: p.point,
-            indenter_mm: p.indenter,
-            yaw_deg: p.tilt.0,
-            pitch_deg: p.tilt.1,
-            repeat: p.repeat,
-            force_n: p.force,
-            split: p.split,
-            x_mm: x,
-            y_mm: 0.0,
-            fx_n: noisy[0],
-            fy_n: noisy[1],
-            fz_n: noisy[2],
-        });
-        if (done + 1) % 200 == 0 {
-            eprintln!("characterization: {} / {} tests", done + 1, ids.len());
-        }
-    }
+    // Tests are independent (each has its own frame indices and noise), so they
+    // are made in parallel; PNG encoding would otherwise leave a core idle.
+    // The rows come back in protocol order whatever the thread count.
+    let done = AtomicUsize::new(0);
+    let rows: Vec<TestRow> = ids
+        .par_iter()
+        .map(|&id| -> Result<TestRow> {
+            let p = all[id];
+            let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
+            let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
+            let contact = Contact::rod(x, f, p.indenter);
+            // Fresh noise and flicker for each image: frame indices from the test id.
+            let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
+            let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
+            let frame = format!("frames/t{id:04}.png");
+            let refname = format!("frames/t{id:04}_ref.png");
+            io::write_gray_png(c.out.join(&refname), &reference.frame)?;
+            io::write_gray_png(c.out.join(&frame), &loaded.frame)?;
+            if let Some(flow) = &loaded.flow {
+                io::write_flo(c.out.join(format!("flow/t{id:04}.flo")), flow)?;
+            }
+            // The load cell reads the true force plus a little noise.
+            let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(id as u64 ^ 0x10AD_CE11)));
+            let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
+            let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+            if k % 200 == 0 {
+                eprintln!("characterization: {k} / {} tests", ids.len());
+            }
+            Ok(TestRow {
+                test: id,
+                frame,
+                reference: refname,
+                point: p.point,
+                indenter_mm: p.indenter,
+                yaw_deg: p.tilt.0,
+                pitch_deg: p.tilt.1,
+                repeat: p.repeat,
+                force_n: p.force,
+                split: p.split,
+                x_mm: x,
+                y_mm: 0.0,
+                fx_n: noisy[0],
+                fy_n: noisy[1],
+                fz_n: noisy[2],
+            })
+        })
+        .collect::<Result<_>>()?;
     io::write_tests_csv(c.out.join("tests.csv"), &rows)?;
     Ok(Summary {
         out: c.out.clone(),
@@ -701,6 +741,33 @@ fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary>
         out: c.out.clone(),
         frames: w.n,
     })
+}
+
+/// The repository's fixtures under `out`: `press/` (two 5 mm rods 40 mm apart
+/// ramping to 2.0 and 1.5 N over 8 frames, no flow) and `characterization/`
+/// (a 6-test subset of the protocol, no flow). See `fixtures/README.md`.
+pub fn fixtures(out: &Path, seed: u64) -> Result<()> {
+    let mut press = Common::new(out.join("press"));
+    press.seed = seed;
+    press.flow = false;
+    let pair = Pair {
+        x_mm: 0.0,
+        spacing_mm: 40.0,
+        force_n: 2.0,
+        force2_n: 1.5,
+        frames: 8,
+        indenter_mm: 5.0,
+    };
+    run(&Scenario::Pair(pair), &press)?;
+    let mut ch = Common::new(out.join("characterization"));
+    ch.seed = seed;
+    ch.flow = false;
+    let c = Characterization {
+        subset: Some(6),
+        ..Default::default()
+    };
+    run(&Scenario::Characterization(c), &ch)?;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -142,6 +142,15 @@ impl SimConfig {
             Ok(())
         };
         range("markers.fwhm_px", m.fwhm_px, 0.5)?;
+        if m.fwhm_px.1 > 20.0 {
+            return Err(Error::param(
+                "markers.fwhm_px",
+                format!(
+                    "spots wider than 20 px are not markers, got {}",
+                    m.fwhm_px.1
+                ),
+            ));
+        }
         range("markers.depth_mm", m.depth_mm, 1e-3)?;
         range("markers.brightness", m.brightness, 0.0)?;
         if m.depth_mm.1 >= self.material.layer_mm {
@@ -368,16 +377,17 @@ impl SyntheticSensor {
     }
 
     /// The motion field at the markers' mean depth, sampled every `step` strip
-    /// pixels (the truth flow between markers). Returns `(nx, ny, du, dv)`.
+    /// pixels along x and y (the truth flow between markers). Returns
+    /// `(nx, ny, du, dv)`.
     pub(crate) fn mean_depth_grid(
         &self,
         loads: &[RodLoad],
-        step: usize,
+        step: (usize, usize),
     ) -> (usize, usize, Vec<f32>, Vec<f32>) {
         let cam = &self.config.camera;
         let skin = &self.config.skin;
-        let nx = cam.strip_width.div_ceil(step) + 1;
-        let ny = cam.strip_height.div_ceil(step) + 1;
+        let nx = cam.strip_width.div_ceil(step.0) + 1;
+        let ny = cam.strip_height.div_ceil(step.1) + 1;
         let depth = 0.5 * (self.config.markers.depth_mm.0 + self.config.markers.depth_mm.1);
         let half_w = 0.5 * skin.width_mm();
         let h = skin.half_length();
@@ -390,8 +400,8 @@ impl SyntheticSensor {
                 }
                 let (gx, gy) = (k % nx, k / nx);
                 // Clamp to the skin: outside it the field is that of its edge.
-                let s = cam.px_to_s(skin, (gx * step) as f64).clamp(-h, h);
-                let y = cam.px_to_y((gy * step) as f64).clamp(-half_w, half_w);
+                let s = cam.px_to_s(skin, (gx * step.0) as f64).clamp(-h, h);
+                let y = cam.px_to_y((gy * step.1) as f64).clamp(-half_w, half_w);
                 self.to_pixels(s, self.displacement_at(loads, s, y, depth))
             })
             .collect();
@@ -474,4 +484,102 @@ fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
         m.sigma.push((fwhm / (8.0 * 2f64.ln()).sqrt()) as f32);
     }
     m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Slow oracle: every marker summed over the whole image in f64, no bands,
+    /// no windows beyond the same spot radius, then the same lighting.
+    #[test]
+    fn banded_renderer_matches_a_naive_sum() {
+        let mut cfg = SimConfig::default();
+        cfg.markers.count = Some(3000);
+        cfg.noise.shot = 0.0;
+        cfg.noise.read = 0.0;
+        cfg.noise.flicker = 0.0;
+        let s = SyntheticSensor::new(cfg, 5).unwrap();
+        let contacts = [Contact::rod(10.0, [0.2, 0.0, -2.5], 5.0)];
+        let r = s.render_indexed(3, &contacts, true).unwrap();
+        let loads = s.loads(&contacts).unwrap();
+        let motion = s.marker_pixel_motion(&loads);
+        let m = &s.markers;
+        let (w, h) = cfg.image_size();
+        let mut sig = vec![0.0f64; w * h];
+        let mut acc = vec![[0.0f64; 3]; w * h];
+        for i in 0..m.s.len() {
+            let cx = m.px[i] + motion[i].0 as f64;
+            let cy = m.py[i] + motion[i].1 as f64;
+            let sg = m.sigma[i] as f64;
+            let rad = render::SPOT_RADIUS_SIGMAS as f64 * sg;
+            // Every pixel whose centre lies in the spot's radius box (the
+            // renderer's window), found by scanning all rows and columns.
+            let (x0, x1) = ((cx - rad).floor(), (cx + rad).ceil());
+            let (y0, y1) = ((cy - rad).floor(), (cy + rad).ceil());
+            for y in (0..h).filter(|&y| y as f64 >= y0 && y as f64 <= y1) {
+                for x in (0..w).filter(|&x| x as f64 >= x0 && x as f64 <= x1) {
+                    let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+                    let g = m.amp[i] as f64 * (-(dx * dx + dy * dy) / (2.0 * sg * sg)).exp();
+                    sig[y * w + x] += g;
+                    acc[y * w + x][0] += g;
+                    acc[y * w + x][1] += g * motion[i].0 as f64;
+                    acc[y * w + x][2] += g * motion[i].1 as f64;
+                }
+            }
+        }
+        let skin = &cfg.skin;
+        let cam = &cfg.camera;
+        let hl = skin.half_length();
+        let (bx0, bx1) = (cam.s_to_px(skin, -hl) - 0.5, cam.s_to_px(skin, hl) + 0.5);
+        let (by0, by1) = (
+            cam.y_to_px(-0.5 * skin.width_mm()) - 0.5,
+            cam.y_to_px(0.5 * skin.width_mm()) + 0.5,
+        );
+        let flow = r.flow.unwrap();
+        let grid = s.mean_depth_grid(&loads, render::GRID_STEP);
+        let w0 = 0.05 * 0.5 * (cfg.markers.brightness.0 + cfg.markers.brightness.1);
+        let mut worst = 0.0f64;
+        for y in 0..h {
+            for x in 0..w {
+                let (xf, yf) = (x as f64, y as f64);
+                let inside = xf >= bx0 && xf <= bx1 && yf >= by0 && yf <= by1;
+                let bg = if inside {
+                    cfg.noise.background
+                } else {
+                    cfg.noise.outside
+                } as f64;
+                let (ox, oy) = cam.strip_origin;
+                let vig =
+                    cam.vignetting(cfg.noise.vignetting, (x + ox) as f32, (y + oy) as f32) as f64;
+                let want = ((bg + sig[y * w + x]) * vig).clamp(0.0, 255.0);
+                let got = r.frame[[y, x]] as f64;
+                worst = worst.max((got - want).abs());
+                // The flow: brightness-weighted spot motion blended with the
+                // mean-depth field.
+                let a = acc[y * w + x];
+                let (gu, gv) = render::sample_grid(&grid, xf as f32, yf as f32);
+                let u = (a[1] + w0 * gu as f64) / (a[0] + w0);
+                let v = (a[2] + w0 * gv as f64) / (a[0] + w0);
+                assert!((flow.u[[y, x]] as f64 - u).abs() < 1e-4, "u at {x},{y}");
+                assert!((flow.v[[y, x]] as f64 - v).abs() < 1e-4, "v at {x},{y}");
+            }
+        }
+        // Rounding to integer grey levels costs 0.5; f32 sums of up to ~255 add
+        // a few 1e-3.
+        assert!(worst <= 0.5 + 1e-2, "worst pixel error {worst}");
+    }
+
+    #[test]
+    fn render_advances_the_frame_index() {
+        let mut cfg = SimConfig::default();
+        cfg.markers.count = Some(500);
+        let mut s = SyntheticSensor::new(cfg, 2).unwrap();
+        let (a, _) = s.render(&[]).unwrap();
+        let (b, _) = s.render(&[]).unwrap();
+        assert_eq!(s.frame_index(), 2);
+        assert_eq!(a, s.render_indexed(0, &[], false).unwrap().frame);
+        assert_eq!(b, s.render_indexed(1, &[], false).unwrap().frame);
+        assert_ne!(a, b);
+    }
 }
