@@ -38,6 +38,7 @@ pub mod io;
 pub mod morphology;
 pub mod poly;
 pub mod segment;
+pub mod sensor;
 pub mod sim;
 pub mod track;
 pub mod viz;

@@ -205,6 +205,12 @@ impl Tracker {
     /// Forgets every live contact (ids keep counting up).
     pub fn reset(&mut self) {
         self.tracks.clear();
+        self.out.clear();
+    }
+
+    /// The contacts returned by the last [`update`](Self::update).
+    pub fn last(&self) -> &[Contact] {
+        &self.out
     }
 
     /// Number of live contacts, including held ones.

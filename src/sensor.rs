@@ -1,0 +1,436 @@
+//! The whole pipeline: frames in, contacts out.
+//!
+//! - [`ContactExtractor`] runs SPEC.md steps 4-7 on cropped grayscale frames:
+//!   DIS optical flow against a fixed reference, segmentation into patches, a
+//!   natural HHD per patch (in parallel), and each patch's raw quantities. It
+//!   works at the flow's **native resolution** (DIS's finest computed level,
+//!   1/4 resolution for `fast`): the flow is never upsampled; the HHD uses the
+//!   level's grid spacing, so every quantity comes out in full-resolution
+//!   pixels. Calibration fitting uses it directly.
+//! - [`TactileSensor`] adds the crop, the calibration (mm and N), tracking
+//!   (identity, hysteresis, smoothing) and safe re-referencing.
+//!
+//! ```no_run
+//! use optical_tactile::calibration::Calibration;
+//! use optical_tactile::capture::{FrameSource, SequenceSource};
+//! use optical_tactile::sensor::{SensorConfig, TactileSensor};
+//!
+//! let calibration = Calibration::load("fixtures/calibration.json")?;
+//! let mut sensor = TactileSensor::new(SensorConfig::default(), calibration)?;
+//! let mut frames = SequenceSource::open("fixtures/press")?;
+//! let first = frames.next_frame().expect("a frame")?;
+//! sensor.set_reference(&first.image)?;
+//! while let Some(frame) = frames.next_frame() {
+//!     let frame = frame?;
+//!     for c in sensor.process(&frame.image, frame.t_s)? {
+//!         println!("contact {} at x = {:.1} mm, Fz = {:.2} N", c.id, c.location_mm[0], c.force_n[2]);
+//!     }
+//! }
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
+
+use std::time::Instant;
+
+use ndarray::{Array2, ArrayRef2};
+use rayon::prelude::*;
+
+use crate::calibration::Calibration;
+use crate::contact::{Contact, PatchFields, PatchGrid, RawContact, raw_quantities, rotate_to_sensor};
+use crate::error::{Error, Result};
+use crate::flow::FlowField;
+use crate::flow::dis::{Dis, DisParams, DisPreset};
+use crate::hhd::{Decomposition, NaturalHhd};
+use crate::image::Roi;
+use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
+use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
+
+/// How the extractor cuts and measures patches.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtractorConfig {
+    /// Optical flow parameters.
+    pub flow: DisParams,
+    /// Segmentation thresholds (full-resolution pixels).
+    pub thresholds: Thresholds,
+    /// Margin around each patch so that it holds the whole deformation,
+    /// full-resolution pixels.
+    pub margin_px: usize,
+    /// Refine the contact point to sub-pixel precision.
+    pub subpixel: bool,
+}
+
+impl Default for ExtractorConfig {
+    fn default() -> Self {
+        ExtractorConfig {
+            flow: DisParams::preset(DisPreset::Accurate),
+            thresholds: Thresholds::HIGH,
+            margin_px: 24,
+            subpixel: true,
+        }
+    }
+}
+
+/// One patch's working set: its planner, decomposition and result.
+#[derive(Debug, Default)]
+struct Slot {
+    hhd: NaturalHhd,
+    dec: Option<Decomposition>,
+    raw: Option<Result<RawContact>>,
+}
+
+/// Time spent in each stage of the last frame, ms.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimings {
+    /// Crop and copy.
+    pub crop_ms: f64,
+    /// Optical flow.
+    pub flow_ms: f64,
+    /// Segmentation.
+    pub segment_ms: f64,
+    /// nHHD and raw quantities of every patch (in parallel).
+    pub hhd_ms: f64,
+    /// Calibration, tracking and re-referencing.
+    pub contacts_ms: f64,
+    /// The whole call.
+    pub total_ms: f64,
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Flow -> patches -> nHHD -> raw quantities, on cropped grayscale frames
+/// (see the module docs). Built once; nothing is allocated per frame once the
+/// patch sizes have been seen.
+#[derive(Debug)]
+pub struct ContactExtractor {
+    config: ExtractorConfig,
+    dis: Dis,
+    segmenter: Segmenter,
+    /// Full-resolution pixels per native flow pixel.
+    scale: usize,
+    /// The native flow in full-resolution pixel units.
+    flow: FlowField,
+    patches: Vec<ContactPatch>,
+    slots: Vec<Slot>,
+    raws: Vec<RawContact>,
+    timings: StageTimings,
+}
+
+impl ContactExtractor {
+    /// An extractor for `config` (checked here).
+    pub fn new(config: ExtractorConfig) -> Result<Self> {
+        let dis = Dis::new(config.flow.clone())?;
+        let scale = 1usize << config.flow.finest_scale;
+        let segmenter = Segmenter::new(SegmenterConfig {
+            thresholds: config.thresholds,
+            margin: config.margin_px,
+            scale: 1.0 / scale as f32,
+        })?;
+        Ok(ContactExtractor {
+            config,
+            dis,
+            segmenter,
+            scale,
+            flow: FlowField::zeros(0, 0),
+            patches: Vec::new(),
+            slots: Vec::new(),
+            raws: Vec::new(),
+            timings: StageTimings::default(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ExtractorConfig {
+        &self.config
+    }
+
+    /// Sets the reference (unloaded) frame, already cropped.
+    pub fn set_reference(&mut self, reference: &ArrayRef2<f32>) -> Result<()> {
+        self.dis.set_reference(reference)
+    }
+
+    /// `(width, height)` of the reference, `(0, 0)` before one is set.
+    pub fn size(&self) -> (usize, usize) {
+        self.dis.size()
+    }
+
+    /// Full-resolution pixels per pixel of the native flow.
+    pub fn scale(&self) -> usize {
+        self.scale
+    }
+
+    /// The raw quantities of every contact patch of `frame` (cropped, same
+    /// size as the reference), strongest first.
+    pub fn extract(&mut self, frame: &ArrayRef2<f32>) -> Result<&[RawContact]> {
+        let t = Instant::now();
+        self.dis.compute_native(frame)?;
+        let (native, scale) = self.dis.native_flow().ok_or(Error::NoReference)?;
+        // The flow in full-resolution pixel units, at native resolution.
+        let gain = scale as f32;
+        if self.flow.size() != native.size() {
+            self.flow = FlowField::zeros(native.width(), native.height());
+        }
+        ndarray::Zip::from(&mut self.flow.u).and(&native.u).for_each(|o, &x| *o = x * gain);
+        ndarray::Zip::from(&mut self.flow.v).and(&native.v).for_each(|o, &x| *o = x * gain);
+        self.flow.check_finite("optical flow")?;
+        self.timings.flow_ms = ms(t);
+
+        let t = Instant::now();
+        self.segmenter.segment_into(native, &mut self.patches)?;
+        self.timings.segment_ms = ms(t);
+
+        let t = Instant::now();
+        let n = self.patches.len();
+        if self.slots.len() < n {
+            self.slots.resize_with(n, Slot::default);
+        }
+        let s = scale as f64;
+        let (flow, subpixel) = (&self.flow, self.config.subpixel);
+        self.slots[..n]
+            .par_iter_mut()
+            .zip(self.patches.par_iter())
+            .for_each(|(slot, patch)| {
+                slot.raw = Some(measure(slot, flow, patch, s, subpixel));
+            });
+        self.raws.clear();
+        for slot in &mut self.slots[..n] {
+            self.raws.push(slot.raw.take().expect("set above")?);
+        }
+        self.raws.sort_by(|a, b| b.strength.total_cmp(&a.strength));
+        self.timings.hhd_ms = ms(t);
+        Ok(&self.raws)
+    }
+
+    /// The raw contacts of the last [`extract`](Self::extract).
+    pub fn raws(&self) -> &[RawContact] {
+        &self.raws
+    }
+
+    /// The last flow at native resolution, in full-resolution pixel units,
+    /// and the scale (full-resolution pixels per flow pixel).
+    pub fn flow(&self) -> (&FlowField, usize) {
+        (&self.flow, self.scale)
+    }
+
+    /// The patches of the last frame (native-resolution boxes), in the order
+    /// the segmentation found them.
+    pub fn patches(&self) -> &[ContactPatch] {
+        &self.patches
+    }
+
+    /// The decomposition of the `k`-th patch of the last frame (same order as
+    /// [`patches`](Self::patches)).
+    pub fn decomposition(&self, k: usize) -> Option<&Decomposition> {
+        (k < self.patches.len()).then(|| self.slots[k].dec.as_ref()).flatten()
+    }
+
+    /// The segmenter (its mask and contour boxes, for display).
+    pub fn segmenter(&self) -> &Segmenter {
+        &self.segmenter
+    }
+
+    /// Stage timings of the last frame (crop and contacts left at 0 here).
+    pub fn timings(&self) -> &StageTimings {
+        &self.timings
+    }
+}
+
+/// nHHD and raw quantities of one patch.
+fn measure(slot: &mut Slot, flow: &FlowField, patch: &ContactPatch, s: f64, subpixel: bool) -> Result<RawContact> {
+    let b = patch.bbox;
+    let (u, v) = patch.view(flow)?;
+    let dec = slot.dec.get_or_insert_with(|| Decomposition::zeros(b.height, b.width));
+    slot.hhd.decompose_into(u, v, s, s, dec)?;
+    let fields = PatchFields {
+        u,
+        v,
+        potential_d: dec.potential_d.view(),
+        d_u: dec.d.u.view(),
+        d_v: dec.d.v.view(),
+    };
+    let mut raw = raw_quantities(&fields, PatchGrid { x0: b.x, y0: b.y, scale: s }, subpixel)?;
+    let si = s as usize;
+    raw.area_px = (patch.area * si * si) as u64;
+    raw.bbox = Roi::new(b.x * si, b.y * si, b.width * si, b.height * si);
+    // Summed |flow| in full-resolution units: flow pixels x area.
+    raw.strength = patch.flow_sum * s * s * s;
+    Ok(raw)
+}
+
+/// Everything a [`TactileSensor`] needs besides its calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorConfig {
+    /// Crop of the camera frame to the sensing area; `None` takes the
+    /// calibration's crop.
+    pub crop: Option<Roi>,
+    /// Flow, segmentation and patch settings.
+    pub extractor: ExtractorConfig,
+    /// Tracking: identity, hysteresis, smoothing.
+    pub tracker: TrackerConfig,
+    /// When to take a fresh reference.
+    pub rereference: ReferencePolicy,
+}
+
+impl Default for SensorConfig {
+    fn default() -> Self {
+        SensorConfig {
+            crop: None,
+            extractor: ExtractorConfig::default(),
+            tracker: TrackerConfig::default(),
+            rereference: ReferencePolicy::default(),
+        }
+    }
+}
+
+/// A calibrated optical tactile sensor: frames in, contacts out (see the module docs).
+#[derive(Debug)]
+pub struct TactileSensor {
+    config: SensorConfig,
+    calibration: Calibration,
+    crop: Roi,
+    frame_size: Option<(usize, usize)>,
+    cropped: Array2<f32>,
+    extractor: ContactExtractor,
+    tracker: Tracker,
+    monitor: ReferenceMonitor,
+    detections: Vec<Contact>,
+    last_t: Option<f64>,
+    rereferenced: bool,
+    references: u64,
+    timings: StageTimings,
+}
+
+impl TactileSensor {
+    /// A sensor for `config` and `calibration`.
+    pub fn new(config: SensorConfig, calibration: Calibration) -> Result<Self> {
+        let crop = config.crop.unwrap_or(calibration.setup.crop);
+        Ok(TactileSensor {
+            extractor: ContactExtractor::new(config.extractor.clone())?,
+            tracker: Tracker::new(config.tracker)?,
+            monitor: ReferenceMonitor::new(config.rereference)?,
+            config,
+            calibration,
+            crop,
+            frame_size: None,
+            cropped: Array2::zeros((0, 0)),
+            detections: Vec::new(),
+            last_t: None,
+            rereferenced: false,
+            references: 0,
+            timings: StageTimings::default(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SensorConfig {
+        &self.config
+    }
+
+    /// The calibration.
+    pub fn calibration(&self) -> &Calibration {
+        &self.calibration
+    }
+
+    /// The crop applied to every frame.
+    pub fn crop(&self) -> Roi {
+        self.crop
+    }
+
+    fn crop_into_buffer(&mut self, frame: &ArrayRef2<f32>) -> Result<()> {
+        let view = self.crop.crop(frame)?;
+        if self.cropped.dim() != view.dim() {
+            self.cropped = Array2::zeros(view.dim());
+        }
+        self.cropped.assign(&view);
+        Ok(())
+    }
+
+    /// Takes `frame` (a whole camera frame, unloaded) as the reference.
+    /// Errors if the crop does not fit it.
+    pub fn set_reference(&mut self, frame: &ArrayRef2<f32>) -> Result<()> {
+        self.crop_into_buffer(frame)?;
+        self.extractor.set_reference(&self.cropped)?;
+        self.frame_size = Some((frame.ncols(), frame.nrows()));
+        self.tracker.reset();
+        self.monitor.reset();
+        self.references += 1;
+        Ok(())
+    }
+
+    /// Processes one frame taken at `t_s` seconds: the contacts in it, each
+    /// with a stable id, location (mm) and force (N) in the sensor frame.
+    ///
+    /// Errors (nothing changes): no reference yet, a frame of another size than
+    /// the reference, non-finite pixels.
+    pub fn process(&mut self, frame: &ArrayRef2<f32>, t_s: f64) -> Result<&[Contact]> {
+        let t0 = Instant::now();
+        let size = self.frame_size.ok_or(Error::NoReference)?;
+        if (frame.ncols(), frame.nrows()) != size {
+            return Err(Error::shape("frame against the reference", size, (frame.ncols(), frame.nrows())));
+        }
+        self.crop_into_buffer(frame)?;
+        let crop_ms = ms(t0);
+        self.extractor.extract(&self.cropped)?;
+
+        let t = Instant::now();
+        self.detections.clear();
+        let geometry = self.calibration.setup.geometry;
+        for raw in self.extractor.raws() {
+            let mut raw = *raw;
+            let loc = self.calibration.location(raw.x_px, raw.y_px)?;
+            raw.d_sensor = rotate_to_sensor(&geometry, loc[0], &raw);
+            self.detections.push(self.calibration.contact(&raw)?);
+        }
+        let dt = self.last_t.map_or(0.0, |p| t_s - p);
+        self.last_t = Some(t_s);
+        let live = self.tracker.update(&self.detections, dt).len();
+        let (flow, _) = self.extractor.flow();
+        let max_flow = flow
+            .u
+            .iter()
+            .zip(flow.v.iter())
+            .fold(0.0f32, |m, (u, v)| m.max(u.hypot(*v)));
+        self.rereferenced = self.monitor.observe(t_s, live, max_flow as f64);
+        if self.rereferenced {
+            // Quiet for long enough: this frame becomes the reference.
+            self.extractor.set_reference(&self.cropped)?;
+            self.references += 1;
+        }
+        let mut timings = *self.extractor.timings();
+        timings.crop_ms = crop_ms;
+        timings.contacts_ms = ms(t);
+        timings.total_ms = ms(t0);
+        self.timings = timings;
+        Ok(self.contacts())
+    }
+
+    /// The tracked contacts of the last frame.
+    pub fn contacts(&self) -> &[Contact] {
+        self.tracker.last()
+    }
+
+    /// Per-stage timings of the last frame.
+    pub fn timings(&self) -> &StageTimings {
+        &self.timings
+    }
+
+    /// Whether the last frame was taken as a new reference.
+    pub fn rereferenced(&self) -> bool {
+        self.rereferenced
+    }
+
+    /// How many references have been taken (the first included).
+    pub fn reference_count(&self) -> u64 {
+        self.references
+    }
+
+    /// The extractor (flow, patches, decompositions of the last frame).
+    pub fn extractor(&self) -> &ContactExtractor {
+        &self.extractor
+    }
+
+    /// The cropped grayscale image of the last frame.
+    pub fn cropped(&self) -> &Array2<f32> {
+        &self.cropped
+    }
+}
