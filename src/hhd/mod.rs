@@ -174,15 +174,17 @@ pub trait HhdScalar: Copy + Into<f64> {}
 impl HhdScalar for f32 {}
 impl HhdScalar for f64 {}
 
-/// Default number of `(ny, nx, dx, dy)` plans a [`NaturalHhd`] keeps.
+/// Default number of plans (padded torus and spacing) a [`NaturalHhd`] keeps.
 pub const DEFAULT_CACHE: usize = 8;
 
 /// The natural HHD planner: keeps, per grid shape and spacing, the FFT plans
 /// and the Green's-function spectrum, plus working buffers, so that repeated
 /// decompositions of the same sizes allocate nothing.
 ///
-/// Patch sizes vary from frame to frame, so it caches a few sizes at once
-/// (least recently used is dropped first; [`DEFAULT_CACHE`] by default).
+/// Patch sizes vary from frame to frame, so it caches a few plans at once
+/// (least recently used is dropped first; [`DEFAULT_CACHE`] by default), and
+/// grids that pad to the same torus (e.g. 58 to 60 rows all pad to 120)
+/// share a plan.
 /// One planner is not shared between threads; use one per worker thread.
 pub struct NaturalHhd {
     planner: FftPlanner<f64>,
@@ -228,14 +230,14 @@ impl NaturalHhd {
         })
     }
 
-    /// Number of grid sizes currently planned.
+    /// Number of plans (padded torus and spacing) currently cached.
     pub fn cached_sizes(&self) -> usize {
         self.cache.len()
     }
 
     /// Plans (or finds) the convolution for a `ny x nx` grid with spacings
-    /// `dx`, `dy`, and sizes the working buffers, so that the first
-    /// decomposition of that size is as cheap as the following ones.
+    /// `dx`, `dy`, so that the first decomposition of that size is nearly as
+    /// cheap as the following ones (working buffers grow on first use).
     pub fn prepare(
         &mut self,
         ny: usize,
@@ -244,9 +246,13 @@ impl NaturalHhd {
         dy: f64,
     ) -> Result<Arc<GreenConvolver>> {
         fft::check_grid(ny, nx, dx, dy)?;
+        // Grids that pad to the same torus share one plan.
+        let torus = GreenConvolver::torus_for(ny, nx);
         let hit = self.cache.iter().position(|c| {
             let (cdx, cdy) = c.spacing();
-            c.shape() == (ny, nx) && cdx.to_bits() == dx.to_bits() && cdy.to_bits() == dy.to_bits()
+            c.padded_shape() == torus
+                && cdx.to_bits() == dx.to_bits()
+                && cdy.to_bits() == dy.to_bits()
         });
         let conv = match hit {
             Some(i) => {
@@ -493,8 +499,18 @@ mod tests {
         hhd.prepare(4, 5, 1.0, 2.0).unwrap();
         assert_eq!(hhd.cached_sizes(), 2);
         // (6, 5) was the least recently used and is gone; (4, 5) is still there.
-        let shapes: Vec<_> = hhd.cache.iter().map(|c| (c.shape(), c.spacing())).collect();
-        assert_eq!(shapes, vec![((4, 5), (1.0, 1.0)), ((4, 5), (1.0, 2.0))]);
+        let shapes: Vec<_> = hhd
+            .cache
+            .iter()
+            .map(|c| (c.padded_shape(), c.spacing()))
+            .collect();
+        assert_eq!(shapes, vec![((8, 9), (1.0, 1.0)), ((8, 9), (1.0, 2.0))]);
+        // 58..=60 rows or columns all pad to 120: one plan for these grids.
+        let a = hhd.prepare(58, 60, 1.0, 2.0).unwrap();
+        let b = hhd.prepare(60, 59, 1.0, 2.0).unwrap();
+        assert!(Arc::ptr_eq(&a, &b));
+        assert_eq!(a.padded_shape(), (120, 120));
+        assert_eq!(a.max_shape(), (60, 60));
         assert!(NaturalHhd::with_cache_capacity(0).is_err());
     }
 }
