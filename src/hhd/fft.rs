@@ -192,11 +192,20 @@ impl GreenConvolver {
         // Wrap-around order: torus index k holds offset k or p - k, whichever
         // is smaller. Every offset a grid of up to max_shape can produce is
         // then exact, and G stays even on the torus.
+        // One quadrant of logarithms, mirrored (planning cost matters when
+        // patch sizes change often).
+        let (qy, qx) = (py / 2 + 1, px / 2 + 1);
+        let mut quad = vec![0.0; qy * qx];
+        for oy in 0..qy {
+            for ox in 0..qx {
+                quad[oy * qx + ox] = green(oy, ox, self.dx, self.dy);
+            }
+        }
         let mut g = vec![Complex64::default(); py * px];
-        for ky in 0..py {
-            let oy = ky.min(py - ky);
-            for kx in 0..px {
-                g[ky * px + kx].re = green(oy, kx.min(px - kx), self.dx, self.dy);
+        for (ky, row) in g.chunks_exact_mut(px).enumerate() {
+            let q = &quad[ky.min(py - ky) * qx..][..qx];
+            for (kx, z) in row.iter_mut().enumerate() {
+                z.re = q[kx.min(px - kx)];
             }
         }
         let mut scratch = vec![Complex64::default(); self.scratch_len];
