@@ -459,3 +459,23 @@ fn a_convolver_serves_smaller_grids_exactly() {
         Err(Error::ShapeMismatch { .. })
     ));
 }
+
+/// A planner can move to a worker thread (one planner per thread, e.g. with
+/// rayon's `map_init`), and its results can be sent back.
+#[test]
+fn planner_and_results_are_send() {
+    fn send<T: Send>() {}
+    send::<NaturalHhd>();
+    send::<Decomposition>();
+    let (u, v) = random_field(9, 11, 5);
+    let want = NaturalHhd::new()
+        .decompose(u.view(), v.view(), 1.0, 1.0)
+        .unwrap();
+    let got = std::thread::spawn(move || {
+        let mut hhd = NaturalHhd::new();
+        hhd.decompose(u.view(), v.view(), 1.0, 1.0).unwrap()
+    })
+    .join()
+    .unwrap();
+    assert_eq!(got, want);
+}
