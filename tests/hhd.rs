@@ -131,12 +131,12 @@ proptest! {
         let dec = NaturalHhd::new().decompose(u.view(), v.view(), dx, dy).unwrap();
         let z = || Array2::<f64>::zeros((ny, nx));
         let (mut dux, mut duy, mut dvx, mut dvy) = (z(), z(), z(), z());
-        gradient(&dec.d.u, dx, dy, &mut dux, &mut duy);
-        gradient(&dec.d.v, dx, dy, &mut dvx, &mut dvy);
+        gradient(&dec.d.u, dx, dy, &mut dux, &mut duy).unwrap();
+        gradient(&dec.d.v, dx, dy, &mut dvx, &mut dvy).unwrap();
         let curl_d = &dvx - &duy;
         let (mut rux, mut ruy, mut rvx, mut rvy) = (z(), z(), z(), z());
-        gradient(&dec.r.u, dx, dy, &mut rux, &mut ruy);
-        gradient(&dec.r.v, dx, dy, &mut rvx, &mut rvy);
+        gradient(&dec.r.u, dx, dy, &mut rux, &mut ruy).unwrap();
+        gradient(&dec.r.v, dx, dy, &mut rvx, &mut rvy).unwrap();
         let div_r = &rux + &rvy;
         let inner = s![1..ny - 1, 1..nx - 1];
         let scale = max_abs(&dec.div).max(max_abs(&dec.curl)).max(1e-30);

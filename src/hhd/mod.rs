@@ -318,8 +318,7 @@ impl NaturalHhd {
             &mut out.potential_d,
             &mut out.potential_r,
         )?;
-        finish(out);
-        Ok(())
+        finish(out)
     }
 }
 
@@ -362,8 +361,8 @@ pub(crate) fn load_input<T: HhdScalar>(
         }
     }
     // d and r are free until the potentials exist: use them for du, dv.
-    gradient(&out.h.u, dx, dy, &mut out.d.u, &mut out.d.v);
-    gradient(&out.h.v, dx, dy, &mut out.r.u, &mut out.r.v);
+    gradient(&out.h.u, dx, dy, &mut out.d.u, &mut out.d.v)?;
+    gradient(&out.h.v, dx, dy, &mut out.r.u, &mut out.r.v)?;
     // numpy order: div = dudx + dvdy, curl = dvdx - dudy.
     ndarray::Zip::from(&mut out.div)
         .and(&mut out.curl)
@@ -380,11 +379,11 @@ pub(crate) fn load_input<T: HhdScalar>(
 
 /// From the potentials in `out`, the parts: `d = grad D`, `r = (-dR/dy,
 /// dR/dx)`, `h = V - (d + r)` (V is held in `out.h` on entry).
-pub(crate) fn finish(out: &mut Decomposition) {
+pub(crate) fn finish(out: &mut Decomposition) -> Result<()> {
     let (dx, dy) = (out.dx, out.dy);
-    gradient(&out.potential_d, dx, dy, &mut out.d.u, &mut out.d.v);
+    gradient(&out.potential_d, dx, dy, &mut out.d.u, &mut out.d.v)?;
     // r.v = dR/dx and r.u = -dR/dy: a negated spacing flips the sign exactly.
-    gradient(&out.potential_r, dx, -dy, &mut out.r.v, &mut out.r.u);
+    gradient(&out.potential_r, dx, -dy, &mut out.r.v, &mut out.r.u)?;
     ndarray::Zip::from(&mut out.h.u)
         .and(&mut out.h.v)
         .and(&out.d.u)
@@ -395,6 +394,7 @@ pub(crate) fn finish(out: &mut Decomposition) {
             *hu -= du + ru;
             *hv -= dv + rv;
         });
+    Ok(())
 }
 
 /// `numpy.gradient(f, dy, dx)` with `edge_order=1`: writes `df/dx` (along
@@ -405,18 +405,24 @@ pub(crate) fn finish(out: &mut Decomposition) {
 /// The division is done as a multiplication by `1 / (2h)` (resp. `1 / h`),
 /// which can differ from numpy in the last bit; it is several times faster.
 ///
-/// # Panics
-/// If `dfdx` or `dfdy` does not have `f`'s shape.
+/// Errors with [`Error::ShapeMismatch`] if `dfdx` or `dfdy` does not have
+/// `f`'s shape.
 pub fn gradient(
     f: &ArrayRef2<f64>,
     dx: f64,
     dy: f64,
     dfdx: &mut ArrayRef2<f64>,
     dfdy: &mut ArrayRef2<f64>,
-) {
+) -> Result<()> {
     let (ny, nx) = f.dim();
-    assert_eq!(dfdx.dim(), (ny, nx), "gradient: df/dx has the wrong shape");
-    assert_eq!(dfdy.dim(), (ny, nx), "gradient: df/dy has the wrong shape");
+    for (what, d) in [
+        ("gradient df/dx", dfdx.dim()),
+        ("gradient df/dy", dfdy.dim()),
+    ] {
+        if d != (ny, nx) {
+            return Err(Error::shape(what, (nx, ny), (d.1, d.0)));
+        }
+    }
     match (f.as_slice(), dfdx.as_slice_mut(), dfdy.as_slice_mut()) {
         (Some(f), Some(gx), Some(gy)) => gradient_slices(f, ny, nx, dx, dy, gx, gy),
         _ => {
@@ -424,11 +430,12 @@ pub fn gradient(
             let fc = f.as_standard_layout().into_owned();
             let mut gx = Array2::zeros((ny, nx));
             let mut gy = Array2::zeros((ny, nx));
-            gradient(&fc, dx, dy, &mut gx, &mut gy);
+            gradient(&fc, dx, dy, &mut gx, &mut gy)?;
             dfdx.assign(&gx);
             dfdy.assign(&gy);
         }
     }
+    Ok(())
 }
 
 /// [`gradient`] on row-major slices of `ny * nx` values.
@@ -484,9 +491,16 @@ mod tests {
         let f = array![[1.0, 2.0, 4.0, 7.0], [2.0, 5.0, 9.0, 20.0]];
         let mut gx = Array2::zeros((2, 4));
         let mut gy = Array2::zeros((2, 4));
-        gradient(&f, 0.5, 2.0, &mut gx, &mut gy);
+        gradient(&f, 0.5, 2.0, &mut gx, &mut gy).unwrap();
         assert_eq!(gx, array![[2.0, 3.0, 5.0, 6.0], [6.0, 7.0, 15.0, 22.0]]);
         assert_eq!(gy, array![[0.5, 1.5, 2.5, 6.5], [0.5, 1.5, 2.5, 6.5]]);
+        // Strided views take the general path and agree.
+        let ft = f.t().to_owned();
+        let (mut gxt, mut gyt) = (Array2::zeros((2, 4)), Array2::zeros((2, 4)));
+        gradient(&ft.t(), 0.5, 2.0, &mut gxt.view_mut(), &mut gyt.view_mut()).unwrap();
+        assert_eq!((gxt, gyt), (gx, gy));
+        let mut bad = Array2::zeros((4, 2));
+        assert!(gradient(&f, 1.0, 1.0, &mut bad, &mut Array2::zeros((2, 4))).is_err());
     }
 
     #[test]
