@@ -289,14 +289,19 @@ impl GreenConvolver {
         self.fwd_x.process_with_scratch(rows, scratch);
         // Column kx gets the ny data rows, then zeros down to py.
         transpose(rows, cols, ny, px, py);
-        for col in cols.chunks_exact_mut(py) {
+        // One column at a time, forward, product and inverse while it is in
+        // L1: three sweeps over the whole torus would run from memory.
+        for (col, g) in cols
+            .chunks_exact_mut(py)
+            .zip(self.green_hat.chunks_exact(py))
+        {
             col[ny..].fill(Complex64::default());
+            self.fwd_y.process_with_scratch(col, scratch);
+            for (c, &g) in col.iter_mut().zip(g) {
+                *c *= g;
+            }
+            self.inv_y.process_with_scratch(col, scratch);
         }
-        self.fwd_y.process_with_scratch(cols, scratch);
-        for (c, &g) in cols.iter_mut().zip(&self.green_hat) {
-            *c *= g;
-        }
-        self.inv_y.process_with_scratch(cols, scratch);
         // Only the first ny rows of the torus are inside the output window.
         transpose_back(cols, rows, ny, px, py);
         self.inv_x.process_with_scratch(rows, scratch);
