@@ -5,7 +5,7 @@
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use ndarray::Array2;
-use optical_tactile::hhd::fft::FftWorkspace;
+use optical_tactile::hhd::fft::{FftWorkspace, GreenConvolver};
 use optical_tactile::hhd::{Decomposition, NaturalHhd};
 use std::hint::black_box;
 use std::time::Duration;
@@ -88,6 +88,21 @@ fn bench(c: &mut Criterion) {
                 .unwrap();
                 black_box(&out.potential_d);
             })
+        });
+    }
+    group.finish();
+
+    // Planning a new torus (Green's spectrum; the FFT planner is reused as in
+    // NaturalHhd): what a cache miss costs when patch sizes change.
+    let mut group = c.benchmark_group("nhhd_plan");
+    group
+        .warm_up_time(Duration::from_millis(300))
+        .measurement_time(Duration::from_secs(2))
+        .sample_size(10);
+    let mut planner = rustfft::FftPlanner::new();
+    for (ny, nx) in [(60, 200), (128, 128), (256, 256)] {
+        group.bench_function(BenchmarkId::from_parameter(format!("{ny}x{nx}")), |b| {
+            b.iter(|| black_box(GreenConvolver::new(&mut planner, ny, nx, 1.0, 1.0).unwrap()))
         });
     }
     group.finish();

@@ -131,12 +131,12 @@ proptest! {
         let dec = NaturalHhd::new().decompose(u.view(), v.view(), dx, dy).unwrap();
         let z = || Array2::<f64>::zeros((ny, nx));
         let (mut dux, mut duy, mut dvx, mut dvy) = (z(), z(), z(), z());
-        gradient(&dec.d.u, dx, dy, &mut dux, &mut duy);
-        gradient(&dec.d.v, dx, dy, &mut dvx, &mut dvy);
+        gradient(&dec.d.u, dx, dy, &mut dux, &mut duy).unwrap();
+        gradient(&dec.d.v, dx, dy, &mut dvx, &mut dvy).unwrap();
         let curl_d = &dvx - &duy;
         let (mut rux, mut ruy, mut rvx, mut rvy) = (z(), z(), z(), z());
-        gradient(&dec.r.u, dx, dy, &mut rux, &mut ruy);
-        gradient(&dec.r.v, dx, dy, &mut rvx, &mut rvy);
+        gradient(&dec.r.u, dx, dy, &mut rux, &mut ruy).unwrap();
+        gradient(&dec.r.v, dx, dy, &mut rvx, &mut rvy).unwrap();
         let div_r = &rux + &rvy;
         let inner = s![1..ny - 1, 1..nx - 1];
         let scale = max_abs(&dec.div).max(max_abs(&dec.curl)).max(1e-30);
@@ -428,4 +428,54 @@ fn bad_input_is_a_typed_error() {
     }
     // The planner still works after errors.
     assert!(hhd.decompose(z.view(), z.view(), 1.0, 1.0).is_ok());
+}
+
+/// One torus serves every grid up to its max shape: a convolver planned for
+/// 60x60 gives the direct sum on a 13x17 grid, and refuses a grid too big.
+#[test]
+fn a_convolver_serves_smaller_grids_exactly() {
+    use optical_tactile::hhd::fft::{FftWorkspace, GreenConvolver};
+    use rustfft::FftPlanner;
+    let (dx, dy) = (0.7, 1.9);
+    let conv = GreenConvolver::new(&mut FftPlanner::new(), 60, 60, dx, dy).unwrap();
+    let mut ws = FftWorkspace::new();
+    for (ny, nx) in [(13, 17), (60, 1), (1, 60), (60, 60)] {
+        let (a, b) = random_field(ny, nx, (ny * 100 + nx) as u64);
+        let (div, curl) = (a.mapv(f64::from), b.mapv(f64::from));
+        let mut d = Array2::zeros((ny, nx));
+        let mut r = Array2::zeros((ny, nx));
+        conv.potentials(&mut ws, div.view(), curl.view(), &mut d, &mut r)
+            .unwrap();
+        let (dd, rr) = direct::potentials(div.view(), curl.view(), dx, dy).unwrap();
+        let scale = max_abs(&dd).max(max_abs(&rr));
+        let e = max_diff(&d, &dd).max(max_diff(&r, &rr)) / scale;
+        assert!(e < 1e-12, "{ny}x{nx}: {e:e}");
+    }
+    let big = Array2::<f64>::zeros((61, 10));
+    let mut o1 = big.clone();
+    let mut o2 = big.clone();
+    assert!(matches!(
+        conv.potentials(&mut ws, big.view(), big.view(), &mut o1, &mut o2),
+        Err(Error::ShapeMismatch { .. })
+    ));
+}
+
+/// A planner can move to a worker thread (one planner per thread, e.g. with
+/// rayon's `map_init`), and its results can be sent back.
+#[test]
+fn planner_and_results_are_send() {
+    fn send<T: Send>() {}
+    send::<NaturalHhd>();
+    send::<Decomposition>();
+    let (u, v) = random_field(9, 11, 5);
+    let want = NaturalHhd::new()
+        .decompose(u.view(), v.view(), 1.0, 1.0)
+        .unwrap();
+    let got = std::thread::spawn(move || {
+        let mut hhd = NaturalHhd::new();
+        hhd.decompose(u.view(), v.view(), 1.0, 1.0).unwrap()
+    })
+    .join()
+    .unwrap();
+    assert_eq!(got, want);
 }

@@ -71,8 +71,9 @@ def analytic(ny, nx, dx, dy, seed):
     phi = -np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s * s))
     ex, ey = 0.6 * W, 0.4 * H
     psi = 0.7 * np.exp(-((x - ex) ** 2 + (y - ey) ** 2) / (2 * (0.8 * s) ** 2))
-    u = -(x - cx) / (s * s) * phi + (-(-(y - ey) / (0.8 * s) ** 2) * psi) * -1
-    v = -(y - cy) / (s * s) * phi + (-(x - ex) / (0.8 * s) ** 2) * psi
+    # grad phi + (-dpsi/dy, dpsi/dx)
+    u = -(x - cx) / (s * s) * phi + (y - ey) / (0.8 * s) ** 2 * psi
+    v = -(y - cy) / (s * s) * phi - (x - ex) / (0.8 * s) ** 2 * psi
     u = u + 0.3 + 0.01 * x - 0.02 * y
     v = v - 0.2 - 0.02 * x - 0.01 * y
     u = u + 0.01 * rng.standard_normal(u.shape)

@@ -64,6 +64,6 @@ pub fn decompose<T: HhdScalar>(
     let (d, r) = potentials(out.div.view(), out.curl.view(), dx, dy)?;
     out.potential_d = d;
     out.potential_r = r;
-    super::finish(&mut out);
+    super::finish(&mut out)?;
     Ok(out)
 }

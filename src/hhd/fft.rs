@@ -9,7 +9,11 @@
 //! 3, 5 only), for which RustFFT is fastest.
 //!
 //! `G` is real and even, so its spectrum is real: it is computed once per
-//! `(ny, nx, dx, dy)` and kept in a [`GreenConvolver`]. Both real inputs
+//! torus `(py, px)` and spacing `(dx, dy)` and kept in a [`GreenConvolver`].
+//! The torus holds `G` at offset `min(k, p - k)` in each axis, which is
+//! exact for every offset `|o| <= (p - 1) / 2`: one convolver therefore
+//! serves every grid up to `((py + 1) / 2, (px + 1) / 2)`, so patches whose
+//! size changes by a pixel or two from frame to frame mostly share a plan. Both real inputs
 //! travel in one complex signal `div + i curl`; since `G`'s spectrum is real,
 //! the real and imaginary parts never mix, and the output is `D + i R`.
 //!
@@ -77,9 +81,9 @@ impl FftWorkspace {
         Self::default()
     }
 
-    /// Makes sure every buffer can hold what `conv` needs.
-    fn reserve_for(&mut self, conv: &GreenConvolver) {
-        let rows = conv.ny * conv.px;
+    /// Makes sure every buffer can hold what `conv` needs for `ny` rows.
+    fn reserve_for(&mut self, conv: &GreenConvolver, ny: usize) {
+        let rows = ny * conv.px;
         let cols = conv.px * conv.py;
         if self.rows.len() < rows {
             self.rows.resize(rows, Complex64::default());
@@ -93,13 +97,11 @@ impl FftWorkspace {
     }
 }
 
-/// The planned free-space convolution for one grid `(ny, nx)` and spacing
-/// `(dx, dy)`: FFT plans for the padded torus and the (real) spectrum of the
-/// Green's function, pre-scaled by the cell area `dx dy` and the FFT's
-/// `1 / (py px)`.
+/// The planned free-space convolution on one padded torus `(py, px)` with
+/// spacing `(dx, dy)`: FFT plans and the (real) spectrum of the Green's
+/// function, pre-scaled by the cell area `dx dy` and the FFT's `1 / (py px)`.
+/// It convolves any grid of up to [`max_shape`](Self::max_shape).
 pub struct GreenConvolver {
-    ny: usize,
-    nx: usize,
     py: usize,
     px: usize,
     dx: f64,
@@ -116,7 +118,6 @@ pub struct GreenConvolver {
 impl std::fmt::Debug for GreenConvolver {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GreenConvolver")
-            .field("grid", &(self.ny, self.nx))
             .field("padded", &(self.py, self.px))
             .field("spacing", &(self.dx, self.dy))
             .finish()
@@ -124,8 +125,15 @@ impl std::fmt::Debug for GreenConvolver {
 }
 
 impl GreenConvolver {
+    /// Padded torus `(py, px)` used for a `ny x nx` grid: the smallest
+    /// 5-smooth sizes of at least `2n - 1`.
+    pub fn torus_for(ny: usize, nx: usize) -> (usize, usize) {
+        (fast_len(2 * ny - 1), fast_len(2 * nx - 1))
+    }
+
     /// Plans the convolution for a `ny x nx` grid (rows x columns) with
-    /// spacings `dx` (along columns) and `dy` (along rows).
+    /// spacings `dx` (along columns) and `dy` (along rows), on the torus
+    /// [`torus_for`](Self::torus_for)`(ny, nx)`.
     ///
     /// Errors on an empty grid or a spacing that is not finite and positive.
     pub fn new(
@@ -136,8 +144,7 @@ impl GreenConvolver {
         dy: f64,
     ) -> Result<Self> {
         check_grid(ny, nx, dx, dy)?;
-        let py = fast_len(2 * ny - 1);
-        let px = fast_len(2 * nx - 1);
+        let (py, px) = Self::torus_for(ny, nx);
         let fwd_x = planner.plan_fft_forward(px);
         let inv_x = planner.plan_fft_inverse(px);
         let fwd_y = planner.plan_fft_forward(py);
@@ -148,8 +155,6 @@ impl GreenConvolver {
             .max()
             .unwrap_or(0);
         let mut conv = GreenConvolver {
-            ny,
-            nx,
             py,
             px,
             dx,
@@ -165,9 +170,10 @@ impl GreenConvolver {
         Ok(conv)
     }
 
-    /// Grid shape `(ny, nx)` (rows, columns) this convolver was planned for.
-    pub fn shape(&self) -> (usize, usize) {
-        (self.ny, self.nx)
+    /// Largest grid `(ny, nx)` (rows, columns) this convolver handles
+    /// exactly: `2n - 1` must fit on the torus.
+    pub fn max_shape(&self) -> (usize, usize) {
+        (self.py.div_ceil(2), self.px.div_ceil(2))
     }
 
     /// Padded torus shape `(py, px)`.
@@ -182,28 +188,24 @@ impl GreenConvolver {
 
     /// Spectrum of G on the torus, real part only, scaled and transposed.
     fn green_spectrum(&self) -> Vec<f64> {
-        let (ny, nx, py, px) = (self.ny, self.nx, self.py, self.px);
-        // Wrap-around order: torus index k holds offset k (k < n) or k - p
-        // (k > p - n); offsets in between never reach the output window and
-        // stay zero, which keeps G even on the torus.
-        let offset = |k: usize, n: usize, p: usize| -> Option<usize> {
-            if k < n {
-                Some(k)
-            } else if k > p - n {
-                Some(p - k)
-            } else {
-                None
+        let (py, px) = (self.py, self.px);
+        // Wrap-around order: torus index k holds offset k or p - k, whichever
+        // is smaller. Every offset a grid of up to max_shape can produce is
+        // then exact, and G stays even on the torus.
+        // One quadrant of logarithms, mirrored (planning cost matters when
+        // patch sizes change often).
+        let (qy, qx) = (py / 2 + 1, px / 2 + 1);
+        let mut quad = vec![0.0; qy * qx];
+        for oy in 0..qy {
+            for ox in 0..qx {
+                quad[oy * qx + ox] = green(oy, ox, self.dx, self.dy);
             }
-        };
+        }
         let mut g = vec![Complex64::default(); py * px];
-        for ky in 0..py {
-            let Some(oy) = offset(ky, ny, py) else {
-                continue;
-            };
-            for kx in 0..px {
-                if let Some(ox) = offset(kx, nx, px) {
-                    g[ky * px + kx].re = green(oy, ox, self.dx, self.dy);
-                }
+        for (ky, row) in g.chunks_exact_mut(px).enumerate() {
+            let q = &quad[ky.min(py - ky) * qx..][..qx];
+            for (kx, z) in row.iter_mut().enumerate() {
+                z.re = q[kx.min(px - kx)];
             }
         }
         let mut scratch = vec![Complex64::default(); self.scratch_len];
@@ -219,10 +221,11 @@ impl GreenConvolver {
 
     /// The potentials `D = dx dy sum_i div(i) G(m - i)` and
     /// `R = dx dy sum_i curl(i) G(m - i)` over the whole grid, written into
-    /// `d_out` and `r_out` (all four arrays of this convolver's shape).
+    /// `d_out` and `r_out` (all four arrays of one shape, at most
+    /// [`max_shape`](Self::max_shape)).
     ///
     /// Inputs are not checked for NaN here: one NaN makes every output NaN.
-    /// Errors if an array has the wrong shape.
+    /// Errors if the shapes differ or exceed `max_shape`.
     pub fn potentials(
         &self,
         ws: &mut FftWorkspace,
@@ -231,19 +234,26 @@ impl GreenConvolver {
         d_out: &mut ArrayRef2<f64>,
         r_out: &mut ArrayRef2<f64>,
     ) -> Result<()> {
-        let want = (self.nx, self.ny);
+        let (ny, nx) = div.dim();
+        let (my, mx) = self.max_shape();
+        if ny == 0 || nx == 0 || ny > my || nx > mx {
+            return Err(Error::shape(
+                format!("grid for a Green's convolver of at most {mx}x{my}"),
+                (mx, my),
+                (nx, ny),
+            ));
+        }
         for (what, dim) in [
-            ("divergence", div.dim()),
             ("curl", curl.dim()),
             ("D output", d_out.dim()),
             ("R output", r_out.dim()),
         ] {
-            if dim != (self.ny, self.nx) {
-                return Err(Error::shape(what, want, (dim.1, dim.0)));
+            if dim != (ny, nx) {
+                return Err(Error::shape(what, (nx, ny), (dim.1, dim.0)));
             }
         }
-        ws.reserve_for(self);
-        let rows = &mut ws.rows[..self.ny * self.px];
+        ws.reserve_for(self, ny);
+        let rows = &mut ws.rows[..ny * self.px];
         for ((row, dr), cr) in rows
             .chunks_exact_mut(self.px)
             .zip(div.rows())
@@ -252,10 +262,10 @@ impl GreenConvolver {
             for ((z, &d), &c) in row.iter_mut().zip(&dr).zip(&cr) {
                 *z = Complex64::new(d, c);
             }
-            row[self.nx..].fill(Complex64::default());
+            row[nx..].fill(Complex64::default());
         }
-        self.convolve_rows(ws);
-        let rows = &ws.rows[..self.ny * self.px];
+        self.convolve_rows(ws, ny);
+        let rows = &ws.rows[..ny * self.px];
         for ((row, mut dr), mut rr) in rows
             .chunks_exact(self.px)
             .zip(d_out.rows_mut())
@@ -271,22 +281,27 @@ impl GreenConvolver {
 
     /// In place on `ws.rows[..ny * px]`: rows of `div + i curl` (zero-padded
     /// to `px`) in, rows of `D + i R` out (valid in the first `nx` columns).
-    fn convolve_rows(&self, ws: &mut FftWorkspace) {
-        let (ny, py, px) = (self.ny, self.py, self.px);
+    fn convolve_rows(&self, ws: &mut FftWorkspace, ny: usize) {
+        let (py, px) = (self.py, self.px);
         let scratch = &mut ws.scratch[..self.scratch_len];
         let rows = &mut ws.rows[..ny * px];
         let cols = &mut ws.cols[..px * py];
         self.fwd_x.process_with_scratch(rows, scratch);
         // Column kx gets the ny data rows, then zeros down to py.
         transpose(rows, cols, ny, px, py);
-        for col in cols.chunks_exact_mut(py) {
+        // One column at a time, forward, product and inverse while it is in
+        // L1: three sweeps over the whole torus would run from memory.
+        for (col, g) in cols
+            .chunks_exact_mut(py)
+            .zip(self.green_hat.chunks_exact(py))
+        {
             col[ny..].fill(Complex64::default());
+            self.fwd_y.process_with_scratch(col, scratch);
+            for (c, &g) in col.iter_mut().zip(g) {
+                *c *= g;
+            }
+            self.inv_y.process_with_scratch(col, scratch);
         }
-        self.fwd_y.process_with_scratch(cols, scratch);
-        for (c, &g) in cols.iter_mut().zip(&self.green_hat) {
-            *c *= g;
-        }
-        self.inv_y.process_with_scratch(cols, scratch);
         // Only the first ny rows of the torus are inside the output window.
         transpose_back(cols, rows, ny, px, py);
         self.inv_x.process_with_scratch(rows, scratch);

@@ -174,15 +174,17 @@ pub trait HhdScalar: Copy + Into<f64> {}
 impl HhdScalar for f32 {}
 impl HhdScalar for f64 {}
 
-/// Default number of `(ny, nx, dx, dy)` plans a [`NaturalHhd`] keeps.
+/// Default number of plans (padded torus and spacing) a [`NaturalHhd`] keeps.
 pub const DEFAULT_CACHE: usize = 8;
 
 /// The natural HHD planner: keeps, per grid shape and spacing, the FFT plans
 /// and the Green's-function spectrum, plus working buffers, so that repeated
 /// decompositions of the same sizes allocate nothing.
 ///
-/// Patch sizes vary from frame to frame, so it caches a few sizes at once
-/// (least recently used is dropped first; [`DEFAULT_CACHE`] by default).
+/// Patch sizes vary from frame to frame, so it caches a few plans at once
+/// (least recently used is dropped first; [`DEFAULT_CACHE`] by default), and
+/// grids that pad to the same torus (e.g. 58 to 60 rows all pad to 120)
+/// share a plan.
 /// One planner is not shared between threads; use one per worker thread.
 pub struct NaturalHhd {
     planner: FftPlanner<f64>,
@@ -228,14 +230,14 @@ impl NaturalHhd {
         })
     }
 
-    /// Number of grid sizes currently planned.
+    /// Number of plans (padded torus and spacing) currently cached.
     pub fn cached_sizes(&self) -> usize {
         self.cache.len()
     }
 
     /// Plans (or finds) the convolution for a `ny x nx` grid with spacings
-    /// `dx`, `dy`, and sizes the working buffers, so that the first
-    /// decomposition of that size is as cheap as the following ones.
+    /// `dx`, `dy`, so that the first decomposition of that size is nearly as
+    /// cheap as the following ones (working buffers grow on first use).
     pub fn prepare(
         &mut self,
         ny: usize,
@@ -244,9 +246,13 @@ impl NaturalHhd {
         dy: f64,
     ) -> Result<Arc<GreenConvolver>> {
         fft::check_grid(ny, nx, dx, dy)?;
+        // Grids that pad to the same torus share one plan.
+        let torus = GreenConvolver::torus_for(ny, nx);
         let hit = self.cache.iter().position(|c| {
             let (cdx, cdy) = c.spacing();
-            c.shape() == (ny, nx) && cdx.to_bits() == dx.to_bits() && cdy.to_bits() == dy.to_bits()
+            c.padded_shape() == torus
+                && cdx.to_bits() == dx.to_bits()
+                && cdy.to_bits() == dy.to_bits()
         });
         let conv = match hit {
             Some(i) => {
@@ -312,8 +318,7 @@ impl NaturalHhd {
             &mut out.potential_d,
             &mut out.potential_r,
         )?;
-        finish(out);
-        Ok(())
+        finish(out)
     }
 }
 
@@ -356,8 +361,8 @@ pub(crate) fn load_input<T: HhdScalar>(
         }
     }
     // d and r are free until the potentials exist: use them for du, dv.
-    gradient(&out.h.u, dx, dy, &mut out.d.u, &mut out.d.v);
-    gradient(&out.h.v, dx, dy, &mut out.r.u, &mut out.r.v);
+    gradient(&out.h.u, dx, dy, &mut out.d.u, &mut out.d.v)?;
+    gradient(&out.h.v, dx, dy, &mut out.r.u, &mut out.r.v)?;
     // numpy order: div = dudx + dvdy, curl = dvdx - dudy.
     ndarray::Zip::from(&mut out.div)
         .and(&mut out.curl)
@@ -374,11 +379,11 @@ pub(crate) fn load_input<T: HhdScalar>(
 
 /// From the potentials in `out`, the parts: `d = grad D`, `r = (-dR/dy,
 /// dR/dx)`, `h = V - (d + r)` (V is held in `out.h` on entry).
-pub(crate) fn finish(out: &mut Decomposition) {
+pub(crate) fn finish(out: &mut Decomposition) -> Result<()> {
     let (dx, dy) = (out.dx, out.dy);
-    gradient(&out.potential_d, dx, dy, &mut out.d.u, &mut out.d.v);
+    gradient(&out.potential_d, dx, dy, &mut out.d.u, &mut out.d.v)?;
     // r.v = dR/dx and r.u = -dR/dy: a negated spacing flips the sign exactly.
-    gradient(&out.potential_r, dx, -dy, &mut out.r.v, &mut out.r.u);
+    gradient(&out.potential_r, dx, -dy, &mut out.r.v, &mut out.r.u)?;
     ndarray::Zip::from(&mut out.h.u)
         .and(&mut out.h.v)
         .and(&out.d.u)
@@ -389,6 +394,7 @@ pub(crate) fn finish(out: &mut Decomposition) {
             *hu -= du + ru;
             *hv -= dv + rv;
         });
+    Ok(())
 }
 
 /// `numpy.gradient(f, dy, dx)` with `edge_order=1`: writes `df/dx` (along
@@ -399,18 +405,24 @@ pub(crate) fn finish(out: &mut Decomposition) {
 /// The division is done as a multiplication by `1 / (2h)` (resp. `1 / h`),
 /// which can differ from numpy in the last bit; it is several times faster.
 ///
-/// # Panics
-/// If `dfdx` or `dfdy` does not have `f`'s shape.
+/// Errors with [`Error::ShapeMismatch`] if `dfdx` or `dfdy` does not have
+/// `f`'s shape.
 pub fn gradient(
     f: &ArrayRef2<f64>,
     dx: f64,
     dy: f64,
     dfdx: &mut ArrayRef2<f64>,
     dfdy: &mut ArrayRef2<f64>,
-) {
+) -> Result<()> {
     let (ny, nx) = f.dim();
-    assert_eq!(dfdx.dim(), (ny, nx), "gradient: df/dx has the wrong shape");
-    assert_eq!(dfdy.dim(), (ny, nx), "gradient: df/dy has the wrong shape");
+    for (what, d) in [
+        ("gradient df/dx", dfdx.dim()),
+        ("gradient df/dy", dfdy.dim()),
+    ] {
+        if d != (ny, nx) {
+            return Err(Error::shape(what, (nx, ny), (d.1, d.0)));
+        }
+    }
     match (f.as_slice(), dfdx.as_slice_mut(), dfdy.as_slice_mut()) {
         (Some(f), Some(gx), Some(gy)) => gradient_slices(f, ny, nx, dx, dy, gx, gy),
         _ => {
@@ -418,11 +430,12 @@ pub fn gradient(
             let fc = f.as_standard_layout().into_owned();
             let mut gx = Array2::zeros((ny, nx));
             let mut gy = Array2::zeros((ny, nx));
-            gradient(&fc, dx, dy, &mut gx, &mut gy);
+            gradient(&fc, dx, dy, &mut gx, &mut gy)?;
             dfdx.assign(&gx);
             dfdy.assign(&gy);
         }
     }
+    Ok(())
 }
 
 /// [`gradient`] on row-major slices of `ny * nx` values.
@@ -478,9 +491,16 @@ mod tests {
         let f = array![[1.0, 2.0, 4.0, 7.0], [2.0, 5.0, 9.0, 20.0]];
         let mut gx = Array2::zeros((2, 4));
         let mut gy = Array2::zeros((2, 4));
-        gradient(&f, 0.5, 2.0, &mut gx, &mut gy);
+        gradient(&f, 0.5, 2.0, &mut gx, &mut gy).unwrap();
         assert_eq!(gx, array![[2.0, 3.0, 5.0, 6.0], [6.0, 7.0, 15.0, 22.0]]);
         assert_eq!(gy, array![[0.5, 1.5, 2.5, 6.5], [0.5, 1.5, 2.5, 6.5]]);
+        // Strided views take the general path and agree.
+        let ft = f.t().to_owned();
+        let (mut gxt, mut gyt) = (Array2::zeros((2, 4)), Array2::zeros((2, 4)));
+        gradient(&ft.t(), 0.5, 2.0, &mut gxt.view_mut(), &mut gyt.view_mut()).unwrap();
+        assert_eq!((gxt, gyt), (gx, gy));
+        let mut bad = Array2::zeros((4, 2));
+        assert!(gradient(&f, 1.0, 1.0, &mut bad, &mut Array2::zeros((2, 4))).is_err());
     }
 
     #[test]
@@ -493,8 +513,18 @@ mod tests {
         hhd.prepare(4, 5, 1.0, 2.0).unwrap();
         assert_eq!(hhd.cached_sizes(), 2);
         // (6, 5) was the least recently used and is gone; (4, 5) is still there.
-        let shapes: Vec<_> = hhd.cache.iter().map(|c| (c.shape(), c.spacing())).collect();
-        assert_eq!(shapes, vec![((4, 5), (1.0, 1.0)), ((4, 5), (1.0, 2.0))]);
+        let shapes: Vec<_> = hhd
+            .cache
+            .iter()
+            .map(|c| (c.padded_shape(), c.spacing()))
+            .collect();
+        assert_eq!(shapes, vec![((8, 9), (1.0, 1.0)), ((8, 9), (1.0, 2.0))]);
+        // 58..=60 rows or columns all pad to 120: one plan for these grids.
+        let a = hhd.prepare(58, 60, 1.0, 2.0).unwrap();
+        let b = hhd.prepare(60, 59, 1.0, 2.0).unwrap();
+        assert!(Arc::ptr_eq(&a, &b));
+        assert_eq!(a.padded_shape(), (120, 120));
+        assert_eq!(a.max_shape(), (60, 60));
         assert!(NaturalHhd::with_cache_capacity(0).is_err());
     }
 }
