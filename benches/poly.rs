@@ -86,6 +86,7 @@ fn bench(c: &mut Criterion) {
             erode: 5,
             dilate: 9,
         },
+        pipeline: None,
     };
     let cal = Calibration::new(setup, [g1, g2, f.clone(), f.clone(), f], None).unwrap();
     g.bench_function(

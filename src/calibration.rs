@@ -38,6 +38,7 @@
 //!     thresholds: SegmentationThresholds {
 //!         preset: "high".into(), magnitude: 1.5, sum: 400.0, erode: 5, dilate: 9,
 //!     },
+//!     pipeline: None,
 //! };
 //! let cal = Calibration::new(setup, [g1, g2, lin(0)?, lin(1)?, lin(2)?], None)?;
 //! assert_eq!(cal.location(800.0, 100.0)?, [0.0, 0.0, 160.0]);
@@ -110,6 +111,21 @@ pub struct SensorSetup {
     pub crop: Roi,
     /// The segmentation thresholds.
     pub thresholds: SegmentationThresholds,
+    /// The flow and patch settings the raw quantities were measured with
+    /// (optional for files that predate it; a sensor should measure the same way).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pipeline: Option<PipelineSettings>,
+}
+
+/// How the raw quantities of a calibration were measured, beyond the thresholds.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PipelineSettings {
+    /// DIS preset name (`ultrafast`, `fast`, `medium`, `accurate`).
+    pub flow_preset: String,
+    /// Margin around each patch, full-resolution pixels.
+    pub margin_px: usize,
+    /// Whether the contact point was refined to sub-pixel precision.
+    pub subpixel: bool,
 }
 
 /// One characterization test, reduced to the raw quantities of its contact
@@ -409,6 +425,7 @@ impl Calibration {
             geometry: &self.setup.geometry,
             crop: &self.setup.crop,
             thresholds: &self.setup.thresholds,
+            pipeline: self.setup.pipeline.as_ref(),
             g1: &self.g1,
             g2: &self.g2,
             gx: &self.gx,
@@ -511,6 +528,7 @@ impl Calibration {
                 geometry: repr.geometry,
                 crop: repr.crop,
                 thresholds: repr.thresholds,
+                pipeline: repr.pipeline,
             },
             g1: repr.g1,
             g2: repr.g2,
@@ -540,6 +558,8 @@ struct CalibrationRef<'a> {
     geometry: &'a SensorGeometry,
     crop: &'a Roi,
     thresholds: &'a SegmentationThresholds,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pipeline: Option<&'a PipelineSettings>,
     g1: &'a Polynomial,
     g2: &'a Polynomial,
     gx: &'a Polynomial,
@@ -556,6 +576,8 @@ struct CalibrationOwned {
     geometry: SensorGeometry,
     crop: Roi,
     thresholds: SegmentationThresholds,
+    #[serde(default)]
+    pipeline: Option<PipelineSettings>,
     g1: Polynomial,
     g2: Polynomial,
     gx: Polynomial,

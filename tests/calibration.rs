@@ -44,6 +44,7 @@ fn setup() -> SensorSetup {
             erode: 5,
             dilate: 9,
         },
+        pipeline: None,
     }
 }
 
