@@ -237,14 +237,17 @@ impl Mask {
                 (Some(us), Some(vs)) => {
                     let mut bad = false;
                     for (k, (uc, vc)) in us.chunks(64).zip(vs.chunks(64)).enumerate() {
-                        let mut word = 0u64;
-                        for (b, (&u, &v)) in uc.iter().zip(vc).enumerate() {
+                        // Compare into bytes (vectorises), then pack 8 at a time.
+                        let mut bytes = [0u8; 64];
+                        let mut finite = true;
+                        for ((b, &u), &v) in bytes.iter_mut().zip(uc).zip(vc) {
                             let m2 = u * u + v * v;
-                            // NaN or inf (from a bad input or an overflowing square).
-                            bad |= !m2.is_finite();
-                            word |= ((m2 > t2) as u64) << b;
+                            // NaN or inf (a bad input or an overflowing square).
+                            finite &= m2.is_finite();
+                            *b = (m2 > t2) as u8;
                         }
-                        out[k] = word;
+                        bad |= !finite;
+                        out[k] = pack_bytes(&bytes);
                     }
                     if bad {
                         flow.check_finite("flow")?;
@@ -281,6 +284,19 @@ impl Mask {
             r => (1u64 << r) - 1,
         }
     }
+}
+
+/// Packs 64 bytes of 0/1 into a word, byte `i` to bit `i`.
+#[inline]
+fn pack_bytes(bytes: &[u8; 64]) -> u64 {
+    let mut w = 0u64;
+    for (j, c) in bytes.chunks_exact(8).enumerate() {
+        let x = u64::from_le_bytes(c.try_into().expect("8 bytes"));
+        // Byte k (0 or 1) lands on bit 56 + k: the partial products
+        // 2^(8k + 7i + 7) are all distinct, so nothing carries.
+        w |= (x.wrapping_mul(0x0102_0408_1020_4080) >> 56) << (8 * j);
+    }
+    w
 }
 
 /// The shape of a structuring element (OpenCV's `MORPH_RECT`, `MORPH_CROSS`,
@@ -784,6 +800,19 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn packing_bytes() {
+        let mut b = [0u8; 64];
+        for i in [0, 1, 7, 8, 13, 31, 32, 62, 63] {
+            b[i] = 1;
+        }
+        let expect = [0, 1, 7, 8, 13, 31, 32, 62, 63]
+            .iter()
+            .fold(0u64, |w, &i| w | 1 << i);
+        assert_eq!(pack_bytes(&b), expect);
+        assert_eq!(pack_bytes(&[1; 64]), !0);
     }
 
     #[test]

@@ -508,11 +508,13 @@ fn box_sum(flow: &FlowField, b: &BoundingBox) -> f64 {
     let mut s = 0.0f64;
     for y in b.y..b.y_end() {
         let (u, v) = (flow.u.row(y), flow.v.row(y));
-        let mut row = 0.0f32;
+        // f64 squares cannot overflow for f32 inputs, and vectorise unlike hypot.
+        let mut row = 0.0f64;
         for x in b.x..b.x_end() {
-            row += u[x].hypot(v[x]);
+            let (a, c) = (u[x] as f64, v[x] as f64);
+            row += (a * a + c * c).sqrt();
         }
-        s += row as f64;
+        s += row;
     }
     s
 }
