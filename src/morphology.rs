@@ -17,13 +17,31 @@
 //! value"). Hence duality holds exactly: `erode(m) = !dilate(!m)`.
 //!
 //! ## Cost
-//! Every element is decomposed into axis-aligned rectangles (a rectangle: one;
-//! a cross: two; an ellipse: one per distinct row width, nested). A rectangle
-//! is separable: along rows, bit-parallel doubling (`log2(width)` word shifts
-//! per 64 pixels); along columns, van Herk/Gil-Werman (three word operations
-//! per 64 pixels whatever the height). So a rectangle's cost is essentially
-//! flat in its size, and an ellipse's grows with its number of distinct row
-//! widths (about `height / 2.5`), each costing as much as a rectangle.
+//! Rows are dilated 64 pixels per word: a row with few runs of ones (a
+//! thresholded flow, or its complement for erosion) by stamping each run
+//! grown by the kernel's half-widths, a busy row by bit-parallel doubling
+//! (`log2` of the width in word shifts); each row takes the cheaper way.
+//! - Rectangle: rows as above, then columns by van Herk/Gil-Werman (three
+//!   word operations per 64 pixels whatever the height): cost flat in the
+//!   kernel size.
+//! - Cross: the union of a one-row and a one-column rectangle.
+//! - Ellipse (and any element of more than two rectangles): each distinct row
+//!   run dilates the rows once, then every output row ORs one dilated row per
+//!   element row: `height` word ORs per 64 pixels, so the cost grows with the
+//!   kernel height (with a small constant; see `benches/morphology.rs`).
+//!
+//! ## Example
+//! ```
+//! use optical_tactile::morphology::{Mask, StructuringElement, dilate, erode};
+//! // A 3x3 square and a lone speck.
+//! let m = Mask::from_fn(8, 6, |x, y| (1..4).contains(&x) && (1..4).contains(&y) || (x, y) == (6, 4));
+//! let se = StructuringElement::rect(3, 3);
+//! // Opening (erode then dilate) removes the speck and restores the square.
+//! let opened = dilate(&erode(&m, &se, 1)?, &se, 1)?;
+//! assert_eq!(opened.count_ones(), 9);
+//! assert!(!opened.get(6, 4));
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
 
 use ndarray::{Array2, ArrayRef2};
 

@@ -29,6 +29,29 @@
 //! - The summed `|flow|` test is made on each contour's own box (before the
 //!   margin), as in the paper; a merged patch reports the sum over its final box.
 
+//!
+//! ## Example
+//! ```
+//! use optical_tactile::FlowField;
+//! use optical_tactile::segment::{Segmenter, SegmenterConfig, Thresholds};
+//! // A 4-pixel shift over a 40x30 block of a 200x100 full-resolution flow.
+//! let mut flow = FlowField::zeros(200, 100);
+//! flow.u.slice_mut(ndarray::s![30..60, 50..90]).fill(4.0);
+//! let config = SegmenterConfig { thresholds: Thresholds::MID, margin: 5, scale: 1.0 };
+//! let mut segmenter = Segmenter::new(config)?;
+//! let patches = segmenter.segment(&flow)?;
+//! assert_eq!(patches.len(), 1);
+//! // Eroding by 9 then dilating by 21 grows the block by 6 px per side,
+//! // then the margin adds 5.
+//! let c = patches[0].core;
+//! assert_eq!((c.x, c.y, c.width, c.height), (44, 24, 52, 42));
+//! let b = patches[0].bbox;
+//! assert_eq!((b.x, b.y, b.width, b.height), (39, 19, 62, 52));
+//! let (u, _v) = patches[0].view(&flow)?;
+//! assert_eq!(u.sum(), 4.0 * 40.0 * 30.0);
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
+
 use ndarray::ArrayView2;
 
 use crate::contours::{BoundingBox, ContourFinder};
