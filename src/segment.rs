@@ -69,7 +69,7 @@ use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
 /// few pixels over a region 10-20 mm across), not yet tuned on the simulator.
 /// Their targets (paper): minimum detectable force below 0.5 N, 0.5-1 N and
 /// 1-1.5 N, with no false contact at rest.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Thresholds {
     /// Per-pixel `|flow|` above which a pixel belongs to the mask, in
     /// full-resolution pixels.
@@ -117,6 +117,19 @@ impl Thresholds {
         dilate: 25,
         shape: Shape::Rect,
     };
+
+    /// The preset named `low`, `mid` or `high` (any case).
+    pub fn preset(name: &str) -> Result<Thresholds> {
+        match name.to_ascii_lowercase().as_str() {
+            "low" => Ok(Thresholds::LOW),
+            "mid" => Ok(Thresholds::MID),
+            "high" => Ok(Thresholds::HIGH),
+            _ => Err(Error::param(
+                "thresholds",
+                format!("unknown preset `{name}` (expected low, mid or high)"),
+            )),
+        }
+    }
 
     /// Errors unless the thresholds are finite and non-negative and the
     /// kernels at least 1.
@@ -304,7 +317,7 @@ pub struct ScaledThresholds {
 }
 
 /// Configuration of a [`Segmenter`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SegmenterConfig {
     /// Thresholds and kernels (full-resolution pixels).
     pub thresholds: Thresholds,
@@ -611,6 +624,17 @@ mod tests {
             })
             .is_err()
         );
+    }
+
+    #[test]
+    fn presets_by_name_and_json() {
+        assert_eq!(Thresholds::preset("HIGH").unwrap(), Thresholds::HIGH);
+        assert_eq!(Thresholds::preset("low").unwrap(), Thresholds::LOW);
+        assert!(Thresholds::preset("extreme").is_err());
+        let json = serde_json::to_string(&SegmenterConfig::default()).unwrap();
+        assert!(json.contains("\"shape\":\"rect\""), "{json}");
+        let back: SegmenterConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, SegmenterConfig::default());
     }
 
     #[test]
