@@ -483,8 +483,10 @@ pub struct Morphology {
     g: Vec<u64>,
     h: Vec<u64>,
     row: Vec<u64>,
-    /// Horizontally dilated planes, one per distinct row run (row-run path).
+    /// Ring of horizontally dilated rows, per distinct row run (row-run path).
     planes: Vec<u64>,
+    /// Per ring slot: its source row is empty.
+    empty: Vec<bool>,
     plan: Option<(StructuringElement, Plan)>,
 }
 
@@ -624,31 +626,54 @@ impl Morphology {
 
     /// Dilation by row runs: each distinct run dilates every row once, then
     /// output row `y` ORs, for each element row `i`, row `y + i - ay` of its
-    /// run's plane. `dst` must be reset (zero).
+    /// run's dilation. The dilated rows live in a ring of `height` rows (the
+    /// window of one output row), which stays in cache. `dst` must be reset
+    /// (zero).
     fn dilate_by_rows(&mut self, src: &Mask, dst: &mut Mask, plan: &Plan) {
         let (wds, h) = (src.words, src.height);
-        let plane = wds * h;
+        let kh = plan.row_run.len();
+        let nk = plan.runs.len();
         let lastmask = src.last_word_mask();
         self.planes.clear();
-        self.planes.resize(plan.runs.len() * plane, 0);
+        self.planes.resize(kh * nk * wds, 0);
         self.row.resize(wds, 0);
-        for (k, &(l, r)) in plan.runs.iter().enumerate() {
-            for y in 0..h {
-                let s = &src.bits[y * wds..(y + 1) * wds];
-                let d = &mut self.planes[k * plane + y * wds..k * plane + (y + 1) * wds];
-                dilate_row(s, d, &mut self.row, l, r);
-                d[wds - 1] &= lastmask;
-            }
-        }
+        let below = kh - 1 - plan.ay;
+        // Per ring slot: whether its source row is empty (its dilations are).
+        self.empty.clear();
+        self.empty.resize(kh, false);
+        let full_row = |o: &[u64]| o[..wds - 1].iter().all(|&w| w == !0) && o[wds - 1] == lastmask;
+        let mut next = 0; // next source row to dilate into the ring
         for y in 0..h {
+            while next < h && next <= y + below {
+                let s = &src.bits[next * wds..(next + 1) * wds];
+                let slot = next % kh;
+                self.empty[slot] = s.iter().all(|&w| w == 0);
+                if !self.empty[slot] {
+                    for (k, &(l, r)) in plan.runs.iter().enumerate() {
+                        let at = (slot * nk + k) * wds;
+                        let d = &mut self.planes[at..at + wds];
+                        dilate_row(s, d, &mut self.row, l, r);
+                        d[wds - 1] &= lastmask;
+                    }
+                }
+                next += 1;
+            }
             let o = &mut dst.bits[y * wds..(y + 1) * wds];
             for (i, &k) in plan.row_run.iter().enumerate() {
                 let Some(yy) = (y + i).checked_sub(plan.ay).filter(|&yy| yy < h) else {
                     continue;
                 };
-                let s = &self.planes[k * plane + yy * wds..k * plane + (yy + 1) * wds];
-                for (a, b) in o.iter_mut().zip(s) {
+                // Sparse masks: empty rows add nothing; dense ones (the
+                // complement, when eroding) saturate early.
+                if self.empty[yy % kh] {
+                    continue;
+                }
+                let at = ((yy % kh) * nk + k) * wds;
+                for (a, b) in o.iter_mut().zip(&self.planes[at..at + wds]) {
                     *a |= *b;
+                }
+                if i % 4 == 3 && full_row(o) {
+                    break;
                 }
             }
         }
