@@ -28,6 +28,8 @@ pub enum Channel {
     #[default]
     Green,
     /// Luma, `0.299 R + 0.587 G + 0.114 B` (Rec. 601); for YUYV input, the Y samples.
+    ///
+    /// (For YUYV input, `Green` is computed from Y, U and V.)
     Luma,
 }
 
@@ -60,7 +62,7 @@ impl PixelLayout {
 
 /// A rectangular region of interest in pixels: left column `x`, top row `y`,
 /// width `w`, height `h`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Roi {
     /// Left column.
     pub x: usize,
@@ -205,11 +207,23 @@ fn convert<T: Copy + Into<f32>>(
                     *o = g.into() * scale;
                 }
             }
-            // Y0 U Y1 V: the Y samples are every other byte; chroma is not needed
-            // (green fluorescence is almost all of the luma).
+            // Y0 U Y1 V: two pixels share one chroma pair. Luma is the Y samples
+            // as they are; green is R'G'B' green of full-range BT.601 (JFIF),
+            // G = Y - 0.344136 (U - 128) - 0.714136 (V - 128), clamped to 0..=255.
             PixelLayout::Yuyv => {
-                for (o, &g) in orow.iter_mut().zip(row.iter().step_by(2)) {
-                    *o = g.into() * scale;
+                for (o, q) in orow.chunks_exact_mut(2).zip(row.chunks_exact(4)) {
+                    let (y0, u, y1, v) = (q[0].into(), q[1].into(), q[2].into(), q[3].into());
+                    match channel {
+                        Channel::Luma => {
+                            o[0] = y0 * scale;
+                            o[1] = y1 * scale;
+                        }
+                        Channel::Green => {
+                            let c = -0.344136 * (u - 128.0) - 0.714136 * (v - 128.0);
+                            o[0] = (y0 + c).clamp(0.0, 255.0) * scale;
+                            o[1] = (y1 + c).clamp(0.0, 255.0) * scale;
+                        }
+                    }
                 }
             }
             PixelLayout::Rgb | PixelLayout::Rgba | PixelLayout::Bgr => {
@@ -336,11 +350,18 @@ mod tests {
     }
 
     #[test]
-    fn yuyv_takes_luma_samples() {
+    fn yuyv_luma_and_green() {
+        // Neutral chroma: green equals luma.
         let data = [10u8, 128, 20, 128, 30, 128, 40, 128];
         let g = gray_from_u8(&data, 4, 1, 8, PixelLayout::Yuyv, Channel::Green).unwrap();
         assert_eq!(g.into_raw_vec_and_offset().0, vec![10.0, 20.0, 30.0, 40.0]);
-        assert!(gray_from_u8(&data[..6], 3, 1, 6, PixelLayout::Yuyv, Channel::Green).is_err());
+        // Pure green (R=0, G=255, B=0) in full-range BT.601: Y=150, U=44, V=21.
+        let data = [150u8, 44, 150, 21];
+        let g = gray_from_u8(&data, 2, 1, 4, PixelLayout::Yuyv, Channel::Green).unwrap();
+        assert!((g[[0, 0]] - 255.0).abs() < 1.5 && (g[[0, 1]] - 255.0).abs() < 1.5);
+        let l = gray_from_u8(&data, 2, 1, 4, PixelLayout::Yuyv, Channel::Luma).unwrap();
+        assert_eq!(l[[0, 1]], 150.0);
+        assert!(gray_from_u8(&[0u8; 6], 3, 1, 6, PixelLayout::Yuyv, Channel::Green).is_err());
     }
 
     #[test]

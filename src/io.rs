@@ -388,6 +388,9 @@ pub struct FrameRecord {
     pub t_s: f64,
     /// Contacts seen in this frame (empty if none).
     pub contacts: Vec<ContactRecord>,
+    /// Processing time of this frame in ms, if recorded (optional extension).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub latency_ms: Option<f64>,
 }
 
 /// Writes JSON Lines, one record per line, flushed after every line so that

@@ -162,6 +162,7 @@ fn jsonl_matches_the_dataset_example() {
         frame: "000000.png".into(),
         t_s: 0.0,
         contacts: vec![],
+        latency_ms: Some(3.5),
     };
     let truth = FrameRecord {
         frame: "000001.png".into(),
@@ -171,6 +172,7 @@ fn jsonl_matches_the_dataset_example() {
             fz_n: -2.0,
             ..Default::default()
         }],
+        latency_ms: None,
     };
     assert_eq!(
         serde_json::to_string(&truth.contacts[0]).unwrap(),
@@ -187,7 +189,7 @@ fn jsonl_matches_the_dataset_example() {
     assert!(
         std::fs::read_to_string(&p)
             .unwrap()
-            .starts_with(r#"{"frame":"000000.png","t_s":0.0,"contacts":[]}"#)
+            .starts_with(r#"{"frame":"000000.png","t_s":0.0,"contacts":[],"latency_ms":3.5}"#)
     );
     drop(w);
     std::fs::write(
