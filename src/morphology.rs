@@ -17,13 +17,31 @@
 //! value"). Hence duality holds exactly: `erode(m) = !dilate(!m)`.
 //!
 //! ## Cost
-//! Every element is decomposed into axis-aligned rectangles (a rectangle: one;
-//! a cross: two; an ellipse: one per distinct row width, nested). A rectangle
-//! is separable: along rows, bit-parallel doubling (`log2(width)` word shifts
-//! per 64 pixels); along columns, van Herk/Gil-Werman (three word operations
-//! per 64 pixels whatever the height). So a rectangle's cost is essentially
-//! flat in its size, and an ellipse's grows with its number of distinct row
-//! widths (about `height / 2.5`), each costing as much as a rectangle.
+//! Rows are dilated 64 pixels per word: a row with few runs of ones (a
+//! thresholded flow, or its complement for erosion) by stamping each run
+//! grown by the kernel's half-widths, a busy row by bit-parallel doubling
+//! (`log2` of the width in word shifts); each row takes the cheaper way.
+//! - Rectangle: rows as above, then columns by van Herk/Gil-Werman (three
+//!   word operations per 64 pixels whatever the height): cost flat in the
+//!   kernel size.
+//! - Cross: the union of a one-row and a one-column rectangle.
+//! - Ellipse (and any element of more than two rectangles): each distinct row
+//!   run dilates the rows once, then every output row ORs one dilated row per
+//!   element row: `height` word ORs per 64 pixels, so the cost grows with the
+//!   kernel height (with a small constant; see `benches/morphology.rs`).
+//!
+//! ## Example
+//! ```
+//! use optical_tactile::morphology::{Mask, StructuringElement, dilate, erode};
+//! // A 3x3 square and a lone speck.
+//! let m = Mask::from_fn(8, 6, |x, y| (1..4).contains(&x) && (1..4).contains(&y) || (x, y) == (6, 4));
+//! let se = StructuringElement::rect(3, 3);
+//! // Opening (erode then dilate) removes the speck and restores the square.
+//! let opened = dilate(&erode(&m, &se, 1)?, &se, 1)?;
+//! assert_eq!(opened.count_ones(), 9);
+//! assert!(!opened.get(6, 4));
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
 
 use ndarray::{Array2, ArrayRef2};
 
@@ -237,14 +255,17 @@ impl Mask {
                 (Some(us), Some(vs)) => {
                     let mut bad = false;
                     for (k, (uc, vc)) in us.chunks(64).zip(vs.chunks(64)).enumerate() {
-                        let mut word = 0u64;
-                        for (b, (&u, &v)) in uc.iter().zip(vc).enumerate() {
+                        // Compare into bytes (vectorises), then pack 8 at a time.
+                        let mut bytes = [0u8; 64];
+                        let mut finite = true;
+                        for ((b, &u), &v) in bytes.iter_mut().zip(uc).zip(vc) {
                             let m2 = u * u + v * v;
-                            // NaN or inf (from a bad input or an overflowing square).
-                            bad |= !m2.is_finite();
-                            word |= ((m2 > t2) as u64) << b;
+                            // NaN or inf (a bad input or an overflowing square).
+                            finite &= m2.is_finite();
+                            *b = (m2 > t2) as u8;
                         }
-                        out[k] = word;
+                        bad |= !finite;
+                        out[k] = pack_bytes(&bytes);
                     }
                     if bad {
                         flow.check_finite("flow")?;
@@ -283,9 +304,23 @@ impl Mask {
     }
 }
 
+/// Packs 64 bytes of 0/1 into a word, byte `i` to bit `i`.
+#[inline]
+fn pack_bytes(bytes: &[u8; 64]) -> u64 {
+    let mut w = 0u64;
+    for (j, c) in bytes.chunks_exact(8).enumerate() {
+        let x = u64::from_le_bytes(c.try_into().expect("8 bytes"));
+        // Byte k (0 or 1) lands on bit 56 + k: the partial products
+        // 2^(8k + 7i + 7) are all distinct, so nothing carries.
+        w |= (x.wrapping_mul(0x0102_0408_1020_4080) >> 56) << (8 * j);
+    }
+    w
+}
+
 /// The shape of a structuring element (OpenCV's `MORPH_RECT`, `MORPH_CROSS`,
 /// `MORPH_ELLIPSE`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Shape {
     /// Every cell of the `width x height` box.
     Rect,
@@ -448,7 +483,54 @@ pub struct Morphology {
     g: Vec<u64>,
     h: Vec<u64>,
     row: Vec<u64>,
-    parts_cache: Option<(StructuringElement, Vec<RectPart>)>,
+    /// Ring of horizontally dilated rows, per distinct row run (row-run path).
+    planes: Vec<u64>,
+    /// Per ring slot: its source row is empty.
+    empty: Vec<bool>,
+    plan: Option<(StructuringElement, Plan)>,
+}
+
+/// How to dilate by one element.
+#[derive(Debug, Clone, Default)]
+struct Plan {
+    /// Rectangles whose union is the element.
+    parts: Vec<RectPart>,
+    /// Distinct row runs `(l, r)` (offsets from the anchor column).
+    runs: Vec<(usize, usize)>,
+    /// For each element row, its index in `runs`.
+    row_run: Vec<usize>,
+    /// Anchor row.
+    ay: usize,
+}
+
+impl Plan {
+    fn new(se: &StructuringElement) -> Plan {
+        let (ax, ay) = se.anchor();
+        let mut runs: Vec<(usize, usize)> = Vec::new();
+        let row_run = (0..se.height)
+            .map(|i| {
+                let (j1, j2) = se.row_run(i);
+                let lr = (ax - j1, j2 - 1 - ax);
+                runs.iter().position(|&x| x == lr).unwrap_or_else(|| {
+                    runs.push(lr);
+                    runs.len() - 1
+                })
+            })
+            .collect();
+        Plan {
+            parts: se.rectangles(),
+            runs,
+            row_run,
+            ay,
+        }
+    }
+
+    /// Rectangles are separable and flat in their size; with more than two,
+    /// OR-ing one horizontally dilated row per element row is cheaper than
+    /// a vertical pass per rectangle.
+    fn by_rows(&self) -> bool {
+        self.parts.len() > 2
+    }
 }
 
 impl Morphology {
@@ -490,13 +572,9 @@ impl Morphology {
         erode: bool,
     ) -> Result<()> {
         element.validate()?;
-        let parts = match &self.parts_cache {
-            Some((e, p)) if e == element => p.clone(),
-            _ => {
-                let p = element.rectangles();
-                self.parts_cache = Some((*element, p.clone()));
-                p
-            }
+        let plan = match self.plan.take() {
+            Some((e, p)) if e == *element => p,
+            _ => Plan::new(element),
         };
         // Erosion is the complement of the dilation of the complement (same
         // offsets): outside pixels, 0 for the dilation, act as 1 for erosion.
@@ -508,9 +586,10 @@ impl Morphology {
         }
         let mut next = std::mem::take(&mut self.b);
         for _ in 0..iterations {
-            self.dilate_once(&cur, &mut next, &parts);
+            self.dilate_once(&cur, &mut next, &plan);
             std::mem::swap(&mut cur, &mut next);
         }
+        self.plan = Some((*element, plan));
         if erode {
             complement_into(&cur, dst);
         } else {
@@ -522,11 +601,16 @@ impl Morphology {
     }
 
     /// One dilation by the union of `parts` (output resized to `src`).
-    fn dilate_once(&mut self, src: &Mask, dst: &mut Mask, parts: &[RectPart]) {
+    fn dilate_once(&mut self, src: &Mask, dst: &mut Mask, plan: &Plan) {
         dst.reset(src.width, src.height);
         if src.width == 0 || src.height == 0 {
             return;
         }
+        if plan.by_rows() {
+            self.dilate_by_rows(src, dst, plan);
+            return;
+        }
+        let parts = &plan.parts;
         let mut part = std::mem::take(&mut self.part);
         for (n, p) in parts.iter().enumerate() {
             let out: &mut Mask = if n == 0 { dst } else { &mut part };
@@ -538,6 +622,61 @@ impl Morphology {
             }
         }
         self.part = part;
+    }
+
+    /// Dilation by row runs: each distinct run dilates every row once, then
+    /// output row `y` ORs, for each element row `i`, row `y + i - ay` of its
+    /// run's dilation. The dilated rows live in a ring of `height` rows (the
+    /// window of one output row), which stays in cache. `dst` must be reset
+    /// (zero).
+    fn dilate_by_rows(&mut self, src: &Mask, dst: &mut Mask, plan: &Plan) {
+        let (wds, h) = (src.words, src.height);
+        let kh = plan.row_run.len();
+        let nk = plan.runs.len();
+        let lastmask = src.last_word_mask();
+        self.planes.clear();
+        self.planes.resize(kh * nk * wds, 0);
+        self.row.resize(wds, 0);
+        let below = kh - 1 - plan.ay;
+        // Per ring slot: whether its source row is empty (its dilations are).
+        self.empty.clear();
+        self.empty.resize(kh, false);
+        let full_row = |o: &[u64]| o[..wds - 1].iter().all(|&w| w == !0) && o[wds - 1] == lastmask;
+        let mut next = 0; // next source row to dilate into the ring
+        for y in 0..h {
+            while next < h && next <= y + below {
+                let s = &src.bits[next * wds..(next + 1) * wds];
+                let slot = next % kh;
+                self.empty[slot] = s.iter().all(|&w| w == 0);
+                if !self.empty[slot] {
+                    for (k, &(l, r)) in plan.runs.iter().enumerate() {
+                        let at = (slot * nk + k) * wds;
+                        let d = &mut self.planes[at..at + wds];
+                        dilate_row(s, d, &mut self.row, l, r);
+                        d[wds - 1] &= lastmask;
+                    }
+                }
+                next += 1;
+            }
+            let o = &mut dst.bits[y * wds..(y + 1) * wds];
+            for (i, &k) in plan.row_run.iter().enumerate() {
+                let Some(yy) = (y + i).checked_sub(plan.ay).filter(|&yy| yy < h) else {
+                    continue;
+                };
+                // Sparse masks: empty rows add nothing; dense ones (the
+                // complement, when eroding) saturate early.
+                if self.empty[yy % kh] {
+                    continue;
+                }
+                let at = ((yy % kh) * nk + k) * wds;
+                for (a, b) in o.iter_mut().zip(&self.planes[at..at + wds]) {
+                    *a |= *b;
+                }
+                if i % 4 == 3 && full_row(o) {
+                    break;
+                }
+            }
+        }
     }
 
     /// Dilation by one rectangle: rows by doubling, then columns by van Herk.
@@ -630,10 +769,27 @@ impl Morphology {
 }
 
 /// `dst[x] = OR of src[x - l ..= x + r]` for one row of words (outside = 0);
-/// `tmp` is scratch of the same length. The two halves `[x - l, x]` and
-/// `[x, x + r]` are grown separately by doubling, each towards the side it
-/// reads, so that no window is cut at the row's ends.
+/// `tmp` is scratch of the same length. Bits past the row's width may be set
+/// in `dst`'s last word (the caller masks them).
+///
+/// Two ways, the cheaper one per row: a row with few runs of ones (the usual
+/// thresholded flow, or its complement) stamps each run grown by `(l, r)`,
+/// whatever the kernel size; a busy row grows by bit-parallel doubling, in
+/// `log2(l + 1) + log2(r + 1)` word shifts.
 fn dilate_row(src: &[u64], dst: &mut [u64], tmp: &mut [u64], l: usize, r: usize) {
+    let mut runs = 0usize;
+    let mut carry = 0u64;
+    for &w in src.iter() {
+        runs += (w & !((w << 1) | carry)).count_ones() as usize;
+        carry = w >> 63;
+    }
+    let steps = (usize::BITS - (l + 1).leading_zeros()) as usize
+        + (usize::BITS - (r + 1).leading_zeros()) as usize;
+    // A run costs a few dozen instructions, a doubling step a few per word.
+    if runs * 8 <= src.len() * steps {
+        dilate_row_runs(src, dst, l, r);
+        return;
+    }
     dst.copy_from_slice(src);
     grow(dst, r + 1, or_from_right);
     if l > 0 {
@@ -643,6 +799,54 @@ fn dilate_row(src: &[u64], dst: &mut [u64], tmp: &mut [u64], l: usize, r: usize)
             *d |= *t;
         }
     }
+}
+
+/// [`dilate_row`] by stamping each run of ones `[a, b]` as `[a - r, b + l]`
+/// (source pixel `a` reaches the outputs `x` with `x - l <= a <= x + r`).
+fn dilate_row_runs(src: &[u64], dst: &mut [u64], l: usize, r: usize) {
+    dst.fill(0);
+    let n = src.len();
+    let mut start = 0usize;
+    for k in 0..n {
+        let w = src[k];
+        if w == 0 {
+            continue;
+        }
+        let below = if k > 0 { src[k - 1] >> 63 } else { 0 };
+        let above = if k + 1 < n { src[k + 1] << 63 } else { 0 };
+        let starts = w & !((w << 1) | below);
+        let ends = w & !((w >> 1) | above);
+        let mut marks = starts | ends;
+        while marks != 0 {
+            let b = marks.trailing_zeros();
+            marks &= marks - 1;
+            let x = k * 64 + b as usize;
+            if (starts >> b) & 1 == 1 {
+                start = x;
+            }
+            if (ends >> b) & 1 == 1 {
+                fill_bits(dst, start.saturating_sub(r), x + l);
+            }
+        }
+    }
+}
+
+/// Sets bits `lo ..= hi` (clipped to the slice).
+#[inline]
+fn fill_bits(a: &mut [u64], lo: usize, hi: usize) {
+    let hi = hi.min(a.len() * 64 - 1);
+    let (k0, k1) = (lo / 64, hi / 64);
+    let m0 = !0u64 << (lo % 64);
+    let m1 = !0u64 >> (63 - hi % 64);
+    if k0 == k1 {
+        a[k0] |= m0 & m1;
+        return;
+    }
+    a[k0] |= m0;
+    for w in &mut a[k0 + 1..k1] {
+        *w = !0;
+    }
+    a[k1] |= m1;
 }
 
 /// Turns `a` into the OR of `n` consecutive bits per position by doubling:
@@ -784,6 +988,51 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn both_row_dilations_agree() {
+        let mut seed = 99u64;
+        for _ in 0..500 {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let n = 1 + (seed >> 60) as usize % 4;
+            let (l, r) = ((seed >> 20) as usize % 90, (seed >> 30) as usize % 90);
+            let src: Vec<u64> = (0..n)
+                .map(|i| {
+                    let z = seed.rotate_left(i as u32 * 17) ^ (seed >> 7);
+                    if (seed >> 50) & 1 == 1 {
+                        z & z.rotate_left(5) & z.rotate_left(11)
+                    } else {
+                        z
+                    }
+                })
+                .collect();
+            let (mut a, mut b, mut t) = (vec![0; n], vec![0; n], vec![0; n]);
+            dilate_row_runs(&src, &mut a, l, r);
+            b.copy_from_slice(&src);
+            grow(&mut b, r + 1, or_from_right);
+            t.copy_from_slice(&src);
+            grow(&mut t, l + 1, or_from_left);
+            for (x, y) in b.iter_mut().zip(&t) {
+                *x |= *y;
+            }
+            assert_eq!(a, b, "l {l} r {r} src {src:x?}");
+        }
+    }
+
+    #[test]
+    fn packing_bytes() {
+        let mut b = [0u8; 64];
+        for i in [0, 1, 7, 8, 13, 31, 32, 62, 63] {
+            b[i] = 1;
+        }
+        let expect = [0, 1, 7, 8, 13, 31, 32, 62, 63]
+            .iter()
+            .fold(0u64, |w, &i| w | 1 << i);
+        assert_eq!(pack_bytes(&b), expect);
+        assert_eq!(pack_bytes(&[1; 64]), !0);
     }
 
     #[test]

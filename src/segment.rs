@@ -29,6 +29,29 @@
 //! - The summed `|flow|` test is made on each contour's own box (before the
 //!   margin), as in the paper; a merged patch reports the sum over its final box.
 
+//!
+//! ## Example
+//! ```
+//! use optical_tactile::FlowField;
+//! use optical_tactile::segment::{Segmenter, SegmenterConfig, Thresholds};
+//! // A 4-pixel shift over a 40x30 block of a 200x100 full-resolution flow.
+//! let mut flow = FlowField::zeros(200, 100);
+//! flow.u.slice_mut(ndarray::s![30..60, 50..90]).fill(4.0);
+//! let config = SegmenterConfig { thresholds: Thresholds::MID, margin: 5, scale: 1.0 };
+//! let mut segmenter = Segmenter::new(config)?;
+//! let patches = segmenter.segment(&flow)?;
+//! assert_eq!(patches.len(), 1);
+//! // Eroding by 9 then dilating by 21 grows the block by 6 px per side,
+//! // then the margin adds 5.
+//! let c = patches[0].core;
+//! assert_eq!((c.x, c.y, c.width, c.height), (44, 24, 52, 42));
+//! let b = patches[0].bbox;
+//! assert_eq!((b.x, b.y, b.width, b.height), (39, 19, 62, 52));
+//! let (u, _v) = patches[0].view(&flow)?;
+//! assert_eq!(u.sum(), 4.0 * 40.0 * 30.0);
+//! # Ok::<(), optical_tactile::Error>(())
+//! ```
+
 use ndarray::ArrayView2;
 
 use crate::contours::{BoundingBox, ContourFinder};
@@ -46,7 +69,7 @@ use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
 /// few pixels over a region 10-20 mm across), not yet tuned on the simulator.
 /// Their targets (paper): minimum detectable force below 0.5 N, 0.5-1 N and
 /// 1-1.5 N, with no false contact at rest.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Thresholds {
     /// Per-pixel `|flow|` above which a pixel belongs to the mask, in
     /// full-resolution pixels.
@@ -94,6 +117,19 @@ impl Thresholds {
         dilate: 25,
         shape: Shape::Rect,
     };
+
+    /// The preset named `low`, `mid` or `high` (any case).
+    pub fn preset(name: &str) -> Result<Thresholds> {
+        match name.to_ascii_lowercase().as_str() {
+            "low" => Ok(Thresholds::LOW),
+            "mid" => Ok(Thresholds::MID),
+            "high" => Ok(Thresholds::HIGH),
+            _ => Err(Error::param(
+                "thresholds",
+                format!("unknown preset `{name}` (expected low, mid or high)"),
+            )),
+        }
+    }
 
     /// Errors unless the thresholds are finite and non-negative and the
     /// kernels at least 1.
@@ -281,7 +317,7 @@ pub struct ScaledThresholds {
 }
 
 /// Configuration of a [`Segmenter`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SegmenterConfig {
     /// Thresholds and kernels (full-resolution pixels).
     pub thresholds: Thresholds,
@@ -508,11 +544,18 @@ fn box_sum(flow: &FlowField, b: &BoundingBox) -> f64 {
     let mut s = 0.0f64;
     for y in b.y..b.y_end() {
         let (u, v) = (flow.u.row(y), flow.v.row(y));
-        let mut row = 0.0f32;
-        for x in b.x..b.x_end() {
-            row += u[x].hypot(v[x]);
-        }
-        s += row as f64;
+        s += match (u.as_slice(), v.as_slice()) {
+            // Contiguous rows: a plain slice loop vectorises. f64 squares
+            // cannot overflow for f32 inputs (unlike f32 ones; hypot is slow).
+            (Some(u), Some(v)) => u[b.x..b.x_end()]
+                .iter()
+                .zip(&v[b.x..b.x_end()])
+                .map(|(&a, &c)| ((a as f64) * (a as f64) + (c as f64) * (c as f64)).sqrt())
+                .sum::<f64>(),
+            _ => (b.x..b.x_end())
+                .map(|x| ((u[x] as f64).powi(2) + (v[x] as f64).powi(2)).sqrt())
+                .sum::<f64>(),
+        };
     }
     s
 }
@@ -581,6 +624,17 @@ mod tests {
             })
             .is_err()
         );
+    }
+
+    #[test]
+    fn presets_by_name_and_json() {
+        assert_eq!(Thresholds::preset("HIGH").unwrap(), Thresholds::HIGH);
+        assert_eq!(Thresholds::preset("low").unwrap(), Thresholds::LOW);
+        assert!(Thresholds::preset("extreme").is_err());
+        let json = serde_json::to_string(&SegmenterConfig::default()).unwrap();
+        assert!(json.contains("\"shape\":\"rect\""), "{json}");
+        let back: SegmenterConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, SegmenterConfig::default());
     }
 
     #[test]

@@ -392,3 +392,69 @@ fn from_rest_rejects_bad_input() {
         assert!(Thresholds::from_rest(&ok, &bad).is_err(), "{bad:?}");
     }
 }
+
+#[test]
+fn property_patches_cover_every_bump_and_never_overlap() {
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+    let bumps = proptest::collection::vec(
+        (0.0f32..200.0, 0.0f32..80.0, 3.0f32..8.0, 5.0f32..10.0),
+        1..5,
+    );
+    let mut runner = TestRunner::new_with_rng(
+        Config {
+            cases: 40,
+            failure_persistence: None,
+            ..Config::default()
+        },
+        TestRng::from_seed(RngAlgorithm::ChaCha, &[5u8; 32]),
+    );
+    runner
+        .run(&(bumps, 0usize..12), |(bumps, margin)| {
+            let mut f = FlowField::zeros(200, 80);
+            for &(cx, cy, a, s) in &bumps {
+                add_shear(&mut f, 1.0, cx, cy, a, s);
+            }
+            let th = Thresholds {
+                sum: 100.0,
+                ..thresholds()
+            };
+            let mut seg = Segmenter::new(SegmenterConfig {
+                thresholds: th,
+                margin,
+                scale: 1.0,
+            })
+            .unwrap();
+            let p = seg.segment(&f).unwrap();
+            for (i, a) in p.iter().enumerate() {
+                for b in &p[i + 1..] {
+                    prop_assert!(!a.bbox.intersects(&b.bbox), "{:?} {:?}", a, b);
+                }
+                prop_assert!(a.bbox.x_end() <= 200 && a.bbox.y_end() <= 80);
+                let holds_one = bumps.iter().any(|&(cx, cy, _, _)| {
+                    a.bbox.contains(
+                        (cx.round() as usize).min(199),
+                        (cy.round() as usize).min(79),
+                    )
+                });
+                prop_assert!(holds_one, "{:?} holds no bump of {:?}", a, bumps);
+            }
+            // Each bump is above the threshold over a disk of radius >= 7.4
+            // (amp >= 3, sigma >= 5): it survives the 5x5 erosion.
+            for &(cx, cy, _, _) in &bumps {
+                let (x, y) = (
+                    (cx.round() as usize).min(199),
+                    (cy.round() as usize).min(79),
+                );
+                prop_assert!(
+                    p.iter().any(|q| q.core.contains(x, y)),
+                    "bump at ({}, {}) lost: {:?}",
+                    cx,
+                    cy,
+                    p
+                );
+            }
+            Ok(())
+        })
+        .unwrap();
+}

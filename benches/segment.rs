@@ -1,0 +1,83 @@
+//! The whole segmentation (threshold, erode, dilate, external contours, sums,
+//! margins) of a 1920x1080 flow and of a 480x270 native-level flow, one
+//! thread; and its stages at 1080p.
+
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use optical_tactile::contours::ContourFinder;
+use optical_tactile::flow::FlowField;
+use optical_tactile::morphology::{Mask, Morphology};
+use optical_tactile::segment::{Segmenter, SegmenterConfig, Thresholds};
+use std::hint::black_box;
+use std::time::Duration;
+
+/// Three presses (Gaussian shear bumps, full-res sigma 40 px, peak 8 px) on
+/// low-level noise (about 0.1 px), sampled at `scale`.
+fn flow(w: usize, h: usize, scale: f32) -> FlowField {
+    let mut f = FlowField::zeros(w, h);
+    let mut s = 0x9E37_79B9u64;
+    let bumps = [(400.0f32, 500.0f32), (1000.0, 300.0), (1500.0, 800.0)];
+    for y in 0..h {
+        for x in 0..w {
+            let (fx, fy) = (x as f32 / scale, y as f32 / scale);
+            let mut u = 0.0;
+            for &(cx, cy) in &bumps {
+                u += 8.0 * (-((fx - cx).powi(2) + (fy - cy).powi(2)) / (2.0 * 40.0 * 40.0)).exp();
+            }
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let n = ((s >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.3;
+            f.u[[y, x]] = (u + n) * scale;
+            f.v[[y, x]] = n * scale;
+        }
+    }
+    f
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("segment");
+    g.measurement_time(Duration::from_secs(3))
+        .warm_up_time(Duration::from_millis(300))
+        .sample_size(30);
+    for (w, h, scale) in [(1920usize, 1080usize, 1.0f32), (480, 270, 0.25)] {
+        let f = flow(w, h, scale);
+        let mut seg = Segmenter::new(SegmenterConfig {
+            thresholds: Thresholds::HIGH,
+            margin: 10,
+            scale,
+        })
+        .unwrap();
+        let mut out = Vec::new();
+        seg.segment_into(&f, &mut out).unwrap();
+        assert_eq!(out.len(), 3, "the bench scene must have three patches");
+        g.bench_function(BenchmarkId::new("segment_high", format!("{w}x{h}")), |b| {
+            b.iter(|| seg.segment_into(black_box(&f), &mut out).unwrap())
+        });
+        // Stages.
+        let st = *seg.scaled();
+        let mut raw = Mask::default();
+        g.bench_function(BenchmarkId::new("threshold", format!("{w}x{h}")), |b| {
+            b.iter(|| {
+                raw.threshold_flow_into(black_box(&f), st.magnitude)
+                    .unwrap()
+            })
+        });
+        let mut morph = Morphology::new();
+        let (mut e, mut d) = (Mask::default(), Mask::default());
+        g.bench_function(BenchmarkId::new("erode_dilate", format!("{w}x{h}")), |b| {
+            b.iter(|| {
+                morph.erode(black_box(&raw), &mut e, &st.erode, 1).unwrap();
+                morph.dilate(&e, &mut d, &st.dilate, 1).unwrap();
+            })
+        });
+        let mut cf = ContourFinder::new();
+        let mut boxes = Vec::new();
+        g.bench_function(BenchmarkId::new("contours", format!("{w}x{h}")), |b| {
+            b.iter(|| cf.external_boxes(black_box(&d), &mut boxes))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
