@@ -26,6 +26,7 @@
 
 pub mod calibration;
 pub mod capture;
+pub mod characterize;
 pub mod contact;
 pub mod contours;
 pub mod error;

@@ -35,7 +35,9 @@ use ndarray::{Array2, ArrayRef2};
 use rayon::prelude::*;
 
 use crate::calibration::Calibration;
-use crate::contact::{Contact, PatchFields, PatchGrid, RawContact, raw_quantities, rotate_to_sensor};
+use crate::contact::{
+    Contact, PatchFields, PatchGrid, RawContact, raw_quantities, rotate_to_sensor,
+};
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
@@ -170,8 +172,12 @@ impl ContactExtractor {
         if self.flow.size() != native.size() {
             self.flow = FlowField::zeros(native.width(), native.height());
         }
-        ndarray::Zip::from(&mut self.flow.u).and(&native.u).for_each(|o, &x| *o = x * gain);
-        ndarray::Zip::from(&mut self.flow.v).and(&native.v).for_each(|o, &x| *o = x * gain);
+        ndarray::Zip::from(&mut self.flow.u)
+            .and(&native.u)
+            .for_each(|o, &x| *o = x * gain);
+        ndarray::Zip::from(&mut self.flow.v)
+            .and(&native.v)
+            .for_each(|o, &x| *o = x * gain);
         self.flow.check_finite("optical flow")?;
         self.timings.flow_ms = ms(t);
 
@@ -221,7 +227,9 @@ impl ContactExtractor {
     /// The decomposition of the `k`-th patch of the last frame (same order as
     /// [`patches`](Self::patches)).
     pub fn decomposition(&self, k: usize) -> Option<&Decomposition> {
-        (k < self.patches.len()).then(|| self.slots[k].dec.as_ref()).flatten()
+        (k < self.patches.len())
+            .then(|| self.slots[k].dec.as_ref())
+            .flatten()
     }
 
     /// The segmenter (its mask and contour boxes, for display).
@@ -236,10 +244,18 @@ impl ContactExtractor {
 }
 
 /// nHHD and raw quantities of one patch.
-fn measure(slot: &mut Slot, flow: &FlowField, patch: &ContactPatch, s: f64, subpixel: bool) -> Result<RawContact> {
+fn measure(
+    slot: &mut Slot,
+    flow: &FlowField,
+    patch: &ContactPatch,
+    s: f64,
+    subpixel: bool,
+) -> Result<RawContact> {
     let b = patch.bbox;
     let (u, v) = patch.view(flow)?;
-    let dec = slot.dec.get_or_insert_with(|| Decomposition::zeros(b.height, b.width));
+    let dec = slot
+        .dec
+        .get_or_insert_with(|| Decomposition::zeros(b.height, b.width));
     slot.hhd.decompose_into(u, v, s, s, dec)?;
     let fields = PatchFields {
         u,
@@ -248,7 +264,15 @@ fn measure(slot: &mut Slot, flow: &FlowField, patch: &ContactPatch, s: f64, subp
         d_u: dec.d.u.view(),
         d_v: dec.d.v.view(),
     };
-    let mut raw = raw_quantities(&fields, PatchGrid { x0: b.x, y0: b.y, scale: s }, subpixel)?;
+    let mut raw = raw_quantities(
+        &fields,
+        PatchGrid {
+            x0: b.x,
+            y0: b.y,
+            scale: s,
+        },
+        subpixel,
+    )?;
     let si = s as usize;
     raw.area_px = (patch.area * si * si) as u64;
     raw.bbox = Roi::new(b.x * si, b.y * si, b.width * si, b.height * si);
@@ -258,7 +282,7 @@ fn measure(slot: &mut Slot, flow: &FlowField, patch: &ContactPatch, s: f64, subp
 }
 
 /// Everything a [`TactileSensor`] needs besides its calibration.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct SensorConfig {
     /// Crop of the camera frame to the sensing area; `None` takes the
     /// calibration's crop.
@@ -271,16 +295,6 @@ pub struct SensorConfig {
     pub rereference: ReferencePolicy,
 }
 
-impl Default for SensorConfig {
-    fn default() -> Self {
-        SensorConfig {
-            crop: None,
-            extractor: ExtractorConfig::default(),
-            tracker: TrackerConfig::default(),
-            rereference: ReferencePolicy::default(),
-        }
-    }
-}
 
 /// A calibrated optical tactile sensor: frames in, contacts out (see the module docs).
 #[derive(Debug)]
@@ -366,7 +380,11 @@ impl TactileSensor {
         let t0 = Instant::now();
         let size = self.frame_size.ok_or(Error::NoReference)?;
         if (frame.ncols(), frame.nrows()) != size {
-            return Err(Error::shape("frame against the reference", size, (frame.ncols(), frame.nrows())));
+            return Err(Error::shape(
+                "frame against the reference",
+                size,
+                (frame.ncols(), frame.nrows()),
+            ));
         }
         self.crop_into_buffer(frame)?;
         let crop_ms = ms(t0);

@@ -1,0 +1,229 @@
+//! Calibrates a sensor from a characterization dataset (DATASET.md).
+//!
+//! ```text
+//! cargo run --release --example calibrate -- DATASET_DIR [--thresholds low|mid|high|all]
+//!     [--preset fast|accurate|...] [--crop x,y,w,h] [--predictions FILE] --out calibration.json
+//! ```
+//!
+//! Runs the pipeline on every test (each frame against its own reference) on
+//! all cores, fits the five polynomial maps with the paper's order search and
+//! prints, in markdown, Table I (per threshold preset: minimum detectable force,
+//! test MAE of x, Fx, Fy, Fz) and Table II (test MAE per point). With
+//! `--thresholds all` the presets are fitted in turn; `--out` gets the `high`
+//! one (the paper's flight setting) and the others are written beside it as
+//! `NAME.low.json` and `NAME.mid.json`.
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use optical_tactile::calibration::{self, FitOptions, ThresholdRow};
+use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::image::Roi;
+use optical_tactile::io::{self, FrameRecord, JsonlWriter, Split};
+use optical_tactile::segment::Thresholds;
+use optical_tactile::sensor::ExtractorConfig;
+
+const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
+[--preset ultrafast|fast|medium|accurate (default accurate)] [--crop x,y,w,h] [--predictions FILE]";
+
+struct Args {
+    dir: PathBuf,
+    out: PathBuf,
+    presets: Vec<&'static str>,
+    flow: DisPreset,
+    crop: Option<Roi>,
+    predictions: Option<PathBuf>,
+}
+
+fn parse() -> Result<Option<Args>, String> {
+    let mut dir = None;
+    let mut out = None;
+    let mut presets = vec!["high"];
+    let mut flow = DisPreset::Accurate;
+    let mut crop = None;
+    let mut predictions = None;
+    let mut it = std::env::args().skip(1);
+    while let Some(a) = it.next() {
+        let mut val = |name: &str| it.next().ok_or(format!("{name} needs a value"));
+        match a.as_str() {
+            "-h" | "--help" => {
+                println!("{USAGE}");
+                return Ok(None);
+            }
+            "--out" => out = Some(PathBuf::from(val("--out")?)),
+            "--thresholds" => {
+                presets = match val("--thresholds")?.as_str() {
+                    "low" => vec!["low"],
+                    "mid" => vec!["mid"],
+                    "high" => vec!["high"],
+                    "all" => vec!["high", "mid", "low"],
+                    v => {
+                        return Err(format!(
+                            "--thresholds: expected low, mid, high or all, got `{v}`"
+                        ));
+                    }
+                }
+            }
+            "--preset" => flow = DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?,
+            "--crop" => crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
+            "--predictions" => predictions = Some(PathBuf::from(val("--predictions")?)),
+            _ if a.starts_with("--") => return Err(format!("unknown option {a}\n{USAGE}")),
+            _ if dir.is_none() => dir = Some(PathBuf::from(a)),
+            _ => return Err(format!("unexpected argument `{a}`\n{USAGE}")),
+        }
+    }
+    Ok(Some(Args {
+        dir: dir.ok_or(USAGE)?,
+        out: out.ok_or(format!("--out is required\n{USAGE}"))?,
+        presets,
+        flow,
+        crop,
+        predictions,
+    }))
+}
+
+fn thresholds(name: &str) -> Thresholds {
+    match name {
+        "low" => Thresholds::LOW,
+        "mid" => Thresholds::MID,
+        _ => Thresholds::HIGH,
+    }
+}
+
+fn sibling(out: &Path, preset: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    out.with_file_name(format!("{stem}.{preset}.json"))
+}
+
+fn run() -> Result<(), String> {
+    let Some(args) = parse()? else { return Ok(()) };
+    let err = |e: optical_tactile::Error| e.to_string();
+    let rows = read_dataset(&args.dir).map_err(err)?;
+    // The crop the pixel coordinates refer to: given, or the whole image.
+    let crop = match args.crop {
+        Some(c) => c,
+        None => {
+            let img = io::read_gray(args.dir.join(&rows[0].reference)).map_err(err)?;
+            Roi::full(img.ncols(), img.nrows())
+        }
+    };
+    let threads = rayon::current_num_threads();
+    eprintln!(
+        "{} tests in {}, {} threads",
+        rows.len(),
+        args.dir.display(),
+        threads
+    );
+    let mut table_i = Vec::new();
+    let mut table_ii = Vec::new();
+    for (k, preset) in args.presets.iter().enumerate() {
+        let config = ExtractorConfig {
+            flow: DisParams::preset(args.flow),
+            thresholds: thresholds(preset),
+            ..ExtractorConfig::default()
+        };
+        let t0 = Instant::now();
+        let step = (rows.len() / 20).max(1);
+        let progress = |done: usize, total: usize| {
+            if done % step == 0 || done == total {
+                eprint!(
+                    "\r[{preset}] {done}/{total} tests, {:.0} s  ",
+                    t0.elapsed().as_secs_f64()
+                );
+                let _ = std::io::stderr().flush();
+            }
+        };
+        let ex = extract_dataset(&args.dir, &rows, &config, args.crop, &progress).map_err(err)?;
+        eprintln!();
+        let fit = fit_dataset(
+            &ex,
+            &config,
+            preset,
+            crop,
+            SensorGeometry::default(),
+            &FitOptions::default(),
+        )
+        .map_err(err)?;
+        eprintln!(
+            "[{preset}] fitted in {:.1} s; misses train/val/test: {}/{}/{}",
+            t0.elapsed().as_secs_f64(),
+            fit.misses[0],
+            fit.misses[1],
+            fit.misses[2]
+        );
+        let path = if k == 0 {
+            args.out.clone()
+        } else {
+            sibling(&args.out, preset)
+        };
+        fit.calibration.save(&path).map_err(err)?;
+        eprintln!("[{preset}] wrote {}", path.display());
+        if k == 0 {
+            if let Some(pred) = &args.predictions {
+                let mut w = JsonlWriter::create(pred).map_err(err)?;
+                for (e, s) in ex
+                    .iter()
+                    .zip(&fit.samples)
+                    .filter(|(e, _)| e.row.split == Split::Test)
+                {
+                    let mut contacts = Vec::new();
+                    if let Some(s) = s {
+                        let p = fit.calibration.predict(s).map_err(err)?;
+                        contacts.push(io::ContactRecord {
+                            x_mm: p.x_mm,
+                            y_mm: p.y_mm,
+                            z_mm: p.z_mm,
+                            fx_n: p.fx,
+                            fy_n: p.fy,
+                            fz_n: p.fz,
+                            x_px: Some(s.x2d),
+                            y_px: Some(s.y2d),
+                            d_pf: Some(s.d_pf),
+                            dx: Some(s.dx),
+                            dy: Some(s.dy),
+                            dz: Some(s.dz),
+                            ..Default::default()
+                        });
+                    }
+                    w.write(&FrameRecord {
+                        frame: e.row.frame.clone(),
+                        t_s: 0.0,
+                        contacts,
+                        latency_ms: None,
+                    })
+                    .map_err(err)?;
+                }
+            }
+        }
+        table_i.push(ThresholdRow {
+            preset: preset.to_string(),
+            min_force_n: fit.min_force.to_string(),
+            mae: fit.test_table.total,
+        });
+        table_ii.push((preset.to_string(), fit.test_table));
+    }
+    println!("## Table I: test-set errors per threshold preset\n");
+    println!("{}", calibration::table_i_markdown(&table_i));
+    for (preset, t) in &table_ii {
+        println!("## Table II: test-set errors per point ({preset} thresholds)\n");
+        println!("{}", calibration::table_ii_markdown(t));
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,152 @@
+//! The whole pipeline on the bundled two-rod press sequence.
+
+use optical_tactile::Error;
+use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
+use optical_tactile::capture::{FrameSource, SequenceSource};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::image::Roi;
+use optical_tactile::io::{FrameRecord, read_jsonl};
+use optical_tactile::poly::Polynomial;
+use optical_tactile::segment::Thresholds;
+use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
+
+const SEQ: &str = "fixtures/press";
+
+/// Thresholds low enough for the simulator's sub-pixel motion at ~1 N.
+fn sensitive() -> ExtractorConfig {
+    ExtractorConfig {
+        flow: DisParams::preset(DisPreset::Fast),
+        thresholds: Thresholds {
+            magnitude: 0.15,
+            sum: 300.0,
+            ..Thresholds::LOW
+        },
+        ..ExtractorConfig::default()
+    }
+}
+
+fn frames() -> Vec<optical_tactile::capture::Frame> {
+    let mut seq = SequenceSource::open(SEQ).unwrap();
+    std::iter::from_fn(|| seq.next_frame())
+        .map(|f| f.unwrap())
+        .collect()
+}
+
+#[test]
+fn both_rods_are_found_where_they_press() {
+    let truth: Vec<FrameRecord> = read_jsonl(format!("{SEQ}/truth.jsonl")).unwrap();
+    let frames = frames();
+    let mut ex = ContactExtractor::new(sensitive()).unwrap();
+    ex.set_reference(&frames[0].image).unwrap();
+    // The lightest presses (under 0.6 N) are below these thresholds.
+    assert!(ex.extract(&frames[1].image).unwrap().is_empty());
+    // The last frame (2.0 N and 1.5 N): two contacts, each within 10 px (2 mm) of its rod.
+    let raws = ex.extract(&frames[7].image).unwrap().to_vec();
+    assert_eq!(raws.len(), 2, "{raws:?}");
+    let mut xs: Vec<f64> = raws.iter().map(|r| r.x_px).collect();
+    xs.sort_by(f64::total_cmp);
+    let want: Vec<f64> = truth[7].contacts.iter().map(|c| c.x_px.unwrap()).collect();
+    for (x, w) in xs.iter().zip(&want) {
+        assert!((x - w).abs() < 10.0, "contact at {x}, rod at {w}");
+    }
+    // The stronger press (left, 2 N) comes first.
+    assert!(raws[0].x_px < raws[1].x_px && raws[0].strength > raws[1].strength);
+    for r in &raws {
+        assert!(r.dn > 0.0 && r.d_pf > 0.0 && r.area_px > 0);
+        assert!(r.bbox.x as f64 <= r.x_px && r.x_px <= (r.bbox.x + r.bbox.w) as f64);
+    }
+}
+
+/// A hand-made calibration: x = (x_px - 799.5) / 5 mm, y = 0, F = 1e-4 * D.
+fn linear_calibration(crop: Roi) -> Calibration {
+    let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-799.5 / 5.0, 0.2]).unwrap();
+    let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
+    let vars = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+    let lin = |k: usize| {
+        let mut e = vec![0u32; 6];
+        e[k] = 1;
+        Polynomial::raw(&vars, vec![e], vec![1e-4]).unwrap()
+    };
+    let setup = SensorSetup {
+        geometry: SensorGeometry::default(),
+        crop,
+        thresholds: SegmentationThresholds {
+            preset: "test".into(),
+            magnitude: 0.15,
+            sum: 300.0,
+            erode: 5,
+            dilate: 15,
+        },
+        pipeline: None,
+    };
+    Calibration::new(setup, [g1, g2, lin(0), lin(1), lin(2)], None).unwrap()
+}
+
+fn sensor() -> TactileSensor {
+    let config = SensorConfig {
+        extractor: sensitive(),
+        ..SensorConfig::default()
+    };
+    TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200))).unwrap()
+}
+
+#[test]
+fn contacts_keep_their_ids_and_press_down() {
+    let frames = frames();
+    let mut s = sensor();
+    assert!(matches!(
+        s.process(&frames[1].image, 0.02),
+        Err(Error::NoReference)
+    ));
+    s.set_reference(&frames[0].image).unwrap();
+    let mut ids = Vec::new();
+    for f in &frames[1..] {
+        let contacts = s.process(&f.image, f.t_s).unwrap().to_vec();
+        if f.index == 7 {
+            assert_eq!(contacts.len(), 2);
+            for c in &contacts {
+                // Pixel 699.6 and 899.4 map to -20 and +20 mm with this calibration.
+                assert!((c.location_mm[0].abs() - 20.0).abs() < 2.0, "{c:?}");
+                assert!(c.force_n[2] < 0.0, "a press points down: {c:?}");
+                assert!(c.location_mm[2] > 150.0);
+            }
+        }
+        ids.push(contacts.iter().map(|c| c.id).collect::<Vec<_>>());
+    }
+    // Once both rods are seen, their ids do not change.
+    let last = ids.last().unwrap().clone();
+    assert_eq!(last.len(), 2);
+    let first_full = ids.iter().position(|v| v.len() == 2).unwrap();
+    assert!(ids[first_full..].iter().all(|v| *v == last), "{ids:?}");
+    let t = s.timings();
+    assert!(t.total_ms >= t.flow_ms && t.flow_ms > 0.0);
+}
+
+#[test]
+fn bad_frames_are_errors_and_change_nothing() {
+    let frames = frames();
+    let mut s = sensor();
+    s.set_reference(&frames[0].image).unwrap();
+    let before = s.process(&frames[7].image, 0.14).unwrap().to_vec();
+    let small = frames[7].image.slice(ndarray::s![..100, ..]).to_owned();
+    assert!(matches!(
+        s.process(&small, 0.16),
+        Err(Error::ShapeMismatch { .. })
+    ));
+    let mut nan = frames[7].image.clone();
+    nan[[10, 10]] = f32::NAN;
+    assert!(s.process(&nan, 0.16).is_err());
+    assert_eq!(s.contacts(), &before[..]);
+    // A crop outside the frame.
+    let config = SensorConfig {
+        crop: Some(Roi::new(100, 0, 1600, 200)),
+        extractor: sensitive(),
+        ..SensorConfig::default()
+    };
+    let mut s = TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200))).unwrap();
+    assert!(matches!(
+        s.set_reference(&frames[0].image),
+        Err(Error::CropOutside { .. })
+    ));
+}
