@@ -10,9 +10,12 @@
 //!
 //! ## Units and scale
 //! [`Thresholds`] are stated for the **full-resolution** image (pixels of the
-//! cropped camera frame), so one preset serves any pyramid level. A flow at
-//! `scale` `s` (its width over the full-resolution width, e.g. `0.25` for
-//! DIS's native level 2) is in its own pixels, so on it:
+//! cropped camera frame), so one preset serves any pyramid level. `scale` is
+//! the number of full-resolution pixels per flow pixel, as
+//! `flow::dis::Dis::native_flow` reports it and
+//! [`PatchGrid`](crate::contact::PatchGrid) takes it: 1 at full resolution, 4
+//! for DIS's native level 2, whose flow is in its own (level) pixels. With
+//! `s = 1 / scale`, on such a flow:
 //! - the magnitude threshold is `magnitude * s` (displacements shrink by `s`);
 //! - the summed threshold is `sum * s^3` (`s` for each displacement, `s^2` for
 //!   the number of pixels summed);
@@ -153,12 +156,12 @@ impl Thresholds {
         Ok(())
     }
 
-    /// The thresholds for a flow at `scale` (its width over the full-resolution
-    /// width), in that flow's pixels.
-    pub fn at_scale(&self, scale: f32) -> Result<ScaledThresholds> {
+    /// The thresholds for a flow at `scale` (full-resolution pixels per flow
+    /// pixel), in that flow's pixels.
+    pub fn at_scale(&self, scale: f64) -> Result<ScaledThresholds> {
         self.validate()?;
         check_scale(scale)?;
-        let s = scale as f64;
+        let s = 1.0 / scale;
         Ok(ScaledThresholds {
             magnitude: (self.magnitude as f64 * s) as f32,
             sum: self.sum as f64 * s * s * s,
@@ -242,7 +245,7 @@ impl Thresholds {
         let mag_level = qv * options.headroom;
         drop(mags);
         // 2. Per-frame statistics.
-        let s = options.scale as f64;
+        let s = 1.0 / options.scale;
         let mut seg = Segmenter::new(SegmenterConfig {
             thresholds: Thresholds {
                 magnitude: (mag_level as f64 / s) as f32,
@@ -285,8 +288,8 @@ pub struct RestOptions {
     /// Factor (>= 1) applied to both measured thresholds, for rest frames
     /// noisier than the recorded ones.
     pub headroom: f32,
-    /// Scale of the given flows (their width over the full-resolution width).
-    pub scale: f32,
+    /// Scale of the given flows: full-resolution pixels per flow pixel.
+    pub scale: f64,
     /// Kernels and shape to use (its `magnitude` and `sum` are ignored).
     pub kernels: Thresholds,
 }
@@ -324,9 +327,9 @@ pub struct SegmenterConfig {
     /// Margin added around each box so that a patch holds its whole
     /// deformation, full-resolution pixels (scaled like the kernels).
     pub margin: usize,
-    /// Scale of the flows to segment: their width over the full-resolution
-    /// width (1 for full resolution, 0.25 for DIS's level-2 native flow).
-    pub scale: f32,
+    /// Scale of the flows to segment: full-resolution pixels per flow pixel
+    /// (1 at full resolution, 4 for DIS's level-2 native flow).
+    pub scale: f64,
 }
 
 impl Default for SegmenterConfig {
@@ -401,7 +404,7 @@ impl Segmenter {
         Ok(Segmenter {
             config,
             scaled,
-            margin: (config.margin as f64 * config.scale as f64).round() as usize,
+            margin: (config.margin as f64 / config.scale).round() as usize,
             morph: Morphology::new(),
             contours: ContourFinder::new(),
             raw: Mask::default(),
@@ -508,7 +511,7 @@ fn odd(size: usize, s: f64) -> usize {
     ((((v - 1.0) / 2.0).round().max(0.0)) as usize) * 2 + 1
 }
 
-fn check_scale(scale: f32) -> Result<()> {
+fn check_scale(scale: f64) -> Result<()> {
     if !(scale.is_finite() && scale > 0.0) {
         return Err(Error::param(
             "scale",
@@ -602,12 +605,12 @@ mod tests {
 
     #[test]
     fn scaling_of_the_thresholds() {
-        let t = Thresholds::HIGH.at_scale(0.25).unwrap();
+        let t = Thresholds::HIGH.at_scale(4.0).unwrap();
         assert!((t.magnitude - 0.3).abs() < 1e-6);
         assert!((t.sum - 5000.0 / 64.0).abs() < 1e-9);
         assert_eq!(t.erode, StructuringElement::rect(3, 3));
         assert!(Thresholds::HIGH.at_scale(0.0).is_err());
-        assert!(Thresholds::HIGH.at_scale(f32::NAN).is_err());
+        assert!(Thresholds::HIGH.at_scale(f64::NAN).is_err());
         let bad = Thresholds {
             sum: -1.0,
             ..Thresholds::LOW
