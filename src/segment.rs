@@ -13,7 +13,7 @@
 //! cropped camera frame), so one preset serves any pyramid level. `scale` is
 //! the number of full-resolution pixels per flow pixel, as
 //! `flow::dis::Dis::native_flow` reports it and
-//! [`PatchGrid`](crate::contact::PatchGrid) takes it: 1 at full resolution, 4
+//! [`PatchGrid`] takes it: 1 at full resolution, 4
 //! for DIS's native level 2, whose flow is in its own (level) pixels. With
 //! `s = 1 / scale`, on such a flow:
 //! - the magnitude threshold is `magnitude * s` (displacements shrink by `s`);
@@ -57,9 +57,11 @@
 
 use ndarray::ArrayView2;
 
+use crate::contact::PatchGrid;
 use crate::contours::{BoundingBox, ContourFinder};
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
+use crate::image::Roi;
 use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
 
 /// Segmentation thresholds and kernels, in **full-resolution** pixels (see
@@ -368,6 +370,30 @@ impl ContactPatch {
         flow.window(b.x, b.y, b.width, b.height)
     }
 
+    /// Where the patch sits in the flow's grid, for
+    /// [`contact::raw_quantities`](crate::contact::raw_quantities); `scale` is
+    /// full-resolution pixels per flow pixel (the segmenter's).
+    pub fn grid(&self, scale: f64) -> PatchGrid {
+        PatchGrid {
+            x0: self.bbox.x,
+            y0: self.bbox.y,
+            scale,
+        }
+    }
+
+    /// The patch's box in full-resolution pixels (each flow pixel covers
+    /// `scale x scale` of them; `scale` rounded to a whole number of pixels).
+    pub fn full_res_roi(&self, scale: f64) -> Roi {
+        let k = scale.round().max(1.0) as usize;
+        let b = self.bbox;
+        Roi {
+            x: b.x * k,
+            y: b.y * k,
+            w: b.width * k,
+            h: b.height * k,
+        }
+    }
+
     /// The patch's sub-flow as an owned [`FlowField`].
     pub fn sub_flow(&self, flow: &FlowField) -> Result<FlowField> {
         let (u, v) = self.view(flow)?;
@@ -627,6 +653,36 @@ mod tests {
             })
             .is_err()
         );
+    }
+
+    #[test]
+    fn patch_in_full_resolution() {
+        let p = ContactPatch {
+            bbox: BoundingBox::new(3, 5, 10, 4),
+            core: BoundingBox::new(4, 6, 8, 2),
+            flow_sum: 1.0,
+            area: 16,
+        };
+        assert_eq!(
+            p.full_res_roi(4.0),
+            Roi {
+                x: 12,
+                y: 20,
+                w: 40,
+                h: 16
+            }
+        );
+        assert_eq!(
+            p.full_res_roi(1.0),
+            Roi {
+                x: 3,
+                y: 5,
+                w: 10,
+                h: 4
+            }
+        );
+        let g = p.grid(4.0);
+        assert_eq!((g.x0, g.y0, g.scale), (3, 5, 4.0));
     }
 
     #[test]
