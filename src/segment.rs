@@ -238,14 +238,7 @@ impl Thresholds {
             }
         }
         // 1. Per-pixel quantile.
-        let mut mags: Vec<f32> = Vec::with_capacity(size.0 * size.1 * flows.len());
-        for f in flows {
-            mags.extend(f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)));
-        }
-        let k = ((q * mags.len() as f64).ceil() as usize).clamp(1, mags.len()) - 1;
-        let (_, &mut qv, _) = mags.select_nth_unstable_by(k, f32::total_cmp);
-        let mag_level = qv * options.headroom;
-        drop(mags);
+        let mag_level = magnitude_quantile(flows, q) * options.headroom;
         // 2. Per-frame statistics.
         let s = 1.0 / options.scale;
         let mut seg = Segmenter::new(SegmenterConfig {
@@ -589,6 +582,39 @@ fn box_sum(flow: &FlowField, b: &BoundingBox) -> f64 {
     s
 }
 
+/// The exact `q` quantile of `|flow|` over all pixels of all `flows` (the
+/// value of rank `ceil(q n)`), in bounded memory: a histogram over
+/// `[0, max]` finds the bin holding that rank, then only that bin's values
+/// are kept and selected.
+fn magnitude_quantile(flows: &[FlowField], q: f64) -> f32 {
+    const BINS: usize = 1 << 16;
+    let mags = || {
+        flows
+            .iter()
+            .flat_map(|f| f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)))
+    };
+    let n: usize = flows.iter().map(|f| f.u.len()).sum();
+    let max = mags().fold(0.0f32, f32::max);
+    if n == 0 || max == 0.0 {
+        return 0.0;
+    }
+    let bin = |m: f32| (((m / max) as f64 * BINS as f64) as usize).min(BINS - 1);
+    let mut hist = vec![0usize; BINS];
+    for m in mags() {
+        hist[bin(m)] += 1;
+    }
+    let rank = ((q * n as f64).ceil() as usize).clamp(1, n) - 1;
+    let mut before = 0;
+    let mut b = 0;
+    while before + hist[b] <= rank {
+        before += hist[b];
+        b += 1;
+    }
+    let mut inside: Vec<f32> = mags().filter(|&m| bin(m) == b).collect();
+    let (_, &mut v, _) = inside.select_nth_unstable_by(rank - before, f32::total_cmp);
+    v
+}
+
 /// Largest sum of `|flow|` over any `k x k` window (integral image).
 fn max_window_sum(flow: &FlowField, k: usize, integral: &mut Vec<f64>) -> f64 {
     let (w, h) = flow.size();
@@ -704,6 +730,32 @@ mod tests {
         ] {
             assert!(a.magnitude < b.magnitude && a.sum < b.sum && a.erode <= b.erode);
         }
+    }
+
+    #[test]
+    fn quantile_matches_sorting() {
+        let mut seed = 7u64;
+        let flows: Vec<FlowField> = (0..3)
+            .map(|_| {
+                let mut f = FlowField::zeros(13, 7);
+                for (u, v) in f.u.iter_mut().zip(f.v.iter_mut()) {
+                    seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+                    *u = ((seed >> 40) % 1000) as f32 / 100.0;
+                    *v = ((seed >> 20) % 7) as f32 - 3.0;
+                }
+                f
+            })
+            .collect();
+        let mut all: Vec<f32> = flows
+            .iter()
+            .flat_map(|f| f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)))
+            .collect();
+        all.sort_by(f32::total_cmp);
+        for q in [0.001, 0.1, 0.5, 0.9, 0.99, 0.999999] {
+            let rank = ((q * all.len() as f64).ceil() as usize).clamp(1, all.len()) - 1;
+            assert_eq!(magnitude_quantile(&flows, q), all[rank], "q {q}");
+        }
+        assert_eq!(magnitude_quantile(&[FlowField::zeros(3, 3)], 0.9), 0.0);
     }
 
     #[test]
