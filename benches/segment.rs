@@ -11,7 +11,8 @@ use std::hint::black_box;
 use std::time::Duration;
 
 /// Three presses (Gaussian shear bumps, full-res sigma 40 px, peak 8 px) on
-/// low-level noise (about 0.1 px), sampled at `scale`.
+/// low-level noise (about 0.1 px), sampled with `scale` flow pixels per
+/// full-resolution pixel (values in flow pixels).
 fn flow(w: usize, h: usize, scale: f32) -> FlowField {
     let mut f = FlowField::zeros(w, h);
     let mut s = 0x9E37_79B9u64;
@@ -39,8 +40,9 @@ fn bench(c: &mut Criterion) {
     g.measurement_time(Duration::from_secs(3))
         .warm_up_time(Duration::from_millis(300))
         .sample_size(30);
-    for (w, h, scale) in [(1920usize, 1080usize, 1.0f32), (480, 270, 0.25)] {
-        let f = flow(w, h, scale);
+    for (w, h, sampling) in [(1920usize, 1080usize, 1.0f32), (480, 270, 0.25)] {
+        let f = flow(w, h, sampling);
+        let scale = 1.0 / sampling as f64;
         let mut seg = Segmenter::new(SegmenterConfig {
             thresholds: Thresholds::HIGH,
             margin: 10,

@@ -122,9 +122,7 @@ pub struct ContourFinder {
     labels: Vec<i8>,
     size: (usize, usize),
     /// Flat indices of every traced pixel of the current call (to clear labels).
-    touched: Vec<u32>,
-    /// Start offsets of each contour in `touched`.
-    starts: Vec<usize>,
+    touched: Vec<usize>,
 }
 
 impl ContourFinder {
@@ -147,17 +145,14 @@ impl ContourFinder {
         let mut out = Vec::new();
         self.scan(mask, |bbox, pts| {
             out.push(Contour {
-                points: pts
-                    .iter()
-                    .map(|&i| (i as usize % w, i as usize / w))
-                    .collect(),
+                points: pts.iter().map(|&i| (i % w, i / w)).collect(),
                 bbox,
             })
         });
         out
     }
 
-    fn scan(&mut self, mask: &Mask, mut emit: impl FnMut(BoundingBox, &[u32])) {
+    fn scan(&mut self, mask: &Mask, mut emit: impl FnMut(BoundingBox, &[usize])) {
         let (w, h) = mask.size();
         if self.size != (w, h) {
             self.labels.clear();
@@ -165,13 +160,7 @@ impl ContourFinder {
             self.size = (w, h);
         }
         self.touched.clear();
-        self.starts.clear();
         let wds = mask.words_per_row();
-        // Flat indices are u32: masks above 4 Gpixel are not a use case here.
-        assert!(
-            w * h <= u32::MAX as usize,
-            "mask too large for contour tracing"
-        );
         for y in 0..h {
             let row = mask.row(y);
             let up = (y > 0).then(|| mask.row(y - 1));
@@ -212,7 +201,7 @@ impl ContourFinder {
             }
         }
         for &i in &self.touched {
-            self.labels[i as usize] = 0;
+            self.labels[i] = 0;
         }
     }
 
@@ -231,7 +220,7 @@ impl ContourFinder {
             // An isolated pixel.
             let idx = y0 * w + x0;
             self.labels[idx] = -1;
-            self.touched.push(idx as u32);
+            self.touched.push(idx);
             return BoundingBox::new(x0, y0, 1, 1);
         };
         let (x1, y1) = (sx + DX[d1], sy + DY[d1]);
@@ -258,7 +247,7 @@ impl ContourFinder {
             } else if self.labels[idx] == 0 {
                 self.labels[idx] = 1;
             }
-            self.touched.push(idx as u32);
+            self.touched.push(idx);
             xmin = xmin.min(x3);
             xmax = xmax.max(x3);
             ymin = ymin.min(y3);

@@ -104,6 +104,16 @@ impl Mask {
         self.bits.resize(self.words * height, 0);
     }
 
+    /// Makes `self` a copy of `src`, reusing `self`'s allocation (the derived
+    /// `clone_from` would allocate).
+    pub fn copy_from(&mut self, src: &Mask) {
+        self.width = src.width;
+        self.height = src.height;
+        self.words = src.words;
+        self.bits.clear();
+        self.bits.extend_from_slice(&src.bits);
+    }
+
     /// Width in pixels.
     pub fn width(&self) -> usize {
         self.width
@@ -487,7 +497,8 @@ pub struct Morphology {
     planes: Vec<u64>,
     /// Per ring slot: its source row is empty.
     empty: Vec<bool>,
-    plan: Option<(StructuringElement, Plan)>,
+    /// Plans of the last few elements used.
+    plans: Vec<(StructuringElement, Plan)>,
 }
 
 /// How to dilate by one element.
@@ -572,9 +583,11 @@ impl Morphology {
         erode: bool,
     ) -> Result<()> {
         element.validate()?;
-        let plan = match self.plan.take() {
-            Some((e, p)) if e == *element => p,
-            _ => Plan::new(element),
+        // A few plans are kept: a caller alternating erosion and dilation
+        // kernels (the segmenter) then builds each plan once.
+        let plan = match self.plans.iter().position(|(e, _)| e == element) {
+            Some(i) => self.plans.swap_remove(i).1,
+            None => Plan::new(element),
         };
         // Erosion is the complement of the dilation of the complement (same
         // offsets): outside pixels, 0 for the dilation, act as 1 for erosion.
@@ -582,18 +595,21 @@ impl Morphology {
         if erode {
             complement_into(src, &mut cur);
         } else {
-            cur.clone_from(src);
+            cur.copy_from(src);
         }
         let mut next = std::mem::take(&mut self.b);
         for _ in 0..iterations {
             self.dilate_once(&cur, &mut next, &plan);
             std::mem::swap(&mut cur, &mut next);
         }
-        self.plan = Some((*element, plan));
+        if self.plans.len() >= 4 {
+            self.plans.remove(0);
+        }
+        self.plans.push((*element, plan));
         if erode {
             complement_into(&cur, dst);
         } else {
-            dst.clone_from(&cur);
+            dst.copy_from(&cur);
         }
         self.a = cur;
         self.b = next;

@@ -10,9 +10,12 @@
 //!
 //! ## Units and scale
 //! [`Thresholds`] are stated for the **full-resolution** image (pixels of the
-//! cropped camera frame), so one preset serves any pyramid level. A flow at
-//! `scale` `s` (its width over the full-resolution width, e.g. `0.25` for
-//! DIS's native level 2) is in its own pixels, so on it:
+//! cropped camera frame), so one preset serves any pyramid level. `scale` is
+//! the number of full-resolution pixels per flow pixel, as
+//! `flow::dis::Dis::native_flow` reports it and
+//! [`PatchGrid`] takes it: 1 at full resolution, 4
+//! for DIS's native level 2, whose flow is in its own (level) pixels. With
+//! `s = 1 / scale`, on such a flow:
 //! - the magnitude threshold is `magnitude * s` (displacements shrink by `s`);
 //! - the summed threshold is `sum * s^3` (`s` for each displacement, `s^2` for
 //!   the number of pixels summed);
@@ -54,9 +57,11 @@
 
 use ndarray::ArrayView2;
 
+use crate::contact::PatchGrid;
 use crate::contours::{BoundingBox, ContourFinder};
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
+use crate::image::Roi;
 use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
 
 /// Segmentation thresholds and kernels, in **full-resolution** pixels (see
@@ -153,12 +158,12 @@ impl Thresholds {
         Ok(())
     }
 
-    /// The thresholds for a flow at `scale` (its width over the full-resolution
-    /// width), in that flow's pixels.
-    pub fn at_scale(&self, scale: f32) -> Result<ScaledThresholds> {
+    /// The thresholds for a flow at `scale` (full-resolution pixels per flow
+    /// pixel), in that flow's pixels.
+    pub fn at_scale(&self, scale: f64) -> Result<ScaledThresholds> {
         self.validate()?;
         check_scale(scale)?;
-        let s = scale as f64;
+        let s = 1.0 / scale;
         Ok(ScaledThresholds {
             magnitude: (self.magnitude as f64 * s) as f32,
             sum: self.sum as f64 * s * s * s,
@@ -233,16 +238,9 @@ impl Thresholds {
             }
         }
         // 1. Per-pixel quantile.
-        let mut mags: Vec<f32> = Vec::with_capacity(size.0 * size.1 * flows.len());
-        for f in flows {
-            mags.extend(f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)));
-        }
-        let k = ((q * mags.len() as f64).ceil() as usize).clamp(1, mags.len()) - 1;
-        let (_, &mut qv, _) = mags.select_nth_unstable_by(k, f32::total_cmp);
-        let mag_level = qv * options.headroom;
-        drop(mags);
+        let mag_level = magnitude_quantile(flows, q) * options.headroom;
         // 2. Per-frame statistics.
-        let s = options.scale as f64;
+        let s = 1.0 / options.scale;
         let mut seg = Segmenter::new(SegmenterConfig {
             thresholds: Thresholds {
                 magnitude: (mag_level as f64 / s) as f32,
@@ -285,8 +283,8 @@ pub struct RestOptions {
     /// Factor (>= 1) applied to both measured thresholds, for rest frames
     /// noisier than the recorded ones.
     pub headroom: f32,
-    /// Scale of the given flows (their width over the full-resolution width).
-    pub scale: f32,
+    /// Scale of the given flows: full-resolution pixels per flow pixel.
+    pub scale: f64,
     /// Kernels and shape to use (its `magnitude` and `sum` are ignored).
     pub kernels: Thresholds,
 }
@@ -324,9 +322,9 @@ pub struct SegmenterConfig {
     /// Margin added around each box so that a patch holds its whole
     /// deformation, full-resolution pixels (scaled like the kernels).
     pub margin: usize,
-    /// Scale of the flows to segment: their width over the full-resolution
-    /// width (1 for full resolution, 0.25 for DIS's level-2 native flow).
-    pub scale: f32,
+    /// Scale of the flows to segment: full-resolution pixels per flow pixel
+    /// (1 at full resolution, 4 for DIS's level-2 native flow).
+    pub scale: f64,
 }
 
 impl Default for SegmenterConfig {
@@ -365,6 +363,30 @@ impl ContactPatch {
         flow.window(b.x, b.y, b.width, b.height)
     }
 
+    /// Where the patch sits in the flow's grid, for
+    /// [`contact::raw_quantities`](crate::contact::raw_quantities); `scale` is
+    /// full-resolution pixels per flow pixel (the segmenter's).
+    pub fn grid(&self, scale: f64) -> PatchGrid {
+        PatchGrid {
+            x0: self.bbox.x,
+            y0: self.bbox.y,
+            scale,
+        }
+    }
+
+    /// The patch's box in full-resolution pixels (each flow pixel covers
+    /// `scale x scale` of them; `scale` rounded to a whole number of pixels).
+    pub fn full_res_roi(&self, scale: f64) -> Roi {
+        let k = scale.round().max(1.0) as usize;
+        let b = self.bbox;
+        Roi {
+            x: b.x * k,
+            y: b.y * k,
+            w: b.width * k,
+            h: b.height * k,
+        }
+    }
+
     /// The patch's sub-flow as an owned [`FlowField`].
     pub fn sub_flow(&self, flow: &FlowField) -> Result<FlowField> {
         let (u, v) = self.view(flow)?;
@@ -401,7 +423,7 @@ impl Segmenter {
         Ok(Segmenter {
             config,
             scaled,
-            margin: (config.margin as f64 * config.scale as f64).round() as usize,
+            margin: (config.margin as f64 / config.scale).round() as usize,
             morph: Morphology::new(),
             contours: ContourFinder::new(),
             raw: Mask::default(),
@@ -508,7 +530,7 @@ fn odd(size: usize, s: f64) -> usize {
     ((((v - 1.0) / 2.0).round().max(0.0)) as usize) * 2 + 1
 }
 
-fn check_scale(scale: f32) -> Result<()> {
+fn check_scale(scale: f64) -> Result<()> {
     if !(scale.is_finite() && scale > 0.0) {
         return Err(Error::param(
             "scale",
@@ -539,25 +561,71 @@ fn check_flow(flow: &FlowField) -> Result<()> {
     Ok(())
 }
 
-/// Sum of `|flow|` over a box (f64 accumulation).
+/// Sum of `|flow|` over a box: per row in f32 with eight lanes (vectorises),
+/// rows accumulated in f64. A row whose f32 squares overflow is redone in f64.
 fn box_sum(flow: &FlowField, b: &BoundingBox) -> f64 {
+    let exact = |u: &[f32], v: &[f32]| -> f64 {
+        u.iter()
+            .zip(v)
+            .map(|(&a, &c)| ((a as f64).powi(2) + (c as f64).powi(2)).sqrt())
+            .sum()
+    };
     let mut s = 0.0f64;
     for y in b.y..b.y_end() {
-        let (u, v) = (flow.u.row(y), flow.v.row(y));
-        s += match (u.as_slice(), v.as_slice()) {
-            // Contiguous rows: a plain slice loop vectorises. f64 squares
-            // cannot overflow for f32 inputs (unlike f32 ones; hypot is slow).
-            (Some(u), Some(v)) => u[b.x..b.x_end()]
-                .iter()
-                .zip(&v[b.x..b.x_end()])
-                .map(|(&a, &c)| ((a as f64) * (a as f64) + (c as f64) * (c as f64)).sqrt())
-                .sum::<f64>(),
+        let (ur, vr) = (flow.u.row(y), flow.v.row(y));
+        s += match (ur.as_slice(), vr.as_slice()) {
+            (Some(u), Some(v)) => {
+                let (u, v) = (&u[b.x..b.x_end()], &v[b.x..b.x_end()]);
+                let mut acc = [0.0f32; 8];
+                let (uc, vc) = (u.chunks_exact(8), v.chunks_exact(8));
+                let (ut, vt) = (uc.remainder(), vc.remainder());
+                for (a, c) in uc.zip(vc) {
+                    for i in 0..8 {
+                        acc[i] += (a[i] * a[i] + c[i] * c[i]).sqrt();
+                    }
+                }
+                let row = acc.iter().map(|&x| x as f64).sum::<f64>() + exact(ut, vt);
+                if row.is_finite() { row } else { exact(u, v) }
+            }
             _ => (b.x..b.x_end())
-                .map(|x| ((u[x] as f64).powi(2) + (v[x] as f64).powi(2)).sqrt())
+                .map(|x| ((ur[x] as f64).powi(2) + (vr[x] as f64).powi(2)).sqrt())
                 .sum::<f64>(),
         };
     }
     s
+}
+
+/// The exact `q` quantile of `|flow|` over all pixels of all `flows` (the
+/// value of rank `ceil(q n)`), in bounded memory: a histogram over
+/// `[0, max]` finds the bin holding that rank, then only that bin's values
+/// are kept and selected.
+fn magnitude_quantile(flows: &[FlowField], q: f64) -> f32 {
+    const BINS: usize = 1 << 16;
+    let mags = || {
+        flows
+            .iter()
+            .flat_map(|f| f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)))
+    };
+    let n: usize = flows.iter().map(|f| f.u.len()).sum();
+    let max = mags().fold(0.0f32, f32::max);
+    if n == 0 || max == 0.0 {
+        return 0.0;
+    }
+    let bin = |m: f32| (((m / max) as f64 * BINS as f64) as usize).min(BINS - 1);
+    let mut hist = vec![0usize; BINS];
+    for m in mags() {
+        hist[bin(m)] += 1;
+    }
+    let rank = ((q * n as f64).ceil() as usize).clamp(1, n) - 1;
+    let mut before = 0;
+    let mut b = 0;
+    while before + hist[b] <= rank {
+        before += hist[b];
+        b += 1;
+    }
+    let mut inside: Vec<f32> = mags().filter(|&m| bin(m) == b).collect();
+    let (_, &mut v, _) = inside.select_nth_unstable_by(rank - before, f32::total_cmp);
+    v
 }
 
 /// Largest sum of `|flow|` over any `k x k` window (integral image).
@@ -602,12 +670,12 @@ mod tests {
 
     #[test]
     fn scaling_of_the_thresholds() {
-        let t = Thresholds::HIGH.at_scale(0.25).unwrap();
+        let t = Thresholds::HIGH.at_scale(4.0).unwrap();
         assert!((t.magnitude - 0.3).abs() < 1e-6);
         assert!((t.sum - 5000.0 / 64.0).abs() < 1e-9);
         assert_eq!(t.erode, StructuringElement::rect(3, 3));
         assert!(Thresholds::HIGH.at_scale(0.0).is_err());
-        assert!(Thresholds::HIGH.at_scale(f32::NAN).is_err());
+        assert!(Thresholds::HIGH.at_scale(f64::NAN).is_err());
         let bad = Thresholds {
             sum: -1.0,
             ..Thresholds::LOW
@@ -624,6 +692,36 @@ mod tests {
             })
             .is_err()
         );
+    }
+
+    #[test]
+    fn patch_in_full_resolution() {
+        let p = ContactPatch {
+            bbox: BoundingBox::new(3, 5, 10, 4),
+            core: BoundingBox::new(4, 6, 8, 2),
+            flow_sum: 1.0,
+            area: 16,
+        };
+        assert_eq!(
+            p.full_res_roi(4.0),
+            Roi {
+                x: 12,
+                y: 20,
+                w: 40,
+                h: 16
+            }
+        );
+        assert_eq!(
+            p.full_res_roi(1.0),
+            Roi {
+                x: 3,
+                y: 5,
+                w: 10,
+                h: 4
+            }
+        );
+        let g = p.grid(4.0);
+        assert_eq!((g.x0, g.y0, g.scale), (3, 5, 4.0));
     }
 
     #[test]
@@ -645,6 +743,44 @@ mod tests {
         ] {
             assert!(a.magnitude < b.magnitude && a.sum < b.sum && a.erode <= b.erode);
         }
+    }
+
+    #[test]
+    fn quantile_matches_sorting() {
+        let mut seed = 7u64;
+        let flows: Vec<FlowField> = (0..3)
+            .map(|_| {
+                let mut f = FlowField::zeros(13, 7);
+                for (u, v) in f.u.iter_mut().zip(f.v.iter_mut()) {
+                    seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+                    *u = ((seed >> 40) % 1000) as f32 / 100.0;
+                    *v = ((seed >> 20) % 7) as f32 - 3.0;
+                }
+                f
+            })
+            .collect();
+        let mut all: Vec<f32> = flows
+            .iter()
+            .flat_map(|f| f.u.iter().zip(f.v.iter()).map(|(u, v)| u.hypot(*v)))
+            .collect();
+        all.sort_by(f32::total_cmp);
+        for q in [0.001, 0.1, 0.5, 0.9, 0.99, 0.999999] {
+            let rank = ((q * all.len() as f64).ceil() as usize).clamp(1, all.len()) - 1;
+            assert_eq!(magnitude_quantile(&flows, q), all[rank], "q {q}");
+        }
+        assert_eq!(magnitude_quantile(&[FlowField::zeros(3, 3)], 0.9), 0.0);
+    }
+
+    #[test]
+    fn box_sum_is_accurate_and_survives_overflowing_squares() {
+        let mut f = FlowField::zeros(37, 3);
+        f.u.fill(3.0);
+        f.v.fill(4.0);
+        let b = BoundingBox::new(2, 0, 33, 3);
+        assert!((box_sum(&f, &b) - 5.0 * 99.0).abs() < 1e-9);
+        f.u[[1, 10]] = 1e30;
+        let s = box_sum(&f, &b);
+        assert!(((s - 1e30) / 1e30).abs() < 1e-6, "{s}");
     }
 
     #[test]

@@ -10,7 +10,8 @@ use optical_tactile::morphology::{Mask, Shape, StructuringElement};
 use optical_tactile::segment::{RestOptions, Segmenter, SegmenterConfig, Thresholds};
 
 /// A shear bump: `u = amp exp(-r^2 / 2 sigma^2)`; coordinates in full-res
-/// pixels, sampled at `scale` (values scaled too).
+/// pixels, sampled with `scale` flow pixels per full-res pixel (values in
+/// flow pixels too).
 fn add_shear(f: &mut FlowField, scale: f32, cx: f32, cy: f32, amp: f32, sigma: f32) {
     for ((y, x), u) in f.u.indexed_iter_mut() {
         let (fx, fy) = (
@@ -46,7 +47,7 @@ fn thresholds() -> Thresholds {
     }
 }
 
-fn segmenter(margin: usize, scale: f32) -> Segmenter {
+fn segmenter(margin: usize, scale: f64) -> Segmenter {
     Segmenter::new(SegmenterConfig {
         thresholds: thresholds(),
         margin,
@@ -163,7 +164,7 @@ fn the_same_scene_at_quarter_scale() {
         add_shear(&mut quarter, 0.25, cx, cy, 6.0, 14.0);
     }
     let a = segmenter(8, 1.0).segment(&full).unwrap();
-    let b = segmenter(8, 0.25).segment(&quarter).unwrap();
+    let b = segmenter(8, 4.0).segment(&quarter).unwrap();
     assert_eq!(a.len(), 2);
     assert_eq!(b.len(), 2);
     for (pa, pb) in a.iter().zip(&b) {
@@ -306,7 +307,8 @@ fn noise(rng: &mut Rng, w: usize, h: usize, sigma: f32) -> FlowField {
 #[test]
 fn thresholds_from_rest_noise() {
     let mut rng = Rng(42);
-    let (w, h, scale) = (120, 40, 0.25);
+    // Flows at DIS's level 2: 4 full-resolution pixels per flow pixel.
+    let (w, h, scale) = (120, 40, 4.0);
     let opts = RestOptions {
         false_contact_rate: 0.05,
         scale,
@@ -316,10 +318,7 @@ fn thresholds_from_rest_noise() {
     let t = Thresholds::from_rest(&rest, &opts).unwrap();
     // The magnitude threshold sits in the noise's tail (Rayleigh, sigma 0.1
     // level pixels: the 0.999 quantile is 0.37, times 1.25), in full-res pixels.
-    assert!(
-        t.magnitude > 0.3 / scale && t.magnitude < 0.7 / scale,
-        "{t:?}"
-    );
+    assert!(t.magnitude > 0.3 * 4.0 && t.magnitude < 0.7 * 4.0, "{t:?}");
     assert!(t.sum > 0.0);
     // Twice the noise: twice the thresholds.
     let loud: Vec<FlowField> = (0..40).map(|_| noise(&mut rng, w, h, 0.2)).collect();
@@ -343,7 +342,7 @@ fn thresholds_from_rest_noise() {
     );
     // A real contact (peak 3 level pixels = 30 sigma) is found.
     let mut f = noise(&mut rng, w, h, 0.1);
-    add_shear(&mut f, scale, 200.0, 80.0, 12.0, 20.0);
+    add_shear(&mut f, 0.25, 200.0, 80.0, 12.0, 20.0);
     let p = seg.segment(&f).unwrap();
     assert_eq!(p.len(), 1, "{p:?}");
     assert!(p[0].bbox.contains(50, 20));
