@@ -15,7 +15,9 @@
 //! `--set` overrides one `DisParams` field (finest_scale, coarsest_scale,
 //! patch_size, patch_stride, iterations, mean_normalization,
 //! spatial_propagation, normalized_gradients, prefilter_sigma, backtracking,
-//! stripes). The second form renders a synthetic marker pair (ref.png,
+//! stripes, zero_candidate, prefilter_all_levels, refine_iterations, sor_iterations, exact_derivatives, alpha,
+//! delta, gamma); `--native` times only the flow at its native level (no
+//! final upsampling). The second form renders a synthetic marker pair (ref.png,
 //! cur.png, truth.flo) to try it on.
 
 #[path = "../tests/support/mod.rs"]
@@ -58,6 +60,7 @@ fn run() -> Result<()> {
     let mut repeat = 5usize;
     let (mut out, mut png, mut truth) = (None, None, None);
     let mut sets = Vec::new();
+    let mut native = false;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = || it.next().cloned().ok_or_else(usage);
@@ -69,6 +72,7 @@ fn run() -> Result<()> {
             "--png" => png = Some(val()?),
             "--truth" => truth = Some(val()?),
             "--set" => sets.push(val()?),
+            "--native" => native = true,
             _ if a.starts_with("--") => return Err(usage()),
             _ => pos.push(a.clone()),
         }
@@ -94,7 +98,11 @@ fn run() -> Result<()> {
         let mut times = Vec::with_capacity(repeat);
         for _ in 0..repeat {
             let t = Instant::now();
-            dis.compute_into(&current, &mut flow)?;
+            if native {
+                dis.compute_native(&current)?;
+            } else {
+                dis.compute_into(&current, &mut flow)?;
+            }
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }
         times.sort_by(f64::total_cmp);
@@ -144,6 +152,14 @@ fn apply_set(p: &mut DisParams, s: &str) -> Result<()> {
         "prefilter_sigma" => p.prefilter_sigma = parse_num(k, v)?,
         "backtracking" => p.backtracking = b(v),
         "stripes" => p.stripes = parse_num(k, v)?,
+        "zero_candidate" => p.zero_candidate = b(v),
+        "prefilter_all_levels" => p.prefilter_all_levels = b(v),
+        "refine_iterations" => p.refinement.outer_iterations = parse_num(k, v)?,
+        "sor_iterations" => p.refinement.sor_iterations = parse_num(k, v)?,
+        "exact_derivatives" => p.refinement.exact_derivatives = b(v),
+        "alpha" => p.refinement.alpha = parse_num(k, v)?,
+        "delta" => p.refinement.delta = parse_num(k, v)?,
+        "gamma" => p.refinement.gamma = parse_num(k, v)?,
         _ => return Err(Error::param("set", format!("unknown parameter `{k}`"))),
     }
     Ok(())

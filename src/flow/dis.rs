@@ -23,11 +23,12 @@
 //! `Accurate` preset fixes what makes OpenCV's DIS weak on marker images
 //! (see [`DisPreset::Accurate`]).
 
-use ndarray::ArrayRef2;
+use ndarray::{ArrayRef2, ArrayView2};
 use rayon::prelude::*;
 
 use super::FlowField;
 use super::pyramid::{self, ResizeAxis};
+use super::refine::{RefineParams, VariationalRefiner};
 use crate::error::{Error, Result};
 
 /// Largest supported patch side (keeps the per-patch scratch on the stack).
@@ -40,28 +41,44 @@ pub enum DisPreset {
     /// iterations, no variational refinement.
     Ultrafast,
     /// OpenCV 5 `PRESET_FAST` (the paper's default): scale 2, 8/4 patches,
-    /// 16 descent iterations.
+    /// 16 descent iterations, 5 refinement iterations.
     Fast,
-    /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent iterations.
+    /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent
+    /// iterations, 5 refinement iterations.
     Medium,
-    /// Our marker-image preset: true Gauss-Newton steps (Sobel normalized
-    /// to the true derivative, so each step solves the linearized problem
-    /// instead of moving 1/8 of the way) and the finest scale 1, which avoids
-    /// the sub-pixel bias of 1-px markers shrunk to dots at scale 2.
+    /// Our marker-image preset and the sensor's default: the finest scale
+    /// 1 (1-px markers are sub-pixel dots at scale 2), true Gauss-Newton
+    /// steps (Sobel normalized to the true derivative, so each step solves
+    /// the linearized problem instead of moving 1/8 of the way; 8 iterations
+    /// then do more than 16 did), a Gaussian prefilter of 1.5 level px at the
+    /// finest level, which removes most of the bilinear "peak locking"
+    /// towards whole-pixel shifts (the sub-pixel bias), the zero vector as
+    /// an extra candidate (coarse levels of dense marker images are
+    /// aliased), and one outer iteration of OpenCV's variational refinement
+    /// (needed under strong strain, where rigid patches fail).
     Accurate,
+    /// [`DisPreset::Accurate`] without the refinement and with a stronger
+    /// prefilter (2 level px): about half the time, as accurate on gentle
+    /// motion and with the smallest sub-pixel bias, but much worse under
+    /// strong strain (steep presses: rigid patches with no refinement).
+    Balanced,
 }
 
 impl DisPreset {
-    /// Parses `ultrafast`, `fast`, `medium`, `accurate` (case-insensitive).
+    /// Parses `ultrafast`, `fast`, `medium`, `accurate`, `balanced`
+    /// (case-insensitive).
     pub fn parse(name: &str) -> Result<Self> {
         match name.to_ascii_lowercase().as_str() {
             "ultrafast" => Ok(DisPreset::Ultrafast),
             "fast" => Ok(DisPreset::Fast),
             "medium" => Ok(DisPreset::Medium),
             "accurate" => Ok(DisPreset::Accurate),
+            "balanced" => Ok(DisPreset::Balanced),
             _ => Err(Error::param(
                 "preset",
-                format!("unknown DIS preset `{name}` (ultrafast, fast, medium, accurate)"),
+                format!(
+                    "unknown DIS preset `{name}` (ultrafast, fast, medium, accurate, balanced)"
+                ),
             )),
         }
     }
@@ -73,15 +90,17 @@ impl DisPreset {
             DisPreset::Fast => "fast",
             DisPreset::Medium => "medium",
             DisPreset::Accurate => "accurate",
+            DisPreset::Balanced => "balanced",
         }
     }
 
-    /// All presets, fastest first.
-    pub const ALL: [DisPreset; 4] = [
+    /// All presets.
+    pub const ALL: [DisPreset; 5] = [
         DisPreset::Ultrafast,
         DisPreset::Fast,
         DisPreset::Medium,
         DisPreset::Accurate,
+        DisPreset::Balanced,
     ];
 }
 
@@ -114,10 +133,22 @@ pub struct DisParams {
     /// makes the Sobel gradient match the bilinear cost surface, which
     /// removes the sub-pixel bias of un-filtered DIS.
     pub prefilter_sigma: f32,
+    /// Apply the prefilter at every level, not only the finest (the coarser
+    /// levels are area averages, already smooth).
+    pub prefilter_all_levels: bool,
     /// On a cost increase, halve the step back towards the last better
     /// vector and retry (within the iteration budget) instead of stopping.
     /// `false` stops there, as OpenCV does.
     pub backtracking: bool,
+    /// Variational refinement run on every level's dense flow
+    /// (`outer_iterations == 0` turns it off).
+    pub refinement: RefineParams,
+    /// Also try the zero vector as a candidate before the first descent.
+    /// On marker images the coarse levels are aliased noise and can hand a
+    /// patch a wrong vector; zero motion, the most common state of a
+    /// tactile sensor's skin, is then a better start. Costs one evaluation
+    /// per patch and level.
+    pub zero_candidate: bool,
     /// Fixed number of stripes of patch rows that propagation does not cross
     /// (the unit of parallel work; results do not depend on thread count).
     pub stripes: usize,
@@ -136,12 +167,19 @@ impl DisParams {
             spatial_propagation: true,
             normalized_gradients: false,
             prefilter_sigma: 0.0,
+            prefilter_all_levels: false,
             backtracking: false,
+            refinement: RefineParams::opencv(),
+            zero_candidate: false,
             stripes: 8,
         };
         match preset {
             DisPreset::Ultrafast => DisParams {
                 gradient_descent_iterations: 12,
+                refinement: RefineParams {
+                    outer_iterations: 0,
+                    ..RefineParams::opencv()
+                },
                 ..base
             },
             DisPreset::Fast => base,
@@ -151,14 +189,26 @@ impl DisParams {
                 gradient_descent_iterations: 25,
                 ..base
             },
-            DisPreset::Accurate => DisParams {
+            DisPreset::Balanced => DisParams {
                 finest_scale: 1,
                 patch_stride: 4,
-                gradient_descent_iterations: 16,
+                gradient_descent_iterations: 8,
                 normalized_gradients: true,
-                prefilter_sigma: 0.7,
-                backtracking: true,
+                prefilter_sigma: 2.0,
+                refinement: RefineParams {
+                    outer_iterations: 0,
+                    ..RefineParams::opencv()
+                },
+                zero_candidate: true,
                 ..base
+            },
+            DisPreset::Accurate => DisParams {
+                prefilter_sigma: 1.5,
+                refinement: RefineParams {
+                    outer_iterations: 1,
+                    ..RefineParams::opencv()
+                },
+                ..DisParams::preset(DisPreset::Balanced)
             },
         }
     }
@@ -203,6 +253,7 @@ impl DisParams {
         if self.stripes == 0 {
             return Err(Error::param("stripes", "must be at least 1"));
         }
+        self.refinement.validate()?;
         Ok(())
     }
 }
@@ -252,6 +303,8 @@ struct Level {
     sy: Vec<f32>,
     /// Dense flow at this level, in this level's pixels.
     flow: FlowField,
+    /// Variational refinement with this level's reference cached.
+    refiner: VariationalRefiner,
 }
 
 impl Level {
@@ -319,6 +372,10 @@ pub struct Dis {
     /// Taps from the finest level to full resolution.
     out_x: ResizeAxis,
     out_y: ResizeAxis,
+    /// Scratch for the vertical pass of the final resize.
+    out_tmp: Vec<f32>,
+    /// Prefilter taps.
+    kernel: Vec<f32>,
 }
 
 impl Dis {
@@ -332,6 +389,8 @@ impl Dis {
             levels: Vec::new(),
             out_x: ResizeAxis::default(),
             out_y: ResizeAxis::default(),
+            out_tmp: Vec::new(),
+            kernel: Vec::new(),
         })
     }
 
@@ -401,6 +460,7 @@ impl Dis {
         let mean_norm = p.mean_normalization;
         let mut levels: Vec<Level> = Vec::with_capacity(scales.len());
         let mut levels_raw: Vec<Vec<f32>> = Vec::with_capacity(scales.len());
+        let kernel = pyramid::gaussian_kernel(p.prefilter_sigma);
         for (k, &s) in scales.iter().enumerate() {
             let (lw, lh) = pyramid::level_size(w, h, s);
             let mut i0 = vec![0.0f32; lw * lh];
@@ -412,7 +472,9 @@ impl Dis {
                 pyramid::downsample_area(&levels_raw[k - 1], prev.w, prev.h, 2, &mut i0);
             }
             levels_raw.push(i0.clone());
-            pyramid::gaussian_blur(&mut i0, lw, lh, p.prefilter_sigma, &mut vec![0.0; lw * lh]);
+            if k == 0 || p.prefilter_all_levels {
+                pyramid::gaussian_blur(&mut i0, lw, lh, &kernel, &mut vec![0.0; lw * lh]);
+            }
             let mut gx = vec![0.0f32; lw * lh];
             let mut gy = vec![0.0f32; lw * lh];
             pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy);
@@ -429,6 +491,11 @@ impl Dis {
                 })
                 .collect();
             let n = patches.len();
+            let mut refiner = VariationalRefiner::new(p.refinement);
+            if p.refinement.outer_iterations > 0 {
+                let view = ArrayView2::from_shape((lh, lw), &i0[..]).expect("level shape");
+                refiner.set_reference(view)?;
+            }
             levels.push(Level {
                 w: lw,
                 h: lh,
@@ -447,11 +514,14 @@ impl Dis {
                 sx: vec![0.0; n],
                 sy: vec![0.0; n],
                 flow: FlowField::zeros(lw, lh),
+                refiner,
             });
         }
         let (fw, fh) = (levels[0].w, levels[0].h);
         self.out_x = ResizeAxis::new(fw, w);
         self.out_y = ResizeAxis::new(fh, h);
+        self.out_tmp = vec![0.0; fw * h];
+        self.kernel = kernel;
         self.levels = levels;
         self.width = w;
         self.height = h;
@@ -482,8 +552,9 @@ impl Dis {
             lvl.flow.u.as_slice().expect("standard layout"),
             lvl.flow.v.as_slice().expect("standard layout"),
         );
-        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, ou);
-        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, ov);
+        let tmp = &mut self.out_tmp;
+        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, tmp, ou);
+        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, tmp, ov);
         Ok(())
     }
 
@@ -510,6 +581,10 @@ impl Dis {
             init_patches(lvl, coarser.first(), self.params.patch_size);
             search_level(lvl, &self.params);
             densify(lvl, self.params.patch_size);
+            if self.params.refinement.outer_iterations > 0 {
+                let i1 = ArrayView2::from_shape((lvl.h, lvl.w), &lvl.i1[..]).expect("level shape");
+                lvl.refiner.refine(i1, &mut lvl.flow.u, &mut lvl.flow.v)?;
+            }
         }
         Ok(())
     }
@@ -552,10 +627,14 @@ impl Dis {
         }
         // Filter after the whole pyramid is built: coarser levels average the
         // un-filtered finer ones, exactly as for the reference.
-        let sigma = self.params.prefilter_sigma;
-        if sigma > 0.0 {
-            for lvl in &mut self.levels {
-                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, sigma, &mut lvl.tmp);
+        if !self.kernel.is_empty() {
+            let n = if self.params.prefilter_all_levels {
+                self.levels.len()
+            } else {
+                1
+            };
+            for lvl in &mut self.levels[..n] {
+                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, &self.kernel, &mut lvl.tmp);
             }
         }
         Ok(())
@@ -711,38 +790,56 @@ impl LevelView<'_> {
         let psz = self.psz;
         let fxp = x0 as f32 + u;
         let fyp = y0 as f32 + v;
-        let ixf = fxp.floor();
-        let iyf = fyp.floor();
+        let ixf = fast_floor(fxp);
+        let iyf = fast_floor(fyp);
         let (ax, ay) = (fxp - ixf, fyp - iyf);
         let w00 = (1.0 - ax) * (1.0 - ay);
         let w01 = ax * (1.0 - ay);
         let w10 = (1.0 - ax) * ay;
         let w11 = ax * ay;
-        // Sample window (psz+1)^2 starting at (ix, iy): direct when inside,
-        // else copied with border replication into a stack buffer.
-        let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
+        // Sample window (psz+1)^2 starting at (ix, iy): read in place when
+        // inside, else copied with border replication (the rare slow path).
         let inside = ixf >= 0.0
             && iyf >= 0.0
             && ixf + (psz as f32) < self.w as f32
             && iyf + (psz as f32) < self.h as f32;
-        let (win, stride): (&[f32], usize) = if inside {
+        let wts = [w00, w01, w10, w11];
+        let (sd, mut sd2, mut bx, mut by) = if inside {
             let o = iyf as usize * self.w + ixf as usize;
-            (&self.i1[o..], self.w)
-        } else {
-            let st = psz + 1;
-            // Clamp in f32 first: a wild vector must not overflow the casts.
-            let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
-            for r in 0..st {
-                let yy = cl(iyf + r as f32, self.h);
-                for c in 0..st {
-                    let xx = cl(ixf + c as f32, self.w);
-                    buf[r * st + c] = self.i1[yy * self.w + xx];
-                }
+            let win = &self.i1[o..];
+            if psz == 8 {
+                self.accumulate_fixed::<8>(win, self.w, x0, y0, wts)
+            } else {
+                self.accumulate(win, self.w, x0, y0, wts)
             }
-            (&buf[..], st)
+        } else {
+            self.accumulate_clamped(ixf, iyf, x0, y0, wts)
         };
-        // Per-column accumulators keep the inner loop free of a serial
-        // floating-point dependency (vectorizable, and deterministic).
+        if self.mean_norm {
+            let mean = sd / (psz * psz) as f32;
+            bx -= mean * pr.sgx;
+            by -= mean * pr.sgy;
+            sd2 -= sd * mean;
+        }
+        Eval { ssd: sd2, bx, by }
+    }
+}
+
+impl LevelView<'_> {
+    /// Sums of `d`, `d^2`, `d gx`, `d gy` over the patch at `(x0, y0)`, where
+    /// `d` is the bilinear sample of the window minus the reference. Per-
+    /// column accumulators keep the inner loop free of a serial
+    /// floating-point dependency (vectorizable, and deterministic).
+    #[inline]
+    fn accumulate(
+        &self,
+        win: &[f32],
+        stride: usize,
+        x0: usize,
+        y0: usize,
+        [w00, w01, w10, w11]: [f32; 4],
+    ) -> (f32, f32, f32, f32) {
+        let psz = self.psz;
         let mut ad = [0.0f32; MAX_PATCH_SIZE];
         let mut ad2 = [0.0f32; MAX_PATCH_SIZE];
         let mut abx = [0.0f32; MAX_PATCH_SIZE];
@@ -763,21 +860,92 @@ impl LevelView<'_> {
                 aby[c] += d * gyr[c];
             }
         }
-        let (mut sd, mut sd2, mut bx, mut by) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
         for c in 0..psz {
-            sd += ad[c];
-            sd2 += ad2[c];
-            bx += abx[c];
-            by += aby[c];
+            out.0 += ad[c];
+            out.1 += ad2[c];
+            out.2 += abx[c];
+            out.3 += aby[c];
         }
-        if self.mean_norm {
-            let mean = sd / (psz * psz) as f32;
-            bx -= mean * pr.sgx;
-            by -= mean * pr.sgy;
-            sd2 -= sd * mean;
-        }
-        Eval { ssd: sd2, bx, by }
+        out
     }
+
+    /// [`LevelView::accumulate`] on a window that leaves the image: copied
+    /// with border replication into a stack buffer first.
+    #[cold]
+    #[inline(never)]
+    fn accumulate_clamped(
+        &self,
+        ixf: f32,
+        iyf: f32,
+        x0: usize,
+        y0: usize,
+        wts: [f32; 4],
+    ) -> (f32, f32, f32, f32) {
+        let st = self.psz + 1;
+        let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
+        // Clamp in f32 first: a wild vector must not overflow the casts.
+        let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
+        for r in 0..st {
+            let yy = cl(iyf + r as f32, self.h);
+            for c in 0..st {
+                let xx = cl(ixf + c as f32, self.w);
+                buf[r * st + c] = self.i1[yy * self.w + xx];
+            }
+        }
+        self.accumulate(&buf, st, x0, y0, wts)
+    }
+
+    /// [`LevelView::accumulate`] for a patch side known at compile time:
+    /// fixed-size rows let the compiler unroll and vectorize fully. Same
+    /// operations in the same order, so the same result bit for bit.
+    #[inline]
+    fn accumulate_fixed<const P: usize>(
+        &self,
+        win: &[f32],
+        stride: usize,
+        x0: usize,
+        y0: usize,
+        [w00, w01, w10, w11]: [f32; 4],
+    ) -> (f32, f32, f32, f32) {
+        let mut ad = [0.0f32; P];
+        let mut ad2 = [0.0f32; P];
+        let mut abx = [0.0f32; P];
+        let mut aby = [0.0f32; P];
+        let arr = |s: &[f32], o: usize| -> [f32; P] { s[o..o + P].try_into().expect("P values") };
+        for r in 0..P {
+            let ra = r * stride;
+            let rb = ra + stride;
+            let (a0, a1) = (arr(win, ra), arr(win, ra + 1));
+            let (b0, b1) = (arr(win, rb), arr(win, rb + 1));
+            let o = (y0 + r) * self.w + x0;
+            let (i0r, gxr, gyr) = (arr(self.i0, o), arr(self.gx, o), arr(self.gy, o));
+            for c in 0..P {
+                let s = w00 * a0[c] + w01 * a1[c] + w10 * b0[c] + w11 * b1[c];
+                let d = s - i0r[c];
+                ad[c] += d;
+                ad2[c] += d * d;
+                abx[c] += d * gxr[c];
+                aby[c] += d * gyr[c];
+            }
+        }
+        let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for c in 0..P {
+            out.0 += ad[c];
+            out.1 += ad2[c];
+            out.2 += abx[c];
+            out.3 += aby[c];
+        }
+        out
+    }
+}
+
+/// `floor` without the libm call (exact for |x| < 2^31; larger or NaN
+/// values only ever reach the clamped path).
+#[inline]
+fn fast_floor(x: f32) -> f32 {
+    let t = x as i32 as f32;
+    if t > x { t - 1.0 } else { t }
 }
 
 /// Both propagation passes over all stripes of one level.
@@ -815,6 +983,12 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                         let pr = &patches[gi * ws + j];
                         let (mut u, mut v) = (sx[idx], sy[idx]);
                         let mut cur = view.eval(x0, y0, pr, u, v);
+                        if forward && p.zero_candidate && (u != 0.0 || v != 0.0) {
+                            let e = view.eval(x0, y0, pr, 0.0, 0.0);
+                            if e.ssd < cur.ssd {
+                                (u, v, cur) = (0.0, 0.0, e);
+                            }
+                        }
                         if p.spatial_propagation {
                             let mut try_cand = |n: usize| {
                                 let (cu, cv) = (sx[n], sy[n]);
@@ -853,7 +1027,9 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                             }
                             // Stop when the cost stops falling; keep the
                             // last vector that lowered it.
-                            if !(cur.ssd < prev) {
+                            // (NaN never counts as an improvement.)
+                            let improved = cur.ssd < prev;
+                            if !improved {
                                 if p.backtracking && t > 0 {
                                     u = 0.5 * (u + lu);
                                     v = 0.5 * (v + lv);
@@ -877,7 +1053,8 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                         let du = u - u0;
                         let dv = v - v0;
                         let lim = p.patch_size as f32;
-                        if !(du * du + dv * dv <= lim * lim) {
+                        let within = du * du + dv * dv <= lim * lim;
+                        if !within {
                             (u, v) = (u0, v0);
                         }
                         sx[idx] = u;

@@ -101,12 +101,11 @@ pub fn sobel(img: &[f32], w: usize, h: usize, scale: f32, gx: &mut [f32], gy: &m
         });
 }
 
-/// Separable Gaussian blur of `img` (`w x h`) in place with standard
-/// deviation `sigma` px (radius `ceil(3 sigma)`, reflect-101 borders), using
-/// `tmp` (same size) as scratch. `sigma <= 0` does nothing.
-pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, sigma: f32, tmp: &mut [f32]) {
-    if sigma <= 0.0 || w == 0 || h == 0 {
-        return;
+/// Normalized Gaussian taps of standard deviation `sigma` px, radius
+/// `ceil(3 sigma)`; empty for `sigma <= 0` (no filtering).
+pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
+    if sigma <= 0.0 {
+        return Vec::new();
     }
     let rad = (3.0 * sigma).ceil() as isize;
     let mut k: Vec<f32> = (-rad..=rad)
@@ -114,6 +113,17 @@ pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, sigma: f32, tmp: &mut 
         .collect();
     let sum: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= sum);
+    k
+}
+
+/// Separable convolution of `img` (`w x h`) in place with the symmetric
+/// taps `k` (odd length, e.g. from [`gaussian_kernel`]; empty does nothing),
+/// reflect-101 borders, using `tmp` (same size) as scratch.
+pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, k: &[f32], tmp: &mut [f32]) {
+    if k.is_empty() || w == 0 || h == 0 {
+        return;
+    }
+    let rad = (k.len() / 2) as isize;
     let refl = |i: isize, n: usize| -> usize {
         let n = n as isize;
         if n == 1 {
@@ -200,26 +210,36 @@ impl ResizeAxis {
 
 /// Bilinear resize of `src` (`sw` columns) into `dst` (`dw` columns) with
 /// precomputed taps, multiplying every value by `gain` (the flow rescaling
-/// when moving between pyramid levels).
+/// when moving between pyramid levels). `tmp` (`sw * dh` values) holds the
+/// vertical pass: rows are blended first at the source width (contiguous,
+/// vectorizable), then each output row gathers from one blended row.
 pub fn resize_bilinear(
     src: &[f32],
     sw: usize,
     xs: &ResizeAxis,
     ys: &ResizeAxis,
     gain: f32,
+    tmp: &mut [f32],
     dst: &mut [f32],
 ) {
     let dw = xs.w.len();
-    assert_eq!(dst.len(), dw * ys.w.len());
-    dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
+    let dh = ys.w.len();
+    assert_eq!(dst.len(), dw * dh);
+    assert_eq!(tmp.len(), sw * dh);
+    tmp.par_chunks_mut(sw).enumerate().for_each(|(y, trow)| {
         let r0 = &src[ys.i0[y] as usize * sw..][..sw];
         let r1 = &src[ys.i1[y] as usize * sw..][..sw];
         let wy = ys.w[y];
+        for x in 0..sw {
+            trow[x] = gain * (r0[x] + wy * (r1[x] - r0[x]));
+        }
+    });
+    let tmp = &*tmp;
+    dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
+        let t = &tmp[y * sw..][..sw];
         for x in 0..dw {
             let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
-            let top = r0[a] + wx * (r0[b] - r0[a]);
-            let bot = r1[a] + wx * (r1[b] - r1[a]);
-            drow[x] = gain * (top + wy * (bot - top));
+            drow[x] = t[a] + wx * (t[b] - t[a]);
         }
     });
 }
@@ -230,10 +250,9 @@ pub fn resize_bilinear(
 pub fn sample_clamped(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
     let xc = x.clamp(0.0, (w - 1) as f32);
     let yc = y.clamp(0.0, (h - 1) as f32);
-    let x0 = xc.floor();
-    let y0 = yc.floor();
-    let (fx, fy) = (xc - x0, yc - y0);
-    let (x0, y0) = (x0 as usize, y0 as usize);
+    // Non-negative after the clamp, so truncation is the floor.
+    let (x0, y0) = (xc as usize, yc as usize);
+    let (fx, fy) = (xc - x0 as f32, yc - y0 as f32);
     let x1 = (x0 + 1).min(w - 1);
     let y1 = (y0 + 1).min(h - 1);
     let top = img[y0 * w + x0] + fx * (img[y0 * w + x1] - img[y0 * w + x0]);
@@ -275,7 +294,7 @@ mod tests {
         let mut out = img.clone();
         let mut tmp = vec![0.0; w * h];
         let sigma = 0.8f32;
-        gaussian_blur(&mut out, w, h, sigma, &mut tmp);
+        gaussian_blur(&mut out, w, h, &gaussian_kernel(sigma), &mut tmp);
         let rad = 3i64;
         let kern = |i: i64| (-(i * i) as f64 / (2.0 * (sigma as f64).powi(2))).exp();
         let ksum: f64 = (-rad..=rad).map(kern).sum();
@@ -302,7 +321,7 @@ mod tests {
             }
         }
         let mut c = vec![7.0f32; w * h];
-        gaussian_blur(&mut c, w, h, 1.5, &mut tmp);
+        gaussian_blur(&mut c, w, h, &gaussian_kernel(1.5), &mut tmp);
         assert!(c.iter().all(|v| (v - 7.0).abs() < 1e-4));
     }
 
@@ -334,7 +353,8 @@ mod tests {
         let xs = ResizeAxis::new(sw, dw);
         let ys = ResizeAxis::new(sh, dh);
         let mut dst = vec![0.0; dw * dh];
-        resize_bilinear(&src, sw, &xs, &ys, 2.0, &mut dst);
+        let mut tmp = vec![0.0; sw * dh];
+        resize_bilinear(&src, sw, &xs, &ys, 2.0, &mut tmp, &mut dst);
         for y in 1..dh - 1 {
             for x in 1..dw - 1 {
                 let sx = (x as f32 + 0.5) / 2.0 - 0.5;
