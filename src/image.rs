@@ -1,1 +1,418 @@
 //! Regions of interest, channel selection and conversion to f32 grayscale.
+//!
+//! The markers glow green under UV light, so the green channel carries them;
+//! gray (luma) input is used as it is. Every conversion produces an
+//! `Array2<f32>` of shape `(height, width)` on the 8-bit scale `0..=255`
+//! (16-bit samples are divided by 257, so 65535 maps to 255).
+//!
+//! ```
+//! use optical_tactile::image::{Channel, PixelLayout, Roi, gray_from_u8};
+//! // A 2x2 RGB frame: the green channel is taken.
+//! let rgb = [10, 20, 30, 11, 21, 31, 12, 22, 32, 13, 23, 33];
+//! let g = gray_from_u8(&rgb, 2, 2, 6, PixelLayout::Rgb, Channel::Green).unwrap();
+//! assert_eq!(g[[1, 0]], 22.0);
+//! let roi = Roi::new(1, 0, 1, 2);
+//! assert_eq!(roi.crop(&g).unwrap().dim(), (2, 1));
+//! ```
+
+use ndarray::{Array2, ArrayRef2, ArrayView2, s};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// Which channel of a colour image becomes the grayscale image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Channel {
+    /// The green channel (the markers' fluorescence); for gray input, the gray value.
+    #[default]
+    Green,
+    /// Luma, `0.299 R + 0.587 G + 0.114 B` (Rec. 601); for YUYV input, the Y samples.
+    ///
+    /// (For YUYV input, `Green` is computed from Y, U and V.)
+    Luma,
+}
+
+/// How the pixels of a raw buffer are laid out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelLayout {
+    /// One gray sample per pixel.
+    Gray,
+    /// Red, green, blue.
+    Rgb,
+    /// Red, green, blue, alpha.
+    Rgba,
+    /// Blue, green, red (OpenCV's order).
+    Bgr,
+    /// Packed YUV 4:2:2, two pixels in four bytes `Y0 U Y1 V` (8-bit only).
+    Yuyv,
+}
+
+impl PixelLayout {
+    /// Samples per pixel (YUYV: 2 bytes per pixel on average).
+    pub fn samples_per_pixel(self) -> usize {
+        match self {
+            PixelLayout::Gray => 1,
+            PixelLayout::Yuyv => 2,
+            PixelLayout::Rgb | PixelLayout::Bgr => 3,
+            PixelLayout::Rgba => 4,
+        }
+    }
+}
+
+/// A rectangular region of interest in pixels: left column `x`, top row `y`,
+/// width `w`, height `h`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Roi {
+    /// Left column.
+    pub x: usize,
+    /// Top row.
+    pub y: usize,
+    /// Width in pixels.
+    pub w: usize,
+    /// Height in pixels.
+    pub h: usize,
+}
+
+impl Roi {
+    /// A region from its left column, top row, width and height.
+    pub fn new(x: usize, y: usize, w: usize, h: usize) -> Self {
+        Roi { x, y, w, h }
+    }
+
+    /// The whole of a `width x height` frame.
+    pub fn full(width: usize, height: usize) -> Self {
+        Roi::new(0, 0, width, height)
+    }
+
+    /// Parses `"x,y,w,h"` (as given on a command line).
+    pub fn parse(text: &str) -> Result<Self> {
+        let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+        let bad = || {
+            Error::param(
+                "crop",
+                format!("expected x,y,w,h with whole numbers, got `{text}`"),
+            )
+        };
+        if parts.len() != 4 {
+            return Err(bad());
+        }
+        let mut v = [0usize; 4];
+        for (k, p) in parts.iter().enumerate() {
+            v[k] = p.parse().map_err(|_| bad())?;
+        }
+        Ok(Roi::new(v[0], v[1], v[2], v[3]))
+    }
+
+    /// Errors with [`Error::CropOutside`] unless the region is non-empty and
+    /// lies inside a `width x height` frame.
+    pub fn check(&self, width: usize, height: usize) -> Result<()> {
+        let inside = self.w > 0
+            && self.h > 0
+            && self.x.checked_add(self.w).is_some_and(|r| r <= width)
+            && self.y.checked_add(self.h).is_some_and(|b| b <= height);
+        if inside {
+            Ok(())
+        } else {
+            Err(Error::CropOutside {
+                x: self.x,
+                y: self.y,
+                w: self.w,
+                h: self.h,
+                frame_w: width,
+                frame_h: height,
+            })
+        }
+    }
+
+    /// A view of this region of `image` (no copy).
+    pub fn crop<'a>(&self, image: &'a ArrayRef2<f32>) -> Result<ArrayView2<'a, f32>> {
+        self.check(image.ncols(), image.nrows())?;
+        Ok(image.slice(s![self.y..self.y + self.h, self.x..self.x + self.w]))
+    }
+}
+
+/// Checks the buffer of a `width x height` image with `row_stride` elements per
+/// row and `spp` elements per pixel.
+fn check_buffer(
+    len: usize,
+    width: usize,
+    height: usize,
+    row_stride: usize,
+    spp: usize,
+) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::TooSmall {
+            what: "frame".into(),
+            width,
+            height,
+            min_w: 1,
+            min_h: 1,
+        });
+    }
+    let row = width
+        .checked_mul(spp)
+        .ok_or_else(|| Error::param("width", "too large"))?;
+    if row_stride < row {
+        return Err(Error::param(
+            "row_stride",
+            format!("{row_stride} is shorter than a row of {width} pixels ({row} samples)"),
+        ));
+    }
+    let need = (height - 1)
+        .checked_mul(row_stride)
+        .and_then(|n| n.checked_add(row))
+        .ok_or_else(|| Error::param("height", "too large"))?;
+    if len < need {
+        return Err(Error::param(
+            "buffer",
+            format!("{len} samples for a {width}x{height} frame that needs {need}"),
+        ));
+    }
+    Ok(())
+}
+
+/// Generic conversion: `scale` maps a sample to the 8-bit scale.
+fn convert<T: Copy + Into<f32>>(
+    data: &[T],
+    width: usize,
+    height: usize,
+    row_stride: usize,
+    layout: PixelLayout,
+    channel: Channel,
+    scale: f32,
+) -> Result<Array2<f32>> {
+    check_buffer(
+        data.len(),
+        width,
+        height,
+        row_stride,
+        layout.samples_per_pixel(),
+    )?;
+    if layout == PixelLayout::Yuyv && width % 2 == 1 {
+        return Err(Error::param(
+            "width",
+            format!("YUYV needs an even width, got {width}"),
+        ));
+    }
+    let mut out = Array2::<f32>::zeros((height, width));
+    for (y, mut orow) in out.rows_mut().into_iter().enumerate() {
+        let row = &data[y * row_stride..];
+        let orow = orow
+            .as_slice_mut()
+            .expect("fresh array rows are contiguous");
+        match layout {
+            PixelLayout::Gray => {
+                for (o, &g) in orow.iter_mut().zip(row) {
+                    *o = g.into() * scale;
+                }
+            }
+            // Y0 U Y1 V: two pixels share one chroma pair. Luma is the Y samples
+            // as they are; green is R'G'B' green of full-range BT.601 (JFIF),
+            // G = Y - 0.344136 (U - 128) - 0.714136 (V - 128), clamped to 0..=255.
+            PixelLayout::Yuyv => {
+                for (o, q) in orow.chunks_exact_mut(2).zip(row.chunks_exact(4)) {
+                    let (y0, u, y1, v) = (q[0].into(), q[1].into(), q[2].into(), q[3].into());
+                    match channel {
+                        Channel::Luma => {
+                            o[0] = y0 * scale;
+                            o[1] = y1 * scale;
+                        }
+                        Channel::Green => {
+                            let c = -0.344136 * (u - 128.0) - 0.714136 * (v - 128.0);
+                            o[0] = (y0 + c).clamp(0.0, 255.0) * scale;
+                            o[1] = (y1 + c).clamp(0.0, 255.0) * scale;
+                        }
+                    }
+                }
+            }
+            PixelLayout::Rgb | PixelLayout::Rgba | PixelLayout::Bgr => {
+                let spp = layout.samples_per_pixel();
+                let (ri, bi) = if layout == PixelLayout::Bgr {
+                    (2, 0)
+                } else {
+                    (0, 2)
+                };
+                for (o, px) in orow.iter_mut().zip(row.chunks_exact(spp)) {
+                    *o = match channel {
+                        Channel::Green => px[1].into(),
+                        Channel::Luma => {
+                            0.299 * px[ri].into() + 0.587 * px[1].into() + 0.114 * px[bi].into()
+                        }
+                    } * scale;
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Converts an 8-bit buffer (`row_stride` bytes per row) to f32 grayscale.
+pub fn gray_from_u8(
+    data: &[u8],
+    width: usize,
+    height: usize,
+    row_stride: usize,
+    layout: PixelLayout,
+    channel: Channel,
+) -> Result<Array2<f32>> {
+    convert(data, width, height, row_stride, layout, channel, 1.0)
+}
+
+/// Converts a 16-bit buffer (`row_stride` samples per row) to f32 grayscale on
+/// the 8-bit scale.
+pub fn gray_from_u16(
+    data: &[u16],
+    width: usize,
+    height: usize,
+    row_stride: usize,
+    layout: PixelLayout,
+    channel: Channel,
+) -> Result<Array2<f32>> {
+    if layout == PixelLayout::Yuyv {
+        return Err(Error::param("layout", "YUYV is 8-bit only"));
+    }
+    convert(
+        data,
+        width,
+        height,
+        row_stride,
+        layout,
+        channel,
+        1.0 / 257.0,
+    )
+}
+
+/// Converts a decoded image (8- or 16-bit, gray or RGB(A), or float) to f32 grayscale.
+pub fn gray_from_dynamic(img: &::image::DynamicImage, channel: Channel) -> Result<Array2<f32>> {
+    use ::image::DynamicImage as D;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    match img {
+        D::ImageLuma8(b) => gray_from_u8(b.as_raw(), w, h, w, PixelLayout::Gray, channel),
+        D::ImageRgb8(b) => gray_from_u8(b.as_raw(), w, h, 3 * w, PixelLayout::Rgb, channel),
+        D::ImageRgba8(b) => gray_from_u8(b.as_raw(), w, h, 4 * w, PixelLayout::Rgba, channel),
+        D::ImageLuma16(b) => gray_from_u16(b.as_raw(), w, h, w, PixelLayout::Gray, channel),
+        D::ImageRgb16(b) => gray_from_u16(b.as_raw(), w, h, 3 * w, PixelLayout::Rgb, channel),
+        D::ImageRgba16(b) => gray_from_u16(b.as_raw(), w, h, 4 * w, PixelLayout::Rgba, channel),
+        D::ImageLumaA8(_) => {
+            let b = img.to_luma8();
+            gray_from_u8(b.as_raw(), w, h, w, PixelLayout::Gray, channel)
+        }
+        D::ImageLumaA16(_) => {
+            let b = img.to_luma16();
+            gray_from_u16(b.as_raw(), w, h, w, PixelLayout::Gray, channel)
+        }
+        // Float or future formats: go through 16-bit RGBA, which keeps the channels apart.
+        _ => {
+            let b = img.to_rgba16();
+            gray_from_u16(b.as_raw(), w, h, 4 * w, PixelLayout::Rgba, channel)
+        }
+    }
+}
+
+/// Converts an f32 grayscale image to 8-bit samples (rounded and clamped to 0..=255;
+/// NaN becomes 0).
+pub fn to_u8(image: &ArrayRef2<f32>) -> Vec<u8> {
+    image
+        .iter()
+        .map(|&v| {
+            if v.is_nan() {
+                0
+            } else {
+                v.round().clamp(0.0, 255.0) as u8
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rgb_green_luma_and_bgr() {
+        let rgb = [100u8, 50, 200];
+        let g = gray_from_u8(&rgb, 1, 1, 3, PixelLayout::Rgb, Channel::Green).unwrap();
+        assert_eq!(g[[0, 0]], 50.0);
+        let l = gray_from_u8(&rgb, 1, 1, 3, PixelLayout::Rgb, Channel::Luma).unwrap();
+        assert!((l[[0, 0]] - (29.9 + 29.35 + 22.8)).abs() < 1e-3);
+        let bgr = [200u8, 50, 100];
+        let l2 = gray_from_u8(&bgr, 1, 1, 3, PixelLayout::Bgr, Channel::Luma).unwrap();
+        assert_eq!(l[[0, 0]], l2[[0, 0]]);
+    }
+
+    #[test]
+    fn stride_padding_is_skipped() {
+        // 2x2 gray with one byte of padding per row.
+        let data = [1u8, 2, 99, 3, 4, 99];
+        let g = gray_from_u8(&data, 2, 2, 3, PixelLayout::Gray, Channel::Green).unwrap();
+        assert_eq!(g.into_raw_vec_and_offset().0, vec![1.0, 2.0, 3.0, 4.0]);
+    }
+
+    #[test]
+    fn yuyv_luma_and_green() {
+        // Neutral chroma: green equals luma.
+        let data = [10u8, 128, 20, 128, 30, 128, 40, 128];
+        let g = gray_from_u8(&data, 4, 1, 8, PixelLayout::Yuyv, Channel::Green).unwrap();
+        assert_eq!(g.into_raw_vec_and_offset().0, vec![10.0, 20.0, 30.0, 40.0]);
+        // Pure green (R=0, G=255, B=0) in full-range BT.601: Y=150, U=44, V=21.
+        let data = [150u8, 44, 150, 21];
+        let g = gray_from_u8(&data, 2, 1, 4, PixelLayout::Yuyv, Channel::Green).unwrap();
+        assert!((g[[0, 0]] - 255.0).abs() < 1.5 && (g[[0, 1]] - 255.0).abs() < 1.5);
+        let l = gray_from_u8(&data, 2, 1, 4, PixelLayout::Yuyv, Channel::Luma).unwrap();
+        assert_eq!(l[[0, 1]], 150.0);
+        assert!(gray_from_u8(&[0u8; 6], 3, 1, 6, PixelLayout::Yuyv, Channel::Green).is_err());
+    }
+
+    #[test]
+    fn sixteen_bit_maps_to_eight_bit_scale() {
+        let g =
+            gray_from_u16(&[65535, 0, 257], 3, 1, 3, PixelLayout::Gray, Channel::Green).unwrap();
+        assert_eq!(g.into_raw_vec_and_offset().0, vec![255.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn bad_buffers_are_errors() {
+        assert!(gray_from_u8(&[], 0, 0, 0, PixelLayout::Gray, Channel::Green).is_err());
+        assert!(gray_from_u8(&[1, 2, 3], 2, 2, 2, PixelLayout::Gray, Channel::Green).is_err());
+        assert!(gray_from_u8(&[1, 2, 3, 4], 2, 2, 1, PixelLayout::Gray, Channel::Green).is_err());
+        assert!(
+            gray_from_u8(
+                &[1; 4],
+                usize::MAX,
+                2,
+                usize::MAX,
+                PixelLayout::Rgb,
+                Channel::Green
+            )
+            .is_err()
+        );
+    }
+
+    #[test]
+    fn crop_inside_and_outside() {
+        let img = Array2::from_shape_fn((4, 5), |(y, x)| (10 * y + x) as f32);
+        let c = Roi::new(1, 2, 3, 2).crop(&img).unwrap();
+        assert_eq!(c[[0, 0]], 21.0);
+        assert_eq!(c.dim(), (2, 3));
+        assert!(matches!(
+            Roi::new(3, 0, 3, 1).crop(&img),
+            Err(Error::CropOutside { .. })
+        ));
+        assert!(Roi::new(0, 0, 0, 1).crop(&img).is_err());
+        assert!(Roi::new(usize::MAX, 0, 2, 1).crop(&img).is_err());
+    }
+
+    #[test]
+    fn roi_parsing() {
+        assert_eq!(Roi::parse("1, 2,3,4").unwrap(), Roi::new(1, 2, 3, 4));
+        assert!(Roi::parse("1,2,3").is_err());
+        assert!(Roi::parse("1,2,3,-4").is_err());
+    }
+
+    #[test]
+    fn to_u8_rounds_and_clamps() {
+        let a = ndarray::arr2(&[[-3.0f32, 0.4, 0.6, 300.0, f32::NAN]]);
+        assert_eq!(to_u8(&a), vec![0, 0, 1, 255, 0]);
+    }
+}

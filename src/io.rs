@@ -1,1 +1,739 @@
-//! File formats: Middlebury .flo, .npy, PNG sequences, JSON Lines.
+//! File formats: Middlebury `.flo`, 2-D `.npy`, PNG images and sequences, JSON
+//! Lines of contacts, the characterization dataset's `tests.csv` and `poses.csv`.
+//!
+//! The formats are specified in `shared/DATASET.md`; they are interfaces with
+//! other tools, so they are written exactly and read strictly: every error
+//! names the file (and the line, for line-oriented files).
+
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array2, ArrayRef2};
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::flow::FlowField;
+use crate::image::{Channel, gray_from_dynamic, to_u8};
+
+/// The magic number at the start of a Middlebury `.flo` file ("PIEH" as a float).
+pub const FLO_MAGIC: f32 = 202021.25;
+
+/// Largest width or height accepted when reading dense fields (guards against
+/// a corrupt header asking for terabytes).
+const MAX_SIDE: usize = 1 << 16;
+
+fn open(path: &Path) -> Result<File> {
+    File::open(path).map_err(|e| Error::io(path, e))
+}
+
+fn create(path: &Path) -> Result<BufWriter<File>> {
+    File::create(path)
+        .map(BufWriter::new)
+        .map_err(|e| Error::io(path, e))
+}
+
+fn read_all(path: &Path) -> Result<Vec<u8>> {
+    let mut buf = Vec::new();
+    open(path)?
+        .read_to_end(&mut buf)
+        .map_err(|e| Error::io(path, e))?;
+    Ok(buf)
+}
+
+// ---------------------------------------------------------------- images
+
+/// Reads a PNG (8- or 16-bit; gray, gray+alpha, RGB or RGBA) as f32 grayscale on
+/// the 8-bit scale; colour images give their green channel.
+pub fn read_gray(path: impl AsRef<Path>) -> Result<Array2<f32>> {
+    read_gray_channel(path, Channel::Green)
+}
+
+/// Like [`read_gray`], choosing the channel of colour images.
+pub fn read_gray_channel(path: impl AsRef<Path>, channel: Channel) -> Result<Array2<f32>> {
+    let path = path.as_ref();
+    let bytes = read_all(path)?;
+    let img = ::image::load_from_memory(&bytes).map_err(|source| Error::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    gray_from_dynamic(&img, channel)
+}
+
+/// Writes an f32 grayscale image as an 8-bit gray PNG (rounded, clamped to 0..=255).
+pub fn write_gray_png(path: impl AsRef<Path>, image: &ArrayRef2<f32>) -> Result<()> {
+    let path = path.as_ref();
+    let (h, w) = image.dim();
+    write_png(path, &to_u8(image), w, h, ::image::ExtendedColorType::L8)
+}
+
+/// Writes an 8-bit RGB image (`3 * width * height` bytes, row-major) as PNG.
+pub fn write_rgb_png(
+    path: impl AsRef<Path>,
+    rgb: &[u8],
+    width: usize,
+    height: usize,
+) -> Result<()> {
+    if rgb.len() != 3 * width * height {
+        return Err(Error::param(
+            "rgb",
+            format!("{} bytes for a {width}x{height} RGB image", rgb.len()),
+        ));
+    }
+    write_png(
+        path.as_ref(),
+        rgb,
+        width,
+        height,
+        ::image::ExtendedColorType::Rgb8,
+    )
+}
+
+fn write_png(
+    path: &Path,
+    data: &[u8],
+    width: usize,
+    height: usize,
+    color: ::image::ExtendedColorType,
+) -> Result<()> {
+    use ::image::ImageEncoder;
+    if width == 0 || height == 0 {
+        return Err(Error::TooSmall {
+            what: format!("image for {}", path.display()),
+            width,
+            height,
+            min_w: 1,
+            min_h: 1,
+        });
+    }
+    let mut out = create(path)?;
+    ::image::codecs::png::PngEncoder::new(&mut out)
+        .write_image(data, width as u32, height as u32, color)
+        .map_err(|source| Error::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    out.flush().map_err(|e| Error::io(path, e))
+}
+
+/// The frames of an image sequence: the `.png` files of `dir` (case-insensitive
+/// extension) in lexicographic order, which is time order. Other files
+/// (`truth.jsonl`, `poses.csv`, ...) are ignored. Errors if there is none.
+pub fn list_frames(dir: impl AsRef<Path>) -> Result<Vec<PathBuf>> {
+    let dir = dir.as_ref();
+    let mut frames = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
+        let path = entry.map_err(|e| Error::io(dir, e))?.path();
+        let is_png = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+        if is_png && path.is_file() {
+            frames.push(path);
+        }
+    }
+    if frames.is_empty() {
+        return Err(Error::format(dir, None, "no .png frames in this directory"));
+    }
+    frames.sort();
+    Ok(frames)
+}
+
+// ---------------------------------------------------------------- .flo
+
+/// Writes a flow as Middlebury `.flo`.
+pub fn write_flo(path: impl AsRef<Path>, flow: &FlowField) -> Result<()> {
+    let path = path.as_ref();
+    let (w, h) = flow.size();
+    let mut buf = Vec::with_capacity(12 + 8 * w * h);
+    buf.extend_from_slice(&FLO_MAGIC.to_le_bytes());
+    buf.extend_from_slice(&(w as i32).to_le_bytes());
+    buf.extend_from_slice(&(h as i32).to_le_bytes());
+    for (u, v) in flow.u.iter().zip(flow.v.iter()) {
+        buf.extend_from_slice(&u.to_le_bytes());
+        buf.extend_from_slice(&v.to_le_bytes());
+    }
+    let mut out = create(path)?;
+    out.write_all(&buf)
+        .and_then(|_| out.flush())
+        .map_err(|e| Error::io(path, e))
+}
+
+/// Reads a Middlebury `.flo` file.
+pub fn read_flo(path: impl AsRef<Path>) -> Result<FlowField> {
+    let path = path.as_ref();
+    let buf = read_all(path)?;
+    if buf.len() < 12 {
+        return Err(Error::format(
+            path,
+            None,
+            "shorter than a .flo header (12 bytes)",
+        ));
+    }
+    let word = |k: usize| [buf[4 * k], buf[4 * k + 1], buf[4 * k + 2], buf[4 * k + 3]];
+    let magic = f32::from_le_bytes(word(0));
+    if magic != FLO_MAGIC {
+        return Err(Error::format(
+            path,
+            None,
+            format!("bad magic {magic} (a .flo file starts with {FLO_MAGIC})"),
+        ));
+    }
+    let (w, h) = (i32::from_le_bytes(word(1)), i32::from_le_bytes(word(2)));
+    if w <= 0 || h <= 0 || w as usize > MAX_SIDE || h as usize > MAX_SIDE {
+        return Err(Error::format(
+            path,
+            None,
+            format!("implausible size {w}x{h}"),
+        ));
+    }
+    let (w, h) = (w as usize, h as usize);
+    let need = 12 + 8 * w * h;
+    if buf.len() != need {
+        return Err(Error::format(
+            path,
+            None,
+            format!("{} bytes, but a {w}x{h} flow takes {need}", buf.len()),
+        ));
+    }
+    let mut u = Array2::zeros((h, w));
+    let mut v = Array2::zeros((h, w));
+    for (k, (pu, pv)) in u.iter_mut().zip(v.iter_mut()).enumerate() {
+        *pu = f32::from_le_bytes(word(3 + 2 * k));
+        *pv = f32::from_le_bytes(word(4 + 2 * k));
+    }
+    FlowField::from_planes(u, v)
+}
+
+// ---------------------------------------------------------------- .npy
+
+fn npy_header(descr: &str, h: usize, w: usize) -> Vec<u8> {
+    let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({h}, {w}), }}");
+    // Pad with spaces so that magic + len + header + '\n' is a multiple of 64.
+    let unpadded = 10 + dict.len() + 1;
+    dict.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    dict.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out
+}
+
+fn write_npy<T: Copy>(
+    path: &Path,
+    a: &ArrayRef2<T>,
+    descr: &str,
+    bytes: impl Fn(T) -> Vec<u8>,
+) -> Result<()> {
+    let (h, w) = a.dim();
+    let mut buf = npy_header(descr, h, w);
+    for &x in a.iter() {
+        buf.extend_from_slice(&bytes(x));
+    }
+    let mut out = create(path)?;
+    out.write_all(&buf)
+        .and_then(|_| out.flush())
+        .map_err(|e| Error::io(path, e))
+}
+
+/// Writes a 2-D f32 array as `.npy` (`<f4`, C order).
+pub fn write_npy_f32(path: impl AsRef<Path>, a: &ArrayRef2<f32>) -> Result<()> {
+    write_npy(path.as_ref(), a, "<f4", |x| x.to_le_bytes().to_vec())
+}
+
+/// Writes a 2-D f64 array as `.npy` (`<f8`, C order).
+pub fn write_npy_f64(path: impl AsRef<Path>, a: &ArrayRef2<f64>) -> Result<()> {
+    write_npy(path.as_ref(), a, "<f8", |x| x.to_le_bytes().to_vec())
+}
+
+/// Reads a 2-D `.npy` of little-endian f4 or f8 (C or Fortran order) as f64.
+pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<Array2<f64>> {
+    let path = path.as_ref();
+    let buf = read_all(path)?;
+    let bad = |m: String| Error::format(path, None, m);
+    if buf.len() < 10 || &buf[..6] != b"\x93NUMPY" {
+        return Err(bad("not a .npy file (bad magic)".into()));
+    }
+    let (hlen, start) = match buf[6] {
+        1 => (u16::from_le_bytes([buf[8], buf[9]]) as usize, 10),
+        2 | 3 if buf.len() >= 12 => (
+            u32::from_le_bytes([buf[8], buf[9], buf[10], buf[11]]) as usize,
+            12,
+        ),
+        v => return Err(bad(format!("unsupported .npy version {v}"))),
+    };
+    let header = buf
+        .get(start..start + hlen)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or_else(|| bad("truncated or non-text header".into()))?;
+    let field = |key: &str| -> Option<&str> {
+        let at = header.find(&format!("'{key}'"))? + key.len() + 2;
+        let rest = header[at..].trim_start().strip_prefix(':')?.trim_start();
+        Some(rest)
+    };
+    let descr = field("descr")
+        .and_then(|r| r.strip_prefix('\''))
+        .and_then(|r| r.split('\'').next())
+        .ok_or_else(|| bad("header has no 'descr'".into()))?;
+    let size = match descr {
+        "<f4" => 4,
+        "<f8" => 8,
+        d => return Err(bad(format!("dtype {d} is not supported (need <f4 or <f8)"))),
+    };
+    let fortran = field("fortran_order")
+        .map(|r| r.starts_with("True"))
+        .ok_or_else(|| bad("header has no 'fortran_order'".into()))?;
+    let shape = field("shape")
+        .and_then(|r| r.strip_prefix('('))
+        .and_then(|r| r.split(')').next())
+        .ok_or_else(|| bad("header has no 'shape'".into()))?;
+    let dims: Vec<usize> = shape
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse::<usize>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad(format!("bad shape ({shape})")))?;
+    let [h, w] = dims[..] else {
+        return Err(bad(format!("expected a 2-D array, got shape ({shape})")));
+    };
+    if h > MAX_SIDE || w > MAX_SIDE {
+        return Err(bad(format!("implausible shape ({h}, {w})")));
+    }
+    let data = &buf[start + hlen..];
+    if data.len() != h * w * size {
+        return Err(bad(format!(
+            "{} data bytes, but shape ({h}, {w}) of {descr} takes {}",
+            data.len(),
+            h * w * size
+        )));
+    }
+    let values: Vec<f64> = if size == 4 {
+        data.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
+            .collect()
+    } else {
+        data.chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("chunk of 8")))
+            .collect()
+    };
+    let a = if fortran {
+        Array2::from_shape_vec((w, h), values)
+            .map(|a| a.reversed_axes().as_standard_layout().into_owned())
+    } else {
+        Array2::from_shape_vec((h, w), values)
+    };
+    a.map_err(|e| bad(e.to_string()))
+}
+
+/// Reads a 2-D `.npy` of f4 or f8 as f32.
+pub fn read_npy_f32(path: impl AsRef<Path>) -> Result<Array2<f32>> {
+    Ok(read_npy_f64(path)?.mapv(|x| x as f32))
+}
+
+// ---------------------------------------------------------------- JSON Lines
+
+/// One contact as written to (and read from) contacts JSON Lines and `truth.jsonl`.
+///
+/// `x_mm..fz_n` are in the sensor frame; `x_px, y_px` in the cropped image;
+/// `dx, dy, dz` the raw displacements rotated into the sensor frame. Keys that are
+/// `None` are left out when writing and may be absent when reading.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ContactRecord {
+    /// Stable contact id (tracking), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub id: Option<u64>,
+    /// Location along the chord, mm.
+    pub x_mm: f64,
+    /// Location across the width, mm.
+    pub y_mm: f64,
+    /// Height on the skin, mm.
+    pub z_mm: f64,
+    /// Force along x, N.
+    pub fx_n: f64,
+    /// Force along y, N.
+    pub fy_n: f64,
+    /// Force along z, N (a press is negative).
+    pub fz_n: f64,
+    /// Contact point column in the cropped image, px.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x_px: Option<f64>,
+    /// Contact point row in the cropped image, px.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub y_px: Option<f64>,
+    /// Potential spread `max D - min D`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub d_pf: Option<f64>,
+    /// Raw displacement along sensor x.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dx: Option<f64>,
+    /// Raw displacement along sensor y.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dy: Option<f64>,
+    /// Raw displacement along sensor z.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dz: Option<f64>,
+    /// Patch area in pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub area_px: Option<u64>,
+}
+
+/// One line of a contacts JSON Lines file: a processed frame and its contacts.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct FrameRecord {
+    /// Frame name (file name within the sequence, or a path).
+    pub frame: String,
+    /// Time stamp in seconds.
+    pub t_s: f64,
+    /// Contacts seen in this frame (empty if none).
+    pub contacts: Vec<ContactRecord>,
+    /// Processing time of this frame in ms, if recorded (optional extension).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub latency_ms: Option<f64>,
+}
+
+/// Writes JSON Lines, one record per line, flushed after every line so that
+/// nothing already written is lost if the run stops.
+pub struct JsonlWriter {
+    path: PathBuf,
+    out: BufWriter<File>,
+}
+
+impl JsonlWriter {
+    /// Creates (truncates) the file.
+    pub fn create(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref().to_path_buf();
+        let out = create(&path)?;
+        Ok(JsonlWriter { path, out })
+    }
+
+    /// Appends one record as one line.
+    pub fn write<T: Serialize>(&mut self, record: &T) -> Result<()> {
+        let line = serde_json::to_string(record)
+            .map_err(|e| Error::format(&self.path, None, format!("cannot serialize: {e}")))?;
+        writeln!(self.out, "{line}")
+            .and_then(|_| self.out.flush())
+            .map_err(|e| Error::io(&self.path, e))
+    }
+}
+
+/// Reads a JSON Lines file (blank lines are skipped); errors name the line.
+pub fn read_jsonl<T: DeserializeOwned>(path: impl AsRef<Path>) -> Result<Vec<T>> {
+    let path = path.as_ref();
+    let mut out = Vec::new();
+    for (k, line) in BufReader::new(open(path)?).lines().enumerate() {
+        let line = line.map_err(|e| Error::io(path, e))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let rec = serde_json::from_str(&line)
+            .map_err(|e| Error::format(path, Some(k + 1), e.to_string()))?;
+        out.push(rec);
+    }
+    Ok(out)
+}
+
+// ---------------------------------------------------------------- CSV
+
+/// A minimal CSV table: a header and rows of fields (no quoting: the dataset
+/// formats contain no commas inside fields).
+struct Csv {
+    path: PathBuf,
+    header: Vec<String>,
+    rows: Vec<(usize, Vec<String>)>,
+}
+
+impl Csv {
+    fn read(path: &Path) -> Result<Csv> {
+        let mut lines = BufReader::new(open(path)?).lines().enumerate();
+        let header = loop {
+            match lines.next() {
+                None => return Err(Error::format(path, None, "empty file: no header line")),
+                Some((_, l)) => {
+                    let l = l.map_err(|e| Error::io(path, e))?;
+                    if !l.trim().is_empty() {
+                        break l;
+                    }
+                }
+            }
+        };
+        let header: Vec<String> = header
+            .trim_start_matches('\u{feff}')
+            .split(',')
+            .map(|s| s.trim().to_string())
+            .collect();
+        let mut rows = Vec::new();
+        for (k, l) in lines {
+            let l = l.map_err(|e| Error::io(path, e))?;
+            if l.trim().is_empty() {
+                continue;
+            }
+            let fields: Vec<String> = l.split(',').map(|s| s.trim().to_string()).collect();
+            if fields.len() != header.len() {
+                return Err(Error::format(
+                    path,
+                    Some(k + 1),
+                    format!(
+                        "{} fields, but the header has {}",
+                        fields.len(),
+                        header.len()
+                    ),
+                ));
+            }
+            rows.push((k + 1, fields));
+        }
+        Ok(Csv {
+            path: path.to_path_buf(),
+            header,
+            rows,
+        })
+    }
+
+    /// Index of a required column.
+    fn col(&self, name: &str) -> Result<usize> {
+        self.header.iter().position(|h| h == name).ok_or_else(|| {
+            Error::format(
+                &self.path,
+                Some(1),
+                format!(
+                    "missing column `{name}` (header: {})",
+                    self.header.join(",")
+                ),
+            )
+        })
+    }
+
+    fn parse<T: std::str::FromStr>(&self, line: usize, row: &[String], col: usize) -> Result<T> {
+        row[col].parse().map_err(|_| {
+            Error::format(
+                &self.path,
+                Some(line),
+                format!("column `{}`: cannot parse `{}`", self.header[col], row[col]),
+            )
+        })
+    }
+}
+
+/// Which part of the characterization dataset a test belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Split {
+    /// Used to fit the polynomials.
+    Train,
+    /// Used to choose each polynomial's order.
+    Val,
+    /// Held out; the reported errors.
+    Test,
+}
+
+impl Split {
+    /// The name used in `tests.csv`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Val => "val",
+            Split::Test => "test",
+        }
+    }
+}
+
+impl std::str::FromStr for Split {
+    type Err = ();
+    fn from_str(s: &str) -> std::result::Result<Self, ()> {
+        match s {
+            "train" => Ok(Split::Train),
+            "val" => Ok(Split::Val),
+            "test" => Ok(Split::Test),
+            _ => Err(()),
+        }
+    }
+}
+
+/// One row of a characterization dataset's `tests.csv` (DATASET.md).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TestRow {
+    /// Test number.
+    pub test: usize,
+    /// Loaded frame, relative to the CSV's directory.
+    pub frame: String,
+    /// Unloaded reference frame taken just before, relative to the CSV's directory.
+    pub reference: String,
+    /// Measuring point (1-15).
+    pub point: u32,
+    /// Indenter (cylinder) diameter, mm.
+    pub indenter_mm: f64,
+    /// Sensor yaw during the test, degrees (label only).
+    pub yaw_deg: f64,
+    /// Sensor pitch during the test, degrees (label only).
+    pub pitch_deg: f64,
+    /// Repetition, from 1.
+    pub repeat: u32,
+    /// Commanded force magnitude, N.
+    pub force_n: f64,
+    /// Train / val / test.
+    pub split: Split,
+    /// True contact location along the chord, mm.
+    pub x_mm: f64,
+    /// True contact location across, mm.
+    pub y_mm: f64,
+    /// True force along x, N.
+    pub fx_n: f64,
+    /// True force along y, N.
+    pub fy_n: f64,
+    /// True force along z, N.
+    pub fz_n: f64,
+}
+
+const TEST_COLUMNS: [&str; 15] = [
+    "test",
+    "frame",
+    "reference",
+    "point",
+    "indenter_mm",
+    "yaw_deg",
+    "pitch_deg",
+    "repeat",
+    "force_n",
+    "split",
+    "x_mm",
+    "y_mm",
+    "fx_n",
+    "fy_n",
+    "fz_n",
+];
+
+/// Reads a characterization dataset's `tests.csv`. Columns may come in any
+/// order and extra columns are ignored; a missing column, an unparsable value
+/// or an unknown split is an error naming the file and line.
+pub fn read_tests_csv(path: impl AsRef<Path>) -> Result<Vec<TestRow>> {
+    let csv = Csv::read(path.as_ref())?;
+    let mut c = [0usize; 15];
+    for (k, name) in TEST_COLUMNS.iter().enumerate() {
+        c[k] = csv.col(name)?;
+    }
+    let mut out = Vec::with_capacity(csv.rows.len());
+    for (line, r) in &csv.rows {
+        let line = *line;
+        let split = r[c[9]].parse().map_err(|_| {
+            Error::format(
+                &csv.path,
+                Some(line),
+                format!("unknown split `{}` (expected train, val or test)", r[c[9]]),
+            )
+        })?;
+        out.push(TestRow {
+            test: csv.parse(line, r, c[0])?,
+            frame: r[c[1]].clone(),
+            reference: r[c[2]].clone(),
+            point: csv.parse(line, r, c[3])?,
+            indenter_mm: csv.parse(line, r, c[4])?,
+            yaw_deg: csv.parse(line, r, c[5])?,
+            pitch_deg: csv.parse(line, r, c[6])?,
+            repeat: csv.parse(line, r, c[7])?,
+            force_n: csv.parse(line, r, c[8])?,
+            split,
+            x_mm: csv.parse(line, r, c[10])?,
+            y_mm: csv.parse(line, r, c[11])?,
+            fx_n: csv.parse(line, r, c[12])?,
+            fy_n: csv.parse(line, r, c[13])?,
+            fz_n: csv.parse(line, r, c[14])?,
+        });
+    }
+    Ok(out)
+}
+
+/// Writes a characterization dataset's `tests.csv`.
+pub fn write_tests_csv(path: impl AsRef<Path>, rows: &[TestRow]) -> Result<()> {
+    let path = path.as_ref();
+    let mut s = TEST_COLUMNS.join(",");
+    s.push('\n');
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            r.test,
+            r.frame,
+            r.reference,
+            r.point,
+            r.indenter_mm,
+            r.yaw_deg,
+            r.pitch_deg,
+            r.repeat,
+            r.force_n,
+            r.split.as_str(),
+            r.x_mm,
+            r.y_mm,
+            r.fx_n,
+            r.fy_n,
+            r.fz_n
+        );
+    }
+    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+}
+
+/// One row of `poses.csv`: the body pose in the world frame at a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseRow {
+    /// Frame file name.
+    pub frame: String,
+    /// Time stamp, s.
+    pub t_s: f64,
+    /// Position x, m.
+    pub x_m: f64,
+    /// Position y, m.
+    pub y_m: f64,
+    /// Position z, m.
+    pub z_m: f64,
+    /// Orientation quaternion, scalar part.
+    pub qw: f64,
+    /// Orientation quaternion, x.
+    pub qx: f64,
+    /// Orientation quaternion, y.
+    pub qy: f64,
+    /// Orientation quaternion, z.
+    pub qz: f64,
+}
+
+const POSE_COLUMNS: [&str; 9] = ["frame", "t_s", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz"];
+
+/// Reads `poses.csv` (DATASET.md); errors name the file and line.
+pub fn read_poses_csv(path: impl AsRef<Path>) -> Result<Vec<PoseRow>> {
+    let csv = Csv::read(path.as_ref())?;
+    let mut c = [0usize; 9];
+    for (k, name) in POSE_COLUMNS.iter().enumerate() {
+        c[k] = csv.col(name)?;
+    }
+    csv.rows
+        .iter()
+        .map(|(line, r)| {
+            let f = |k: usize| csv.parse::<f64>(*line, r, c[k]);
+            Ok(PoseRow {
+                frame: r[c[0]].clone(),
+                t_s: f(1)?,
+                x_m: f(2)?,
+                y_m: f(3)?,
+                z_m: f(4)?,
+                qw: f(5)?,
+                qx: f(6)?,
+                qy: f(7)?,
+                qz: f(8)?,
+            })
+        })
+        .collect()
+}
+
+/// Writes `poses.csv`.
+pub fn write_poses_csv(path: impl AsRef<Path>, rows: &[PoseRow]) -> Result<()> {
+    let path = path.as_ref();
+    let mut s = POSE_COLUMNS.join(",");
+    s.push('\n');
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{},{}",
+            r.frame, r.t_s, r.x_m, r.y_m, r.z_m, r.qw, r.qx, r.qy, r.qz
+        );
+    }
+    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+}

@@ -25,8 +25,11 @@
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
 pub mod calibration;
+pub mod capture;
+pub mod contact;
 pub mod contours;
 pub mod error;
+pub mod evaluate;
 pub mod flow;
 pub mod geometry;
 pub mod hhd;
@@ -36,6 +39,8 @@ pub mod morphology;
 pub mod poly;
 pub mod segment;
 pub mod sim;
+pub mod track;
+pub mod viz;
 
 pub use error::{Error, Result};
 pub use flow::FlowField;

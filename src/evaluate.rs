@@ -1,0 +1,227 @@
+//! Scoring predicted contacts against ground truth (DATASET.md: contacts JSON
+//! Lines against `truth.jsonl`).
+//!
+//! Frames are paired by their `frame` name. Within a frame, predicted and true
+//! contacts are matched one to one by distance along the chord (`x_mm`),
+//! closest pairs first, within a gate; a true contact left unmatched is a
+//! **miss**, a predicted one a **false contact**. Errors are averaged over the
+//! matched pairs.
+//!
+//! ```
+//! use optical_tactile::evaluate::{Evaluation, score};
+//! use optical_tactile::io::{ContactRecord, FrameRecord};
+//! let c = |x, fz| ContactRecord { x_mm: x, fz_n: fz, ..Default::default() };
+//! let frame = |cs| FrameRecord { frame: "0.png".into(), t_s: 0.0, contacts: cs, latency_ms: None };
+//! let e: Evaluation = score(&[frame(vec![c(10.5, -1.0)])], &[frame(vec![c(10.0, -1.2), c(50.0, -1.0)])], 5.0);
+//! assert_eq!((e.matched, e.misses, e.false_contacts), (1, 1, 0));
+//! assert!((e.mae_x_mm - 0.5).abs() < 1e-12);
+//! ```
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+
+use serde::Serialize;
+
+use crate::io::{ContactRecord, FrameRecord};
+
+/// The scores of a prediction against the truth.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Evaluation {
+    /// Frames present in both files.
+    pub frames: usize,
+    /// Frames of the prediction with no frame of that name in the truth.
+    pub unmatched_frames: usize,
+    /// Matched contact pairs.
+    pub matched: usize,
+    /// True contacts with no prediction.
+    pub misses: usize,
+    /// Predicted contacts with no true contact.
+    pub false_contacts: usize,
+    /// Mean |x error|, mm.
+    pub mae_x_mm: f64,
+    /// Mean |y error|, mm.
+    pub mae_y_mm: f64,
+    /// Mean |z error|, mm.
+    pub mae_z_mm: f64,
+    /// Mean 3-D location error, mm.
+    pub mean_location_error_mm: f64,
+    /// Mean |Fx error|, N.
+    pub mae_fx_n: f64,
+    /// Mean |Fy error|, N.
+    pub mae_fy_n: f64,
+    /// Mean |Fz error|, N.
+    pub mae_fz_n: f64,
+    /// Median per-frame latency, ms (if the prediction recorded it).
+    pub median_latency_ms: Option<f64>,
+    /// 95th percentile per-frame latency, ms (if recorded).
+    pub p95_latency_ms: Option<f64>,
+}
+
+/// Matches contacts one to one by |x| distance within `gate_mm`, closest first.
+/// Returns the index pairs `(predicted, true)`.
+pub fn match_contacts(
+    pred: &[ContactRecord],
+    truth: &[ContactRecord],
+    gate_mm: f64,
+) -> Vec<(usize, usize)> {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (i, p) in pred.iter().enumerate() {
+        for (j, t) in truth.iter().enumerate() {
+            let d = (p.x_mm - t.x_mm).abs();
+            if d <= gate_mm {
+                pairs.push((d, i, j));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let (mut up, mut ut) = (vec![false; pred.len()], vec![false; truth.len()]);
+    let mut out = Vec::new();
+    for (_, i, j) in pairs {
+        if !up[i] && !ut[j] {
+            up[i] = true;
+            ut[j] = true;
+            out.push((i, j));
+        }
+    }
+    out
+}
+
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    let k = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[k]
+}
+
+/// Scores `pred` against `truth` (frames paired by name).
+pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evaluation {
+    let by_name: HashMap<&str, &FrameRecord> =
+        truth.iter().map(|f| (f.frame.as_str(), f)).collect();
+    let mut e = Evaluation::default();
+    let mut sums = [0.0f64; 7];
+    let mut latencies = Vec::new();
+    for p in pred {
+        if let Some(l) = p.latency_ms {
+            latencies.push(l);
+        }
+        let Some(t) = by_name.get(p.frame.as_str()) else {
+            e.unmatched_frames += 1;
+            continue;
+        };
+        e.frames += 1;
+        let m = match_contacts(&p.contacts, &t.contacts, gate_mm);
+        e.matched += m.len();
+        e.misses += t.contacts.len() - m.len();
+        e.false_contacts += p.contacts.len() - m.len();
+        for (i, j) in m {
+            let (a, b) = (&p.contacts[i], &t.contacts[j]);
+            let d = [a.x_mm - b.x_mm, a.y_mm - b.y_mm, a.z_mm - b.z_mm];
+            sums[0] += d[0].abs();
+            sums[1] += d[1].abs();
+            sums[2] += d[2].abs();
+            sums[3] += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            sums[4] += (a.fx_n - b.fx_n).abs();
+            sums[5] += (a.fy_n - b.fy_n).abs();
+            sums[6] += (a.fz_n - b.fz_n).abs();
+        }
+    }
+    let n = e.matched.max(1) as f64;
+    [
+        e.mae_x_mm,
+        e.mae_y_mm,
+        e.mae_z_mm,
+        e.mean_location_error_mm,
+        e.mae_fx_n,
+        e.mae_fy_n,
+        e.mae_fz_n,
+    ] = sums.map(|s| s / n);
+    if !latencies.is_empty() {
+        latencies.sort_by(f64::total_cmp);
+        e.median_latency_ms = Some(quantile(&latencies, 0.5));
+        e.p95_latency_ms = Some(quantile(&latencies, 0.95));
+    }
+    e
+}
+
+impl Evaluation {
+    /// A markdown table of the scores.
+    pub fn to_markdown(&self) -> String {
+        let mut s = String::from("| quantity | value |\n|---|---|\n");
+        let mut row = |k: &str, v: String| {
+            let _ = writeln!(s, "| {k} | {v} |");
+        };
+        row("frames scored", self.frames.to_string());
+        if self.unmatched_frames > 0 {
+            row(
+                "frames missing from the truth",
+                self.unmatched_frames.to_string(),
+            );
+        }
+        row("matched contacts", self.matched.to_string());
+        row("misses", self.misses.to_string());
+        row("false contacts", self.false_contacts.to_string());
+        row("MAE x (mm)", format!("{:.3}", self.mae_x_mm));
+        row("MAE y (mm)", format!("{:.3}", self.mae_y_mm));
+        row("MAE z (mm)", format!("{:.3}", self.mae_z_mm));
+        row(
+            "mean 3-D location error (mm)",
+            format!("{:.3}", self.mean_location_error_mm),
+        );
+        row("MAE Fx (N)", format!("{:.4}", self.mae_fx_n));
+        row("MAE Fy (N)", format!("{:.4}", self.mae_fy_n));
+        row("MAE Fz (N)", format!("{:.4}", self.mae_fz_n));
+        if let (Some(m), Some(p)) = (self.median_latency_ms, self.p95_latency_ms) {
+            row("latency median / p95 (ms)", format!("{m:.2} / {p:.2}"));
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn c(x: f64, fz: f64) -> ContactRecord {
+        ContactRecord {
+            x_mm: x,
+            fz_n: fz,
+            ..Default::default()
+        }
+    }
+
+    fn f(name: &str, cs: Vec<ContactRecord>, lat: Option<f64>) -> FrameRecord {
+        FrameRecord {
+            frame: name.into(),
+            t_s: 0.0,
+            contacts: cs,
+            latency_ms: lat,
+        }
+    }
+
+    #[test]
+    fn closest_pairs_win_and_each_contact_is_used_once() {
+        let p = [c(0.0, 0.0), c(9.0, 0.0)];
+        let t = [c(8.0, 0.0), c(1.0, 0.0)];
+        assert_eq!(match_contacts(&p, &t, 5.0), vec![(0, 1), (1, 0)]);
+        // Both predictions near the same truth: one match, one false contact.
+        let p = [c(0.0, 0.0), c(0.5, 0.0)];
+        assert_eq!(match_contacts(&p, &[c(0.4, 0.0)], 5.0), vec![(1, 0)]);
+    }
+
+    #[test]
+    fn scores_count_misses_false_contacts_and_errors() {
+        let truth = vec![
+            f("a", vec![c(0.0, -1.0), c(40.0, -2.0)], None),
+            f("b", vec![], None),
+        ];
+        let pred = vec![
+            f("a", vec![c(1.0, -1.5), c(100.0, -1.0)], Some(2.0)),
+            f("b", vec![c(3.0, -0.1)], Some(4.0)),
+            f("zzz", vec![], Some(3.0)),
+        ];
+        let e = score(&pred, &truth, 10.0);
+        assert_eq!((e.frames, e.unmatched_frames), (2, 1));
+        assert_eq!((e.matched, e.misses, e.false_contacts), (1, 1, 2));
+        assert_eq!((e.mae_x_mm, e.mae_fz_n), (1.0, 0.5));
+        assert_eq!(e.median_latency_ms, Some(3.0));
+        assert!(e.to_markdown().contains("| misses | 1 |"));
+    }
+}

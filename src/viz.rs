@@ -1,0 +1,341 @@
+//! Debug pictures: an RGB [`Canvas`] with the few drawing operations the
+//! paper's GUI needs (scalar fields in false colour, grayscale images, boxes,
+//! contours, dots, arrows), written as PNG.
+//!
+//! Drawing never panics: anything outside the canvas is clipped.
+//!
+//! ```
+//! use optical_tactile::viz::{Canvas, Rgb};
+//! let mut c = Canvas::new(40, 20, Rgb::BLACK);
+//! c.rect(2, 2, 10, 8, Rgb::GREEN);
+//! c.arrow(20.0, 10.0, 35.0, 10.0, Rgb::RED);
+//! c.dot(-5.0, -5.0, 3.0, Rgb::WHITE); // off the canvas: clipped, no panic
+//! assert_eq!(c.get(2, 5), Some(Rgb::GREEN));
+//! ```
+
+use std::path::Path;
+
+use ndarray::ArrayRef2;
+
+use crate::error::Result;
+
+/// An 8-bit RGB colour.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rgb(pub u8, pub u8, pub u8);
+
+impl Rgb {
+    /// Black.
+    pub const BLACK: Rgb = Rgb(0, 0, 0);
+    /// White.
+    pub const WHITE: Rgb = Rgb(255, 255, 255);
+    /// Red.
+    pub const RED: Rgb = Rgb(230, 40, 40);
+    /// Green.
+    pub const GREEN: Rgb = Rgb(40, 220, 60);
+    /// Blue.
+    pub const BLUE: Rgb = Rgb(50, 110, 255);
+    /// Yellow.
+    pub const YELLOW: Rgb = Rgb(250, 220, 30);
+    /// Cyan.
+    pub const CYAN: Rgb = Rgb(40, 220, 230);
+    /// Magenta.
+    pub const MAGENTA: Rgb = Rgb(230, 50, 230);
+}
+
+/// A perceptual colour map (viridis, dark blue -> green -> yellow) at `t` in 0..=1.
+pub fn colormap(t: f64) -> Rgb {
+    // Viridis sampled at 9 points, linearly interpolated.
+    const STOPS: [[f64; 3]; 9] = [
+        [68.0, 1.0, 84.0],
+        [71.0, 44.0, 122.0],
+        [59.0, 81.0, 139.0],
+        [44.0, 113.0, 142.0],
+        [33.0, 144.0, 141.0],
+        [39.0, 173.0, 129.0],
+        [92.0, 200.0, 99.0],
+        [170.0, 220.0, 50.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) } * 8.0;
+    let k = (t.floor() as usize).min(7);
+    let f = t - k as f64;
+    let c = |i: usize| (STOPS[k][i] * (1.0 - f) + STOPS[k + 1][i] * f).round() as u8;
+    Rgb(c(0), c(1), c(2))
+}
+
+/// A diverging colour map (blue -> white -> red) at `t` in -1..=1.
+pub fn diverging(t: f64) -> Rgb {
+    let t = if t.is_nan() { 0.0 } else { t.clamp(-1.0, 1.0) };
+    let a = (255.0 * (1.0 - t.abs())).round() as u8;
+    if t >= 0.0 {
+        Rgb(255, a, a)
+    } else {
+        Rgb(a, a, 255)
+    }
+}
+
+/// An RGB image to draw on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Canvas {
+    width: usize,
+    height: usize,
+    data: Vec<u8>,
+}
+
+impl Canvas {
+    /// A canvas filled with one colour.
+    pub fn new(width: usize, height: usize, fill: Rgb) -> Self {
+        let mut data = Vec::with_capacity(3 * width * height);
+        for _ in 0..width * height {
+            data.extend_from_slice(&[fill.0, fill.1, fill.2]);
+        }
+        Canvas {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// The RGB bytes, row-major.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.data
+    }
+
+    /// The colour at `(x, y)`, if inside.
+    pub fn get(&self, x: usize, y: usize) -> Option<Rgb> {
+        (x < self.width && y < self.height).then(|| {
+            let k = 3 * (y * self.width + x);
+            Rgb(self.data[k], self.data[k + 1], self.data[k + 2])
+        })
+    }
+
+    /// Sets one pixel; outside the canvas does nothing.
+    pub fn set(&mut self, x: i64, y: i64, c: Rgb) {
+        if x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height {
+            let k = 3 * (y as usize * self.width + x as usize);
+            self.data[k..k + 3].copy_from_slice(&[c.0, c.1, c.2]);
+        }
+    }
+
+    /// Draws a grayscale image (8-bit scale) at `(x0, y0)`, each source pixel
+    /// as a `scale x scale` block.
+    pub fn gray(&mut self, img: &ArrayRef2<f32>, x0: i64, y0: i64, scale: usize) {
+        self.field(img, x0, y0, scale, |v| {
+            let g = if v.is_nan() {
+                0
+            } else {
+                v.round().clamp(0.0, 255.0) as u8
+            };
+            Rgb(g, g, g)
+        });
+    }
+
+    /// Draws a scalar field in false colour, mapped linearly from its own
+    /// minimum (dark) to maximum (bright); a constant field is drawn dark.
+    pub fn scalar(&mut self, f: &ArrayRef2<f64>, x0: i64, y0: i64, scale: usize) {
+        let (lo, hi) = f
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                (a.min(v), b.max(v))
+            });
+        let span = if hi > lo { hi - lo } else { 1.0 };
+        self.field(f, x0, y0, scale, |v| colormap((v - lo) / span));
+    }
+
+    /// Draws a signed scalar field with the diverging map, symmetric about 0.
+    pub fn signed(&mut self, f: &ArrayRef2<f64>, x0: i64, y0: i64, scale: usize) {
+        let m = f
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0f64, |a, &v| a.max(v.abs()));
+        let m = if m > 0.0 { m } else { 1.0 };
+        self.field(f, x0, y0, scale, |v| diverging(v / m));
+    }
+
+    fn field<T: Copy>(
+        &mut self,
+        f: &ArrayRef2<T>,
+        x0: i64,
+        y0: i64,
+        scale: usize,
+        color: impl Fn(T) -> Rgb,
+    ) {
+        let s = scale.max(1) as i64;
+        for ((y, x), &v) in f.indexed_iter() {
+            let c = color(v);
+            for dy in 0..s {
+                for dx in 0..s {
+                    self.set(x0 + x as i64 * s + dx, y0 + y as i64 * s + dy, c);
+                }
+            }
+        }
+    }
+
+    /// Copies another canvas in at `(x0, y0)` (clipped).
+    pub fn blit(&mut self, other: &Canvas, x0: i64, y0: i64) {
+        for y in 0..other.height {
+            for x in 0..other.width {
+                let c = other.get(x, y).expect("inside");
+                self.set(x0 + x as i64, y0 + y as i64, c);
+            }
+        }
+    }
+
+    /// A straight line from `(x0, y0)` to `(x1, y1)` (Bresenham on rounded ends).
+    pub fn line(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, c: Rgb) {
+        if ![x0, y0, x1, y1]
+            .iter()
+            .all(|v| v.is_finite() && v.abs() < 1e7)
+        {
+            return;
+        }
+        let (mut x, mut y) = (x0.round() as i64, y0.round() as i64);
+        let (xe, ye) = (x1.round() as i64, y1.round() as i64);
+        let (dx, dy) = ((xe - x).abs(), -(ye - y).abs());
+        let (sx, sy) = (if x < xe { 1 } else { -1 }, if y < ye { 1 } else { -1 });
+        let mut err = dx + dy;
+        loop {
+            self.set(x, y, c);
+            if x == xe && y == ye {
+                break;
+            }
+            let e2 = 2 * err;
+            if e2 >= dy {
+                err += dy;
+                x += sx;
+            }
+            if e2 <= dx {
+                err += dx;
+                y += sy;
+            }
+        }
+    }
+
+    /// The outline of the rectangle with top-left `(x, y)`, width `w`, height `h`.
+    pub fn rect(&mut self, x: i64, y: i64, w: i64, h: i64, c: Rgb) {
+        if w <= 0 || h <= 0 {
+            return;
+        }
+        let (x1, y1) = ((x + w - 1) as f64, (y + h - 1) as f64);
+        let (x0, y0) = (x as f64, y as f64);
+        self.line(x0, y0, x1, y0, c);
+        self.line(x0, y1, x1, y1, c);
+        self.line(x0, y0, x0, y1, c);
+        self.line(x1, y0, x1, y1, c);
+    }
+
+    /// A filled disc of radius `r` centred at `(x, y)`.
+    pub fn dot(&mut self, x: f64, y: f64, r: f64, c: Rgb) {
+        if !(x.is_finite() && y.is_finite() && (0.0..=1e4).contains(&r)) {
+            return;
+        }
+        let ri = r.ceil() as i64;
+        let (cx, cy) = (x.round() as i64, y.round() as i64);
+        for dy in -ri..=ri {
+            for dx in -ri..=ri {
+                if ((dx * dx + dy * dy) as f64) <= r * r + 0.25 {
+                    self.set(cx + dx, cy + dy, c);
+                }
+            }
+        }
+    }
+
+    /// An arrow from `(x0, y0)` to `(x1, y1)` with a head at the end.
+    pub fn arrow(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, c: Rgb) {
+        self.line(x0, y0, x1, y1, c);
+        let (dx, dy) = (x1 - x0, y1 - y0);
+        let len = dx.hypot(dy);
+        if !(len.is_finite() && len > 1.0) {
+            return;
+        }
+        let head = (len * 0.3).clamp(3.0, 12.0);
+        let (ux, uy) = (dx / len, dy / len);
+        for side in [-1.0, 1.0] {
+            // Two strokes at +-30 degrees back from the tip.
+            let (cs, sn) = (0.866, 0.5 * side);
+            let bx = -(ux * cs - uy * sn) * head;
+            let by = -(uy * cs + ux * sn) * head;
+            self.line(x1, y1, x1 + bx, y1 + by, c);
+        }
+    }
+
+    /// A closed polyline through `points` (e.g. a contour), each scaled by `scale`.
+    pub fn polygon(&mut self, points: &[(f64, f64)], scale: f64, c: Rgb) {
+        for k in 0..points.len() {
+            let (a, b) = (points[k], points[(k + 1) % points.len()]);
+            self.line(a.0 * scale, a.1 * scale, b.0 * scale, b.1 * scale, c);
+        }
+    }
+
+    /// Writes the canvas as an RGB PNG.
+    pub fn save_png(&self, path: impl AsRef<Path>) -> Result<()> {
+        crate::io::write_rgb_png(path, &self.data, self.width, self.height)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_hit_both_ends_and_are_clipped() {
+        let mut c = Canvas::new(10, 10, Rgb::BLACK);
+        c.line(1.0, 1.0, 8.0, 5.0, Rgb::WHITE);
+        assert_eq!(c.get(1, 1), Some(Rgb::WHITE));
+        assert_eq!(c.get(8, 5), Some(Rgb::WHITE));
+        // A line far outside, or with NaN, changes nothing and does not panic.
+        let before = c.clone();
+        c.line(-100.0, -100.0, -50.0, -3.0, Rgb::RED);
+        c.line(f64::NAN, 0.0, 3.0, 3.0, Rgb::RED);
+        c.dot(f64::INFINITY, 0.0, 2.0, Rgb::RED);
+        assert_eq!(c, before);
+    }
+
+    #[test]
+    fn rect_outline_only() {
+        let mut c = Canvas::new(10, 10, Rgb::BLACK);
+        c.rect(2, 3, 5, 4, Rgb::GREEN);
+        assert_eq!(c.get(2, 3), Some(Rgb::GREEN));
+        assert_eq!(c.get(6, 6), Some(Rgb::GREEN));
+        assert_eq!(c.get(4, 5), Some(Rgb::BLACK));
+        assert_eq!(c.get(7, 6), Some(Rgb::BLACK));
+    }
+
+    #[test]
+    fn dot_is_round() {
+        let mut c = Canvas::new(11, 11, Rgb::BLACK);
+        c.dot(5.0, 5.0, 3.0, Rgb::RED);
+        assert_eq!(c.get(8, 5), Some(Rgb::RED));
+        assert_eq!(c.get(8, 8), Some(Rgb::BLACK));
+    }
+
+    #[test]
+    fn colormaps_span_their_ends() {
+        assert_eq!(colormap(0.0), Rgb(68, 1, 84));
+        assert_eq!(colormap(1.0), Rgb(253, 231, 37));
+        assert_eq!(colormap(f64::NAN), colormap(0.0));
+        assert_eq!(diverging(0.0), Rgb::WHITE);
+        assert_eq!(diverging(1.0), Rgb(255, 0, 0));
+        assert_eq!(diverging(-1.0), Rgb(0, 0, 255));
+    }
+
+    #[test]
+    fn fields_scale_up() {
+        let f = ndarray::arr2(&[[0.0f64, 1.0]]);
+        let mut c = Canvas::new(4, 2, Rgb::BLACK);
+        c.scalar(&f, 0, 0, 2);
+        assert_eq!(c.get(1, 1), Some(colormap(0.0)));
+        assert_eq!(c.get(3, 0), Some(colormap(1.0)));
+    }
+}
