@@ -189,7 +189,7 @@ fn synth(args: &[String]) -> Result<()> {
     let d = Path::new(dir);
     write_gray_png(d.join("ref.png"), &r)?;
     write_gray_png(d.join("cur.png"), &c)?;
-    write_flo(&d.join("truth.flo"), &t)?;
+    write_flo(d.join("truth.flo"), &t)?;
     let maxm = t.magnitude().iter().cloned().fold(0.0f32, f32::max);
     println!("wrote {dir}: {w}x{h}, max motion {maxm:.2} px");
     Ok(())
