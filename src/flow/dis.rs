@@ -793,17 +793,13 @@ impl LevelView<'_> {
         let ixf = fast_floor(fxp);
         let iyf = fast_floor(fyp);
         let (ax, ay) = (fxp - ixf, fyp - iyf);
-        let w00 = (1.0 - ax) * (1.0 - ay);
-        let w01 = ax * (1.0 - ay);
-        let w10 = (1.0 - ax) * ay;
-        let w11 = ax * ay;
         // Sample window (psz+1)^2 starting at (ix, iy): read in place when
         // inside, else copied with border replication (the rare slow path).
         let inside = ixf >= 0.0
             && iyf >= 0.0
             && ixf + (psz as f32) < self.w as f32
             && iyf + (psz as f32) < self.h as f32;
-        let wts = [w00, w01, w10, w11];
+        let wts = [ax, ay];
         let (sd, mut sd2, mut bx, mut by) = if inside {
             let o = iyf as usize * self.w + ixf as usize;
             let win = &self.i1[o..];
@@ -837,35 +833,41 @@ impl LevelView<'_> {
         stride: usize,
         x0: usize,
         y0: usize,
-        [w00, w01, w10, w11]: [f32; 4],
+        [ax, ay]: [f32; 2],
     ) -> (f32, f32, f32, f32) {
         let psz = self.psz;
-        let mut ad = [0.0f32; MAX_PATCH_SIZE];
-        let mut ad2 = [0.0f32; MAX_PATCH_SIZE];
-        let mut abx = [0.0f32; MAX_PATCH_SIZE];
-        let mut aby = [0.0f32; MAX_PATCH_SIZE];
+        let mut acc = [[0.0f32; MAX_PATCH_SIZE]; 4];
+        // Bilinear as two lerps: along x per window row, then along y.
+        let lerp_row = |r: usize| -> [f32; MAX_PATCH_SIZE] {
+            let row = &win[r * stride..][..psz + 1];
+            let mut h = [0.0f32; MAX_PATCH_SIZE];
+            for c in 0..psz {
+                h[c] = row[c] + ax * (row[c + 1] - row[c]);
+            }
+            h
+        };
+        let mut top = lerp_row(0);
         for r in 0..psz {
-            let a = &win[r * stride..][..psz + 1];
-            let b = &win[(r + 1) * stride..][..psz + 1];
+            let bot = lerp_row(r + 1);
             let o = (y0 + r) * self.w + x0;
             let i0r = &self.i0[o..][..psz];
             let gxr = &self.gx[o..][..psz];
             let gyr = &self.gy[o..][..psz];
             for c in 0..psz {
-                let s = w00 * a[c] + w01 * a[c + 1] + w10 * b[c] + w11 * b[c + 1];
-                let d = s - i0r[c];
-                ad[c] += d;
-                ad2[c] += d * d;
-                abx[c] += d * gxr[c];
-                aby[c] += d * gyr[c];
+                let d = top[c] + ay * (bot[c] - top[c]) - i0r[c];
+                acc[0][c] += d;
+                acc[1][c] += d * d;
+                acc[2][c] += d * gxr[c];
+                acc[3][c] += d * gyr[c];
             }
+            top = bot;
         }
         let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
         for c in 0..psz {
-            out.0 += ad[c];
-            out.1 += ad2[c];
-            out.2 += abx[c];
-            out.3 += aby[c];
+            out.0 += acc[0][c];
+            out.1 += acc[1][c];
+            out.2 += acc[2][c];
+            out.3 += acc[3][c];
         }
         out
     }
@@ -880,7 +882,7 @@ impl LevelView<'_> {
         iyf: f32,
         x0: usize,
         y0: usize,
-        wts: [f32; 4],
+        wts: [f32; 2],
     ) -> (f32, f32, f32, f32) {
         let st = self.psz + 1;
         let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
@@ -906,35 +908,41 @@ impl LevelView<'_> {
         stride: usize,
         x0: usize,
         y0: usize,
-        [w00, w01, w10, w11]: [f32; 4],
+        [ax, ay]: [f32; 2],
     ) -> (f32, f32, f32, f32) {
-        let mut ad = [0.0f32; P];
-        let mut ad2 = [0.0f32; P];
-        let mut abx = [0.0f32; P];
-        let mut aby = [0.0f32; P];
-        let arr = |s: &[f32], o: usize| -> [f32; P] { s[o..o + P].try_into().expect("P values") };
+        // Four lanes (one SSE register per sum) leave registers for the
+        // row data; P must be a multiple of 4.
+        let mut acc = [[0.0f32; 4]; 4];
+        let lerp_row = |r: usize| -> [f32; P] {
+            let row = &win[r * stride..][..P + 1];
+            let (left, right) = (&row[..P], &row[1..]);
+            std::array::from_fn(|c| left[c] + ax * (right[c] - left[c]))
+        };
+        let mut top = lerp_row(0);
         for r in 0..P {
-            let ra = r * stride;
-            let rb = ra + stride;
-            let (a0, a1) = (arr(win, ra), arr(win, ra + 1));
-            let (b0, b1) = (arr(win, rb), arr(win, rb + 1));
+            let bot = lerp_row(r + 1);
             let o = (y0 + r) * self.w + x0;
-            let (i0r, gxr, gyr) = (arr(self.i0, o), arr(self.gx, o), arr(self.gy, o));
-            for c in 0..P {
-                let s = w00 * a0[c] + w01 * a1[c] + w10 * b0[c] + w11 * b1[c];
-                let d = s - i0r[c];
-                ad[c] += d;
-                ad2[c] += d * d;
-                abx[c] += d * gxr[c];
-                aby[c] += d * gyr[c];
+            let i0r = &self.i0[o..][..P];
+            let gxr = &self.gx[o..][..P];
+            let gyr = &self.gy[o..][..P];
+            for q in (0..P).step_by(4) {
+                for l in 0..4 {
+                    let c = q + l;
+                    let d = top[c] + ay * (bot[c] - top[c]) - i0r[c];
+                    acc[0][l] += d;
+                    acc[1][l] += d * d;
+                    acc[2][l] += d * gxr[c];
+                    acc[3][l] += d * gyr[c];
+                }
             }
+            top = bot;
         }
         let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
-        for c in 0..P {
-            out.0 += ad[c];
-            out.1 += ad2[c];
-            out.2 += abx[c];
-            out.3 += aby[c];
+        for l in 0..4 {
+            out.0 += acc[0][l];
+            out.1 += acc[1][l];
+            out.2 += acc[2][l];
+            out.3 += acc[3][l];
         }
         out
     }
@@ -1114,6 +1122,134 @@ mod tests {
                     let c0 = c[k as usize] as usize;
                     assert!(c0 <= x && x < c0 + p);
                 }
+            }
+        }
+    }
+
+    /// The slow, obviously correct patch cost: every pixel sampled on its
+    /// own with border replication, sums in f64, mean subtracted explicitly.
+    fn naive_eval(v: &LevelView, pr: &PatchRef, x0: usize, y0: usize, u: f32, vv: f32) -> Eval {
+        let p = v.psz;
+        let mut d = Vec::new();
+        for r in 0..p {
+            for c in 0..p {
+                let (x, y) = (x0 + c, y0 + r);
+                let s = pyramid::sample_clamped(v.i1, v.w, v.h, x as f32 + u, y as f32 + vv);
+                d.push((s - v.i0[y * v.w + x]) as f64);
+            }
+        }
+        let mean = if v.mean_norm {
+            d.iter().sum::<f64>() / d.len() as f64
+        } else {
+            0.0
+        };
+        let (mut ssd, mut bx, mut by) = (0.0, 0.0, 0.0);
+        for r in 0..p {
+            for c in 0..p {
+                let k = (y0 + r) * v.w + x0 + c;
+                let e = d[r * p + c] - mean;
+                ssd += e * e;
+                bx += e * v.gx[k] as f64;
+                by += e * v.gy[k] as f64;
+            }
+        }
+        let _ = pr;
+        Eval {
+            ssd: ssd as f32,
+            bx: bx as f32,
+            by: by as f32,
+        }
+    }
+
+    #[test]
+    fn patch_cost_matches_the_naive_oracle() {
+        let (w, h) = (40usize, 30usize);
+        let img = |k: u64| -> Vec<f32> {
+            (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    128.0
+                        + 60.0 * (0.5 * x + 0.3 * y + k as f32).sin()
+                        + 30.0 * (0.9 * y - 0.2 * x).cos()
+                })
+                .collect()
+        };
+        let (i0, i1) = (img(0), img(1));
+        let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
+        pyramid::sobel(&i0, w, h, 0.125, &mut gx, &mut gy);
+        for psz in [8usize, 6] {
+            for mean_norm in [true, false] {
+                let view = LevelView {
+                    w,
+                    h,
+                    i0: &i0,
+                    gx: &gx,
+                    gy: &gy,
+                    i1: &i1,
+                    psz,
+                    mean_norm,
+                };
+                // Inside, at sub-pixel offsets, and hanging over every edge.
+                for &(x0, y0, u, v) in &[
+                    (10usize, 8usize, 0.0f32, 0.0f32),
+                    (10, 8, 0.37, -1.81),
+                    (0, 0, -2.6, -0.4),
+                    (w - psz, h - psz, 3.2, 2.9),
+                    (5, h - psz, -0.5, 7.5),
+                    (12, 4, -1e6, 1e6),
+                ] {
+                    let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm);
+                    let got = view.eval(x0, y0, &pr, u, v);
+                    let want = naive_eval(&view, &pr, x0, y0, u, v);
+                    let tol = |a: f32| 1e-3 * (1.0 + a.abs());
+                    assert!(
+                        (got.ssd - want.ssd).abs() < tol(want.ssd),
+                        "{psz} {x0},{y0} {u},{v}"
+                    );
+                    assert!((got.bx - want.bx).abs() < tol(want.bx) * 10.0);
+                    assert!((got.by - want.by).abs() < tol(want.by) * 10.0);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn densification_matches_the_naive_weighted_average() {
+        let mut dis = Dis::with_preset(DisPreset::Ultrafast);
+        let (w, h) = (96usize, 64usize);
+        let r = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
+            (100.0 + 50.0 * (0.2 * x as f32).sin() * (0.3 * y as f32).cos()) as f32
+        });
+        let c = r.mapv(|v| v + 0.5);
+        dis.set_reference(&r).unwrap();
+        dis.compute_native(&c).unwrap();
+        let lvl = &dis.levels[0];
+        let ws = lvl.ws();
+        for y in 0..lvl.h {
+            for x in 0..lvl.w {
+                let (mut su, mut sv, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+                for (i, &py) in lvl.py.iter().enumerate() {
+                    for (j, &px) in lvl.px.iter().enumerate() {
+                        let (px, py) = (px as usize, py as usize);
+                        if x < px || x >= px + 8 || y < py || y >= py + 8 {
+                            continue;
+                        }
+                        let (pu, pv) = (lvl.sx[i * ws + j], lvl.sy[i * ws + j]);
+                        let s = pyramid::sample_clamped(
+                            &lvl.i1,
+                            lvl.w,
+                            lvl.h,
+                            x as f32 + pu,
+                            y as f32 + pv,
+                        );
+                        let wt = 1.0 / ((s - lvl.i0[y * lvl.w + x]).abs() as f64).max(1.0);
+                        su += wt * pu as f64;
+                        sv += wt * pv as f64;
+                        sw += wt;
+                    }
+                }
+                assert!((lvl.flow.u[[y, x]] as f64 - su / sw).abs() < 1e-5);
+                assert!((lvl.flow.v[[y, x]] as f64 - sv / sw).abs() < 1e-5);
             }
         }
     }

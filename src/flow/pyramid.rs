@@ -235,13 +235,48 @@ pub fn resize_bilinear(
         }
     });
     let tmp = &*tmp;
+    let exact = |f: usize| dw == sw * f;
     dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
         let t = &tmp[y * sw..][..sw];
-        for x in 0..dw {
-            let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
-            drow[x] = t[a] + wx * (t[b] - t[a]);
+        // Integer power-of-two ratios (the pyramid's case) use fixed
+        // weights instead of per-column taps: the same values bit for bit
+        // (the weights are dyadic, exact in f32), without the gathers.
+        if exact(2) {
+            upsample_row::<2>(t, drow);
+        } else if exact(4) {
+            upsample_row::<4>(t, drow);
+        } else if exact(8) {
+            upsample_row::<8>(t, drow);
+        } else {
+            for x in 0..dw {
+                let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
+                drow[x] = t[a] + wx * (t[b] - t[a]);
+            }
         }
     });
+}
+
+/// One row of an exact `F`x bilinear upsampling with half-pixel centres:
+/// output `F k + m` lies at source `k + (m + 0.5) / F - 0.5`, i.e. between
+/// `k - 1` and `k` for `m < F/2` and between `k` and `k + 1` otherwise.
+fn upsample_row<const F: usize>(t: &[f32], out: &mut [f32]) {
+    let n = t.len();
+    let half = F / 2;
+    let w: [f32; F] = std::array::from_fn(|m| {
+        let p = (m as f32 + 0.5) / F as f32;
+        if m < half { p + 0.5 } else { p - 0.5 }
+    });
+    for (k, o) in out.chunks_exact_mut(F).enumerate() {
+        let lo = t[k.saturating_sub(1)];
+        let mid = t[k];
+        let hi = t[(k + 1).min(n - 1)];
+        for m in 0..half {
+            o[m] = lo + w[m] * (mid - lo);
+        }
+        for m in half..F {
+            o[m] = mid + w[m] * (hi - mid);
+        }
+    }
 }
 
 /// Bilinear sample of `img` (`w x h`) at `(x, y)`, clamping to the edge
@@ -341,6 +376,29 @@ mod tests {
         }
         sobel(&img, w, h, 1.0, &mut gx, &mut gy);
         assert!((gx[2 * w + 3] - 16.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn exact_upsampling_matches_the_general_taps() {
+        let (sw, sh) = (9, 5);
+        let src: Vec<f32> = (0..sw * sh)
+            .map(|i| ((i * 7919) % 97) as f32 * 0.37)
+            .collect();
+        for f in [2usize, 4, 8] {
+            let (dw, dh) = (sw * f, sh * f);
+            let (xs, ys) = (ResizeAxis::new(sw, dw), ResizeAxis::new(sh, dh));
+            let mut tmp = vec![0.0; sw * dh];
+            let mut fast = vec![0.0; dw * dh];
+            resize_bilinear(&src, sw, &xs, &ys, 1.5, &mut tmp, &mut fast);
+            for y in 0..dh {
+                for x in 0..dw {
+                    let t = &tmp[y * sw..];
+                    let (a, b, w) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
+                    let want = t[a] + w * (t[b] - t[a]);
+                    assert_eq!(fast[y * dw + x].to_bits(), want.to_bits(), "f={f} x={x}");
+                }
+            }
+        }
     }
 
     #[test]
