@@ -1218,7 +1218,7 @@ mod tests {
         let mut dis = Dis::with_preset(DisPreset::Ultrafast);
         let (w, h) = (96usize, 64usize);
         let r = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
-            (100.0 + 50.0 * (0.2 * x as f32).sin() * (0.3 * y as f32).cos()) as f32
+            100.0 + 50.0 * (0.2 * x as f32).sin() * (0.3 * y as f32).cos()
         });
         let c = r.mapv(|v| v + 0.5);
         dis.set_reference(&r).unwrap();
