@@ -818,7 +818,7 @@ impl LevelView<'_> {
             let o = iyf as usize * self.w + ixf as usize;
             let win = &self.i1[o..];
             if psz == 8 {
-                self.accumulate_fixed::<8>(win, self.w, x0, y0, wts)
+                self.accumulate8(win, self.w, x0, y0, wts)
             } else {
                 self.accumulate(win, self.w, x0, y0, wts)
             }
@@ -912,11 +912,12 @@ impl LevelView<'_> {
         self.accumulate(&buf, st, x0, y0, wts)
     }
 
-    /// [`LevelView::accumulate`] for a patch side known at compile time:
-    /// fixed-size rows let the compiler unroll and vectorize fully. Same
-    /// operations in the same order, so the same result bit for bit.
+    /// [`LevelView::accumulate`] for 8x8 patches (every preset), written
+    /// on 4-lane arrays so the compiler maps each step to one SSE
+    /// instruction. Four lanes (one register per sum) leave registers for
+    /// the row data; columns `c` and `c + 4` share lane `c`.
     #[inline]
-    fn accumulate_fixed<const P: usize>(
+    fn accumulate8(
         &self,
         win: &[f32],
         stride: usize,
@@ -924,39 +925,58 @@ impl LevelView<'_> {
         y0: usize,
         [ax, ay]: [f32; 2],
     ) -> (f32, f32, f32, f32) {
-        // Four lanes (one SSE register per sum) leave registers for the
-        // row data; P must be a multiple of 4.
-        let mut acc = [[0.0f32; 4]; 4];
-        let lerp_row = |r: usize| -> [f32; P] {
-            let row = &win[r * stride..][..P + 1];
-            let (left, right) = (&row[..P], &row[1..]);
-            std::array::from_fn(|c| left[c] + ax * (right[c] - left[c]))
-        };
-        let mut top = lerp_row(0);
-        for r in 0..P {
-            let bot = lerp_row(r + 1);
-            let o = (y0 + r) * self.w + x0;
-            let i0r = &self.i0[o..][..P];
-            let gxr = &self.gx[o..][..P];
-            let gyr = &self.gy[o..][..P];
-            for q in (0..P).step_by(4) {
-                for l in 0..4 {
-                    let c = q + l;
-                    let d = top[c] + ay * (bot[c] - top[c]) - i0r[c];
-                    acc[0][l] += d;
-                    acc[1][l] += d * d;
-                    acc[2][l] += d * gxr[c];
-                    acc[3][l] += d * gyr[c];
-                }
+        type V = [f32; 4];
+        #[inline(always)]
+        fn ld(s: &[f32], o: usize) -> V {
+            s[o..o + 4].try_into().expect("4 values")
+        }
+        #[inline(always)]
+        fn lerp(a: V, b: V, t: f32) -> V {
+            [
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                a[2] + t * (b[2] - a[2]),
+                a[3] + t * (b[3] - a[3]),
+            ]
+        }
+        #[inline(always)]
+        fn mac(acc: &mut V, a: V, b: V) {
+            for l in 0..4 {
+                acc[l] += a[l] * b[l];
             }
-            top = bot;
+        }
+        #[inline(always)]
+        fn hrow(win: &[f32], o: usize, ax: f32) -> (V, V) {
+            (
+                lerp(ld(win, o), ld(win, o + 1), ax),
+                lerp(ld(win, o + 4), ld(win, o + 5), ax),
+            )
+        }
+        let (mut sd, mut sd2, mut sx, mut sy) =
+            ([0.0f32; 4], [0.0f32; 4], [0.0f32; 4], [0.0f32; 4]);
+        let (mut t0, mut t1) = hrow(win, 0, ax);
+        for r in 0..8 {
+            let (b0, b1) = hrow(win, (r + 1) * stride, ax);
+            let o = (y0 + r) * self.w + x0;
+            for (half, t, b) in [(0usize, t0, b0), (4, t1, b1)] {
+                let s = lerp(t, b, ay);
+                let i0 = ld(self.i0, o + half);
+                let d: V = [s[0] - i0[0], s[1] - i0[1], s[2] - i0[2], s[3] - i0[3]];
+                for l in 0..4 {
+                    sd[l] += d[l];
+                }
+                mac(&mut sd2, d, d);
+                mac(&mut sx, d, ld(self.gx, o + half));
+                mac(&mut sy, d, ld(self.gy, o + half));
+            }
+            (t0, t1) = (b0, b1);
         }
         let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
         for l in 0..4 {
-            out.0 += acc[0][l];
-            out.1 += acc[1][l];
-            out.2 += acc[2][l];
-            out.3 += acc[3][l];
+            out.0 += sd[l];
+            out.1 += sd2[l];
+            out.2 += sx[l];
+            out.3 += sy[l];
         }
         out
     }
