@@ -479,19 +479,19 @@ impl Dis {
             let (lw, lh) = pyramid::level_size(w, h, s);
             let mut i0 = vec![0.0f32; lw * lh];
             if k == 0 {
-                pyramid::downsample_area(&full, w, h, 1 << s, &mut i0);
+                pyramid::downsample_area(&full, w, h, 1 << s, &mut i0)?;
             } else {
                 // Coarser levels average the un-filtered finer level.
                 let prev = &levels[k - 1];
-                pyramid::downsample_area(&levels_raw[k - 1], prev.w, prev.h, 2, &mut i0);
+                pyramid::downsample_area(&levels_raw[k - 1], prev.w, prev.h, 2, &mut i0)?;
             }
             levels_raw.push(i0.clone());
             if k == 0 || p.prefilter_all_levels {
-                pyramid::gaussian_blur(&mut i0, lw, lh, &kernel, &mut vec![0.0; lw * lh]);
+                pyramid::gaussian_blur(&mut i0, lw, lh, &kernel, &mut vec![0.0; lw * lh])?;
             }
             let mut gx = vec![0.0f32; lw * lh];
             let mut gy = vec![0.0f32; lw * lh];
-            pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy);
+            pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy)?;
             let px = patch_corners(lw, psz, stride);
             let py = patch_corners(lh, psz, stride);
             let (jlo, jhi) = coverage(lw, psz, &px);
@@ -567,8 +567,8 @@ impl Dis {
             lvl.flow.v.as_slice().expect("standard layout"),
         );
         let tmp = &mut self.out_tmp;
-        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, tmp, ou);
-        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, tmp, ov);
+        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, tmp, ou)?;
+        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, tmp, ov)?;
         Ok(())
     }
 
@@ -618,12 +618,12 @@ impl Dis {
         {
             let lvl = &mut self.levels[0];
             match current.as_slice() {
-                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1),
+                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?,
                 None => {
                     // Non-contiguous view: one copy (rare; not the hot path).
                     let c = current.as_standard_layout();
                     let s = c.as_slice().expect("standard layout");
-                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1);
+                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?;
                 }
             }
             // The box sums carry any NaN/inf of the pixels they cover; the
@@ -637,7 +637,7 @@ impl Dis {
         for k in 1..self.levels.len() {
             let (a, b) = self.levels.split_at_mut(k);
             let prev = &a[k - 1];
-            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1);
+            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1)?;
         }
         // Filter after the whole pyramid is built: coarser levels average the
         // un-filtered finer ones, exactly as for the reference.
@@ -648,7 +648,7 @@ impl Dis {
                 1
             };
             for lvl in &mut self.levels[..n] {
-                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, &self.kernel, &mut lvl.tmp);
+                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, &self.kernel, &mut lvl.tmp)?;
             }
         }
         Ok(())
@@ -1210,7 +1210,7 @@ mod tests {
         };
         let (i0, i1) = (img(0), img(1));
         let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
-        pyramid::sobel(&i0, w, h, 0.125, &mut gx, &mut gy);
+        pyramid::sobel(&i0, w, h, 0.125, &mut gx, &mut gy).unwrap();
         for psz in [8usize, 6] {
             for mean_norm in [true, false] {
                 let view = LevelView {
