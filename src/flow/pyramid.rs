@@ -279,7 +279,7 @@ pub fn resize_bilinear(
     let dh = ys.w.len();
     check_len("dst", dst, dw, dh)?;
     check_len("tmp", tmp, sw, dh)?;
-    let sh = if sw == 0 { 0 } else { src.len() / sw };
+    let sh = src.len().checked_div(sw).unwrap_or(0);
     check_len("src", src, sw, sh)?;
     let fits = |a: &ResizeAxis, n: usize| a.i1.iter().chain(&a.i0).all(|&i| (i as usize) < n);
     if !fits(xs, sw) || !fits(ys, sh) {
@@ -437,7 +437,7 @@ mod tests {
         assert!(sobel(&img, 4, 3, 1.0, &mut small, &mut ok.clone()).is_err());
         let k = gaussian_kernel(1.0);
         assert!(gaussian_blur(&mut ok, 4, 3, &k, &mut small).is_err());
-        assert!(gaussian_blur(&mut ok, 4, 3, &[0.5, 0.5], &mut vec![0.0; 12]).is_err());
+        assert!(gaussian_blur(&mut ok, 4, 3, &[0.5, 0.5], &mut [0.0; 12]).is_err());
         let (xs, ys) = (ResizeAxis::new(4, 8), ResizeAxis::new(3, 6));
         assert!(resize_bilinear(&img, 4, &xs, &ys, 1.0, &mut small, &mut ok).is_err());
         let (bx, by) = (ResizeAxis::new(9, 8), ResizeAxis::new(3, 6));
