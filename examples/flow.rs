@@ -15,20 +15,21 @@
 //! `--set` overrides one `DisParams` field (finest_scale, coarsest_scale,
 //! patch_size, patch_stride, iterations, mean_normalization,
 //! spatial_propagation, normalized_gradients, prefilter_sigma, backtracking,
-//! stripes). The second form renders a synthetic marker pair (ref.png,
+//! stripes, zero_candidate, prefilter_all_levels, refine_iterations, sor_iterations, exact_derivatives, alpha,
+//! delta, gamma); `--native` times only the flow at its native level (no
+//! final upsampling). The second form renders a synthetic marker pair (ref.png,
 //! cur.png, truth.flo) to try it on.
 
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
 
-use ndarray::Array2;
 use optical_tactile::flow::FlowField;
 use optical_tactile::flow::color::flow_to_rgb;
 use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
+use optical_tactile::io::{read_flo, read_gray, write_flo, write_gray_png, write_rgb_png};
 use optical_tactile::{Error, Result};
 
 fn main() {
@@ -58,6 +59,7 @@ fn run() -> Result<()> {
     let mut repeat = 5usize;
     let (mut out, mut png, mut truth) = (None, None, None);
     let mut sets = Vec::new();
+    let mut native = false;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = || it.next().cloned().ok_or_else(usage);
@@ -69,6 +71,7 @@ fn run() -> Result<()> {
             "--png" => png = Some(val()?),
             "--truth" => truth = Some(val()?),
             "--set" => sets.push(val()?),
+            "--native" => native = true,
             _ if a.starts_with("--") => return Err(usage()),
             _ => pos.push(a.clone()),
         }
@@ -94,7 +97,11 @@ fn run() -> Result<()> {
         let mut times = Vec::with_capacity(repeat);
         for _ in 0..repeat {
             let t = Instant::now();
-            dis.compute_into(&current, &mut flow)?;
+            if native {
+                dis.compute_native(&current)?;
+            } else {
+                dis.compute_into(&current, &mut flow)?;
+            }
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }
         times.sort_by(f64::total_cmp);
@@ -103,14 +110,8 @@ fn run() -> Result<()> {
     println!("compute_ms: {median_ms:.3}");
     write_flo(Path::new(&out), &flow)?;
     if let Some(p) = png {
-        let rgb = flow_to_rgb(&flow, None);
         let (w, h) = flow.size();
-        image::save_buffer(&p, &rgb, w as u32, h as u32, image::ExtendedColorType::Rgb8).map_err(
-            |e| Error::Image {
-                path: p.into(),
-                source: e,
-            },
-        )?;
+        write_rgb_png(&p, &flow_to_rgb(&flow, None), w, h)?;
     }
     if let Some(t) = truth {
         let truth = read_flo(Path::new(&t))?;
@@ -144,61 +145,17 @@ fn apply_set(p: &mut DisParams, s: &str) -> Result<()> {
         "prefilter_sigma" => p.prefilter_sigma = parse_num(k, v)?,
         "backtracking" => p.backtracking = b(v),
         "stripes" => p.stripes = parse_num(k, v)?,
+        "zero_candidate" => p.zero_candidate = b(v),
+        "prefilter_all_levels" => p.prefilter_all_levels = b(v),
+        "refine_iterations" => p.refinement.outer_iterations = parse_num(k, v)?,
+        "sor_iterations" => p.refinement.sor_iterations = parse_num(k, v)?,
+        "exact_derivatives" => p.refinement.exact_derivatives = b(v),
+        "alpha" => p.refinement.alpha = parse_num(k, v)?,
+        "delta" => p.refinement.delta = parse_num(k, v)?,
+        "gamma" => p.refinement.gamma = parse_num(k, v)?,
         _ => return Err(Error::param("set", format!("unknown parameter `{k}`"))),
     }
     Ok(())
-}
-
-/// Reads a PNG as grey levels 0..=255: 8/16-bit grey directly (16-bit / 257),
-/// colour through its green channel.
-fn read_gray(path: &Path) -> Result<Array2<f32>> {
-    let img = image::open(path).map_err(|e| Error::Image {
-        path: path.into(),
-        source: e,
-    })?;
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let data: Vec<f32> = match img {
-        image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(f32::from).collect(),
-        image::DynamicImage::ImageLuma16(b) => {
-            b.into_raw().into_iter().map(|v| v as f32 / 257.0).collect()
-        }
-        other => other.to_rgb8().pixels().map(|p| p.0[1] as f32).collect(),
-    };
-    Array2::from_shape_vec((h, w), data).map_err(|e| Error::param("image", e.to_string()))
-}
-
-/// Middlebury .flo: "PIEH", width, height (i32 LE), then interleaved u, v f32.
-fn write_flo(path: &Path, f: &FlowField) -> Result<()> {
-    let (w, h) = f.size();
-    let mut buf = Vec::with_capacity(12 + 8 * w * h);
-    buf.extend_from_slice(b"PIEH");
-    buf.extend_from_slice(&(w as i32).to_le_bytes());
-    buf.extend_from_slice(&(h as i32).to_le_bytes());
-    for (u, v) in f.u.iter().zip(f.v.iter()) {
-        buf.extend_from_slice(&u.to_le_bytes());
-        buf.extend_from_slice(&v.to_le_bytes());
-    }
-    std::fs::File::create(path)
-        .and_then(|mut fh| fh.write_all(&buf))
-        .map_err(|e| Error::io(path, e))
-}
-
-fn read_flo(path: &Path) -> Result<FlowField> {
-    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    if b.len() < 12 || &b[..4] != b"PIEH" {
-        return Err(Error::format(path, None, "not a .flo file (bad magic)"));
-    }
-    let rd = |o: usize| i32::from_le_bytes(b[o..o + 4].try_into().unwrap());
-    let (w, h) = (rd(4) as usize, rd(8) as usize);
-    if b.len() != 12 + 8 * w * h {
-        return Err(Error::format(path, None, "truncated .flo"));
-    }
-    let mut f = FlowField::zeros(w, h);
-    for (k, c) in b[12..].chunks_exact(8).enumerate() {
-        f.u[[k / w, k % w]] = f32::from_le_bytes(c[..4].try_into().unwrap());
-        f.v[[k / w, k % w]] = f32::from_le_bytes(c[4..].try_into().unwrap());
-    }
-    Ok(f)
 }
 
 /// Renders a synthetic marker pair and its true flow into `dir`.
@@ -230,20 +187,9 @@ fn synth(args: &[String]) -> Result<()> {
     let (r, c, t) = support::marker_pair(w, h, &motion, seed);
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let d = Path::new(dir);
-    for (name, img) in [("ref.png", &r), ("cur.png", &c)] {
-        let bytes: Vec<u8> = img
-            .iter()
-            .map(|v| v.round().clamp(0.0, 255.0) as u8)
-            .collect();
-        let p = d.join(name);
-        image::save_buffer(&p, &bytes, w as u32, h as u32, image::ExtendedColorType::L8).map_err(
-            |e| Error::Image {
-                path: p.clone(),
-                source: e,
-            },
-        )?;
-    }
-    write_flo(&d.join("truth.flo"), &t)?;
+    write_gray_png(d.join("ref.png"), &r)?;
+    write_gray_png(d.join("cur.png"), &c)?;
+    write_flo(d.join("truth.flo"), &t)?;
     let maxm = t.magnitude().iter().cloned().fold(0.0f32, f32::max);
     println!("wrote {dir}: {w}x{h}, max motion {maxm:.2} px");
     Ok(())

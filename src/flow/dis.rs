@@ -16,18 +16,30 @@
 //!    of patch rows, so the result never depends on the thread count;
 //! 3. densification: every pixel averages the vectors of the patches covering
 //!    it, weighted by `1 / max(1, |cur(x + u) - ref(x)|)`;
+//! 4. variational refinement of the dense flow
+//!    ([`super::refine::VariationalRefiner`], one per level, its reference
+//!    data cached in `set_reference`);
 //!
-//! and the finest level's flow is bilinearly resized to full resolution.
+//! and the finest level's flow is bilinearly resized to full resolution
+//! ([`Dis::compute_into`]) or read at its own level ([`Dis::native_flow`]).
 //!
 //! The `Ultrafast`, `Fast` and `Medium` presets use OpenCV 5's values; the
-//! `Accurate` preset fixes what makes OpenCV's DIS weak on marker images
-//! (see [`DisPreset::Accurate`]).
+//! `Accurate` preset (the default) and `Balanced` fix what makes OpenCV's DIS
+//! weak on marker images (see [`DisPreset::Accurate`]).
+//!
+//! Bad input is an [`Error`]: an empty reference or one too small for a
+//! patch at the finest scale ([`Error::TooSmall`]), a current frame of
+//! another size ([`Error::ShapeMismatch`]), NaN or infinite pixels
+//! ([`Error::NonFinite`], with the first offending pixel), `compute` before
+//! `set_reference` ([`Error::NoReference`]), invalid parameters
+//! ([`Error::InvalidParameter`]).
 
-use ndarray::ArrayRef2;
+use ndarray::{ArrayRef2, ArrayView2};
 use rayon::prelude::*;
 
 use super::FlowField;
 use super::pyramid::{self, ResizeAxis};
+use super::refine::{RefineParams, VariationalRefiner};
 use crate::error::{Error, Result};
 
 /// Largest supported patch side (keeps the per-patch scratch on the stack).
@@ -40,28 +52,47 @@ pub enum DisPreset {
     /// iterations, no variational refinement.
     Ultrafast,
     /// OpenCV 5 `PRESET_FAST` (the paper's default): scale 2, 8/4 patches,
-    /// 16 descent iterations.
+    /// 16 descent iterations, 5 refinement iterations.
     Fast,
-    /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent iterations.
+    /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent
+    /// iterations, 5 refinement iterations.
     Medium,
-    /// Our marker-image preset: true Gauss-Newton steps (Sobel normalized
-    /// to the true derivative, so each step solves the linearized problem
-    /// instead of moving 1/8 of the way) and the finest scale 1, which avoids
-    /// the sub-pixel bias of 1-px markers shrunk to dots at scale 2.
+    /// Our marker-image preset and the sensor's default: the finest scale
+    /// 1 (1-px markers are sub-pixel dots at scale 2), true Gauss-Newton
+    /// steps (Sobel normalized to the true derivative, so each step solves
+    /// the linearized problem instead of moving 1/8 of the way; 8 iterations
+    /// then do more than 16 did), a Gaussian prefilter of 1.5 level px at the
+    /// finest level, which removes most of the bilinear "peak locking"
+    /// towards whole-pixel shifts (the sub-pixel bias), the zero vector as
+    /// an extra candidate (coarse levels of dense marker images are
+    /// aliased), and one outer iteration of OpenCV's variational refinement
+    /// (needed under strong strain, where rigid patches fail). A second
+    /// refinement iteration with a 1-px prefilter lowers the error under
+    /// strong strain further but brings the sub-pixel bias back above
+    /// 0.01 px (the refinement over-shoots sub-pixel shifts).
     Accurate,
+    /// [`DisPreset::Accurate`] without the refinement and with a stronger
+    /// prefilter (2 level px): about half the time, as accurate on gentle
+    /// motion and with the smallest sub-pixel bias, but much worse under
+    /// strong strain (steep presses: rigid patches with no refinement).
+    Balanced,
 }
 
 impl DisPreset {
-    /// Parses `ultrafast`, `fast`, `medium`, `accurate` (case-insensitive).
+    /// Parses `ultrafast`, `fast`, `medium`, `accurate`, `balanced`
+    /// (case-insensitive).
     pub fn parse(name: &str) -> Result<Self> {
         match name.to_ascii_lowercase().as_str() {
             "ultrafast" => Ok(DisPreset::Ultrafast),
             "fast" => Ok(DisPreset::Fast),
             "medium" => Ok(DisPreset::Medium),
             "accurate" => Ok(DisPreset::Accurate),
+            "balanced" => Ok(DisPreset::Balanced),
             _ => Err(Error::param(
                 "preset",
-                format!("unknown DIS preset `{name}` (ultrafast, fast, medium, accurate)"),
+                format!(
+                    "unknown DIS preset `{name}` (ultrafast, fast, medium, accurate, balanced)"
+                ),
             )),
         }
     }
@@ -73,15 +104,17 @@ impl DisPreset {
             DisPreset::Fast => "fast",
             DisPreset::Medium => "medium",
             DisPreset::Accurate => "accurate",
+            DisPreset::Balanced => "balanced",
         }
     }
 
-    /// All presets, fastest first.
-    pub const ALL: [DisPreset; 4] = [
+    /// All presets.
+    pub const ALL: [DisPreset; 5] = [
         DisPreset::Ultrafast,
         DisPreset::Fast,
         DisPreset::Medium,
         DisPreset::Accurate,
+        DisPreset::Balanced,
     ];
 }
 
@@ -114,10 +147,22 @@ pub struct DisParams {
     /// makes the Sobel gradient match the bilinear cost surface, which
     /// removes the sub-pixel bias of un-filtered DIS.
     pub prefilter_sigma: f32,
+    /// Apply the prefilter at every level, not only the finest (the coarser
+    /// levels are area averages, already smooth).
+    pub prefilter_all_levels: bool,
     /// On a cost increase, halve the step back towards the last better
     /// vector and retry (within the iteration budget) instead of stopping.
     /// `false` stops there, as OpenCV does.
     pub backtracking: bool,
+    /// Variational refinement run on every level's dense flow
+    /// (`outer_iterations == 0` turns it off).
+    pub refinement: RefineParams,
+    /// Also try the zero vector as a candidate before the first descent.
+    /// On marker images the coarse levels are aliased noise and can hand a
+    /// patch a wrong vector; zero motion, the most common state of a
+    /// tactile sensor's skin, is then a better start. Costs one evaluation
+    /// per patch and level.
+    pub zero_candidate: bool,
     /// Fixed number of stripes of patch rows that propagation does not cross
     /// (the unit of parallel work; results do not depend on thread count).
     pub stripes: usize,
@@ -136,12 +181,19 @@ impl DisParams {
             spatial_propagation: true,
             normalized_gradients: false,
             prefilter_sigma: 0.0,
+            prefilter_all_levels: false,
             backtracking: false,
+            refinement: RefineParams::opencv(),
+            zero_candidate: false,
             stripes: 8,
         };
         match preset {
             DisPreset::Ultrafast => DisParams {
                 gradient_descent_iterations: 12,
+                refinement: RefineParams {
+                    outer_iterations: 0,
+                    ..RefineParams::opencv()
+                },
                 ..base
             },
             DisPreset::Fast => base,
@@ -151,14 +203,26 @@ impl DisParams {
                 gradient_descent_iterations: 25,
                 ..base
             },
-            DisPreset::Accurate => DisParams {
+            DisPreset::Balanced => DisParams {
                 finest_scale: 1,
                 patch_stride: 4,
-                gradient_descent_iterations: 16,
+                gradient_descent_iterations: 8,
                 normalized_gradients: true,
-                prefilter_sigma: 0.7,
-                backtracking: true,
+                prefilter_sigma: 2.0,
+                refinement: RefineParams {
+                    outer_iterations: 0,
+                    ..RefineParams::opencv()
+                },
+                zero_candidate: true,
                 ..base
+            },
+            DisPreset::Accurate => DisParams {
+                prefilter_sigma: 1.5,
+                refinement: RefineParams {
+                    outer_iterations: 1,
+                    ..RefineParams::opencv()
+                },
+                ..DisParams::preset(DisPreset::Balanced)
             },
         }
     }
@@ -203,6 +267,7 @@ impl DisParams {
         if self.stripes == 0 {
             return Err(Error::param("stripes", "must be at least 1"));
         }
+        self.refinement.validate()?;
         Ok(())
     }
 }
@@ -252,6 +317,8 @@ struct Level {
     sy: Vec<f32>,
     /// Dense flow at this level, in this level's pixels.
     flow: FlowField,
+    /// Variational refinement with this level's reference cached.
+    refiner: VariationalRefiner,
 }
 
 impl Level {
@@ -319,6 +386,10 @@ pub struct Dis {
     /// Taps from the finest level to full resolution.
     out_x: ResizeAxis,
     out_y: ResizeAxis,
+    /// Scratch for the vertical pass of the final resize.
+    out_tmp: Vec<f32>,
+    /// Prefilter taps.
+    kernel: Vec<f32>,
 }
 
 impl Dis {
@@ -332,6 +403,8 @@ impl Dis {
             levels: Vec::new(),
             out_x: ResizeAxis::default(),
             out_y: ResizeAxis::default(),
+            out_tmp: Vec::new(),
+            kernel: Vec::new(),
         })
     }
 
@@ -401,21 +474,24 @@ impl Dis {
         let mean_norm = p.mean_normalization;
         let mut levels: Vec<Level> = Vec::with_capacity(scales.len());
         let mut levels_raw: Vec<Vec<f32>> = Vec::with_capacity(scales.len());
+        let kernel = pyramid::gaussian_kernel(p.prefilter_sigma);
         for (k, &s) in scales.iter().enumerate() {
             let (lw, lh) = pyramid::level_size(w, h, s);
             let mut i0 = vec![0.0f32; lw * lh];
             if k == 0 {
-                pyramid::downsample_area(&full, w, h, 1 << s, &mut i0);
+                pyramid::downsample_area(&full, w, h, 1 << s, &mut i0)?;
             } else {
                 // Coarser levels average the un-filtered finer level.
                 let prev = &levels[k - 1];
-                pyramid::downsample_area(&levels_raw[k - 1], prev.w, prev.h, 2, &mut i0);
+                pyramid::downsample_area(&levels_raw[k - 1], prev.w, prev.h, 2, &mut i0)?;
             }
             levels_raw.push(i0.clone());
-            pyramid::gaussian_blur(&mut i0, lw, lh, p.prefilter_sigma, &mut vec![0.0; lw * lh]);
+            if k == 0 || p.prefilter_all_levels {
+                pyramid::gaussian_blur(&mut i0, lw, lh, &kernel, &mut vec![0.0; lw * lh])?;
+            }
             let mut gx = vec![0.0f32; lw * lh];
             let mut gy = vec![0.0f32; lw * lh];
-            pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy);
+            pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy)?;
             let px = patch_corners(lw, psz, stride);
             let py = patch_corners(lh, psz, stride);
             let (jlo, jhi) = coverage(lw, psz, &px);
@@ -429,6 +505,11 @@ impl Dis {
                 })
                 .collect();
             let n = patches.len();
+            let mut refiner = VariationalRefiner::new(p.refinement);
+            if p.refinement.outer_iterations > 0 {
+                let view = ArrayView2::from_shape((lh, lw), &i0[..]).expect("level shape");
+                refiner.set_reference(view)?;
+            }
             levels.push(Level {
                 w: lw,
                 h: lh,
@@ -447,11 +528,14 @@ impl Dis {
                 sx: vec![0.0; n],
                 sy: vec![0.0; n],
                 flow: FlowField::zeros(lw, lh),
+                refiner,
             });
         }
         let (fw, fh) = (levels[0].w, levels[0].h);
         self.out_x = ResizeAxis::new(fw, w);
         self.out_y = ResizeAxis::new(fh, h);
+        self.out_tmp = vec![0.0; fw * h];
+        self.kernel = kernel;
         self.levels = levels;
         self.width = w;
         self.height = h;
@@ -482,8 +566,9 @@ impl Dis {
             lvl.flow.u.as_slice().expect("standard layout"),
             lvl.flow.v.as_slice().expect("standard layout"),
         );
-        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, ou);
-        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, ov);
+        let tmp = &mut self.out_tmp;
+        pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, tmp, ou)?;
+        pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, tmp, ov)?;
         Ok(())
     }
 
@@ -509,7 +594,11 @@ impl Dis {
             let lvl = &mut finer[k];
             init_patches(lvl, coarser.first(), self.params.patch_size);
             search_level(lvl, &self.params);
-            densify(lvl, self.params.patch_size);
+            densify(lvl);
+            if self.params.refinement.outer_iterations > 0 {
+                let i1 = ArrayView2::from_shape((lvl.h, lvl.w), &lvl.i1[..]).expect("level shape");
+                lvl.refiner.refine(i1, &mut lvl.flow.u, &mut lvl.flow.v)?;
+            }
         }
         Ok(())
     }
@@ -529,12 +618,12 @@ impl Dis {
         {
             let lvl = &mut self.levels[0];
             match current.as_slice() {
-                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1),
+                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?,
                 None => {
                     // Non-contiguous view: one copy (rare; not the hot path).
                     let c = current.as_standard_layout();
                     let s = c.as_slice().expect("standard layout");
-                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1);
+                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?;
                 }
             }
             // The box sums carry any NaN/inf of the pixels they cover; the
@@ -548,14 +637,18 @@ impl Dis {
         for k in 1..self.levels.len() {
             let (a, b) = self.levels.split_at_mut(k);
             let prev = &a[k - 1];
-            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1);
+            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1)?;
         }
         // Filter after the whole pyramid is built: coarser levels average the
         // un-filtered finer ones, exactly as for the reference.
-        let sigma = self.params.prefilter_sigma;
-        if sigma > 0.0 {
-            for lvl in &mut self.levels {
-                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, sigma, &mut lvl.tmp);
+        if !self.kernel.is_empty() {
+            let n = if self.params.prefilter_all_levels {
+                self.levels.len()
+            } else {
+                1
+            };
+            for lvl in &mut self.levels[..n] {
+                pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, &self.kernel, &mut lvl.tmp)?;
             }
         }
         Ok(())
@@ -711,65 +804,27 @@ impl LevelView<'_> {
         let psz = self.psz;
         let fxp = x0 as f32 + u;
         let fyp = y0 as f32 + v;
-        let ixf = fxp.floor();
-        let iyf = fyp.floor();
+        let ixf = fast_floor(fxp);
+        let iyf = fast_floor(fyp);
         let (ax, ay) = (fxp - ixf, fyp - iyf);
-        let w00 = (1.0 - ax) * (1.0 - ay);
-        let w01 = ax * (1.0 - ay);
-        let w10 = (1.0 - ax) * ay;
-        let w11 = ax * ay;
-        // Sample window (psz+1)^2 starting at (ix, iy): direct when inside,
-        // else copied with border replication into a stack buffer.
-        let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
+        // Sample window (psz+1)^2 starting at (ix, iy): read in place when
+        // inside, else copied with border replication (the rare slow path).
         let inside = ixf >= 0.0
             && iyf >= 0.0
             && ixf + (psz as f32) < self.w as f32
             && iyf + (psz as f32) < self.h as f32;
-        let (win, stride): (&[f32], usize) = if inside {
+        let wts = [ax, ay];
+        let (sd, mut sd2, mut bx, mut by) = if inside {
             let o = iyf as usize * self.w + ixf as usize;
-            (&self.i1[o..], self.w)
+            let win = &self.i1[o..];
+            if psz == 8 {
+                self.accumulate8(win, self.w, x0, y0, wts)
+            } else {
+                self.accumulate(win, self.w, x0, y0, wts)
+            }
         } else {
-            let st = psz + 1;
-            // Clamp in f32 first: a wild vector must not overflow the casts.
-            let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
-            for r in 0..st {
-                let yy = cl(iyf + r as f32, self.h);
-                for c in 0..st {
-                    let xx = cl(ixf + c as f32, self.w);
-                    buf[r * st + c] = self.i1[yy * self.w + xx];
-                }
-            }
-            (&buf[..], st)
+            self.accumulate_clamped(ixf, iyf, x0, y0, wts)
         };
-        // Per-column accumulators keep the inner loop free of a serial
-        // floating-point dependency (vectorizable, and deterministic).
-        let mut ad = [0.0f32; MAX_PATCH_SIZE];
-        let mut ad2 = [0.0f32; MAX_PATCH_SIZE];
-        let mut abx = [0.0f32; MAX_PATCH_SIZE];
-        let mut aby = [0.0f32; MAX_PATCH_SIZE];
-        for r in 0..psz {
-            let a = &win[r * stride..][..psz + 1];
-            let b = &win[(r + 1) * stride..][..psz + 1];
-            let o = (y0 + r) * self.w + x0;
-            let i0r = &self.i0[o..][..psz];
-            let gxr = &self.gx[o..][..psz];
-            let gyr = &self.gy[o..][..psz];
-            for c in 0..psz {
-                let s = w00 * a[c] + w01 * a[c + 1] + w10 * b[c] + w11 * b[c + 1];
-                let d = s - i0r[c];
-                ad[c] += d;
-                ad2[c] += d * d;
-                abx[c] += d * gxr[c];
-                aby[c] += d * gyr[c];
-            }
-        }
-        let (mut sd, mut sd2, mut bx, mut by) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
-        for c in 0..psz {
-            sd += ad[c];
-            sd2 += ad2[c];
-            bx += abx[c];
-            by += aby[c];
-        }
         if self.mean_norm {
             let mean = sd / (psz * psz) as f32;
             bx -= mean * pr.sgx;
@@ -778,6 +833,161 @@ impl LevelView<'_> {
         }
         Eval { ssd: sd2, bx, by }
     }
+}
+
+impl LevelView<'_> {
+    /// Sums of `d`, `d^2`, `d gx`, `d gy` over the patch at `(x0, y0)`, where
+    /// `d` is the bilinear sample of the window minus the reference. Per-
+    /// column accumulators keep the inner loop free of a serial
+    /// floating-point dependency (vectorizable, and deterministic).
+    #[inline]
+    fn accumulate(
+        &self,
+        win: &[f32],
+        stride: usize,
+        x0: usize,
+        y0: usize,
+        [ax, ay]: [f32; 2],
+    ) -> (f32, f32, f32, f32) {
+        let psz = self.psz;
+        let mut acc = [[0.0f32; MAX_PATCH_SIZE]; 4];
+        // Bilinear as two lerps: along x per window row, then along y.
+        let lerp_row = |r: usize| -> [f32; MAX_PATCH_SIZE] {
+            let row = &win[r * stride..][..psz + 1];
+            let mut h = [0.0f32; MAX_PATCH_SIZE];
+            for c in 0..psz {
+                h[c] = row[c] + ax * (row[c + 1] - row[c]);
+            }
+            h
+        };
+        let mut top = lerp_row(0);
+        for r in 0..psz {
+            let bot = lerp_row(r + 1);
+            let o = (y0 + r) * self.w + x0;
+            let i0r = &self.i0[o..][..psz];
+            let gxr = &self.gx[o..][..psz];
+            let gyr = &self.gy[o..][..psz];
+            for c in 0..psz {
+                let d = top[c] + ay * (bot[c] - top[c]) - i0r[c];
+                acc[0][c] += d;
+                acc[1][c] += d * d;
+                acc[2][c] += d * gxr[c];
+                acc[3][c] += d * gyr[c];
+            }
+            top = bot;
+        }
+        let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for c in 0..psz {
+            out.0 += acc[0][c];
+            out.1 += acc[1][c];
+            out.2 += acc[2][c];
+            out.3 += acc[3][c];
+        }
+        out
+    }
+
+    /// [`LevelView::accumulate`] on a window that leaves the image: copied
+    /// with border replication into a stack buffer first.
+    #[cold]
+    #[inline(never)]
+    fn accumulate_clamped(
+        &self,
+        ixf: f32,
+        iyf: f32,
+        x0: usize,
+        y0: usize,
+        wts: [f32; 2],
+    ) -> (f32, f32, f32, f32) {
+        let st = self.psz + 1;
+        let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
+        // Clamp in f32 first: a wild vector must not overflow the casts.
+        let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
+        for r in 0..st {
+            let yy = cl(iyf + r as f32, self.h);
+            for c in 0..st {
+                let xx = cl(ixf + c as f32, self.w);
+                buf[r * st + c] = self.i1[yy * self.w + xx];
+            }
+        }
+        self.accumulate(&buf, st, x0, y0, wts)
+    }
+
+    /// [`LevelView::accumulate`] for 8x8 patches (every preset), written
+    /// on 4-lane arrays so the compiler maps each step to one SSE
+    /// instruction. Four lanes (one register per sum) leave registers for
+    /// the row data; columns `c` and `c + 4` share lane `c`.
+    #[inline]
+    fn accumulate8(
+        &self,
+        win: &[f32],
+        stride: usize,
+        x0: usize,
+        y0: usize,
+        [ax, ay]: [f32; 2],
+    ) -> (f32, f32, f32, f32) {
+        type V = [f32; 4];
+        #[inline(always)]
+        fn ld(s: &[f32], o: usize) -> V {
+            s[o..o + 4].try_into().expect("4 values")
+        }
+        #[inline(always)]
+        fn lerp(a: V, b: V, t: f32) -> V {
+            [
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                a[2] + t * (b[2] - a[2]),
+                a[3] + t * (b[3] - a[3]),
+            ]
+        }
+        #[inline(always)]
+        fn mac(acc: &mut V, a: V, b: V) {
+            for l in 0..4 {
+                acc[l] += a[l] * b[l];
+            }
+        }
+        #[inline(always)]
+        fn hrow(win: &[f32], o: usize, ax: f32) -> (V, V) {
+            (
+                lerp(ld(win, o), ld(win, o + 1), ax),
+                lerp(ld(win, o + 4), ld(win, o + 5), ax),
+            )
+        }
+        let (mut sd, mut sd2, mut sx, mut sy) =
+            ([0.0f32; 4], [0.0f32; 4], [0.0f32; 4], [0.0f32; 4]);
+        let (mut t0, mut t1) = hrow(win, 0, ax);
+        for r in 0..8 {
+            let (b0, b1) = hrow(win, (r + 1) * stride, ax);
+            let o = (y0 + r) * self.w + x0;
+            for (half, t, b) in [(0usize, t0, b0), (4, t1, b1)] {
+                let s = lerp(t, b, ay);
+                let i0 = ld(self.i0, o + half);
+                let d: V = [s[0] - i0[0], s[1] - i0[1], s[2] - i0[2], s[3] - i0[3]];
+                for l in 0..4 {
+                    sd[l] += d[l];
+                }
+                mac(&mut sd2, d, d);
+                mac(&mut sx, d, ld(self.gx, o + half));
+                mac(&mut sy, d, ld(self.gy, o + half));
+            }
+            (t0, t1) = (b0, b1);
+        }
+        let mut out = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for l in 0..4 {
+            out.0 += sd[l];
+            out.1 += sd2[l];
+            out.2 += sx[l];
+            out.3 += sy[l];
+        }
+        out
+    }
+}
+
+/// `floor` without the libm call (exact for |x| < 2^31; larger or NaN
+/// values only ever reach the clamped path).
+#[inline]
+fn fast_floor(x: f32) -> f32 {
+    let t = x as i32 as f32;
+    if t > x { t - 1.0 } else { t }
 }
 
 /// Both propagation passes over all stripes of one level.
@@ -815,6 +1025,12 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                         let pr = &patches[gi * ws + j];
                         let (mut u, mut v) = (sx[idx], sy[idx]);
                         let mut cur = view.eval(x0, y0, pr, u, v);
+                        if forward && p.zero_candidate && (u != 0.0 || v != 0.0) {
+                            let e = view.eval(x0, y0, pr, 0.0, 0.0);
+                            if e.ssd < cur.ssd {
+                                (u, v, cur) = (0.0, 0.0, e);
+                            }
+                        }
                         if p.spatial_propagation {
                             let mut try_cand = |n: usize| {
                                 let (cu, cv) = (sx[n], sy[n]);
@@ -853,7 +1069,9 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                             }
                             // Stop when the cost stops falling; keep the
                             // last vector that lowered it.
-                            if !(cur.ssd < prev) {
+                            // (NaN never counts as an improvement.)
+                            let improved = cur.ssd < prev;
+                            if !improved {
                                 if p.backtracking && t > 0 {
                                     u = 0.5 * (u + lu);
                                     v = 0.5 * (v + lv);
@@ -877,7 +1095,8 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                         let du = u - u0;
                         let dv = v - v0;
                         let lim = p.patch_size as f32;
-                        if !(du * du + dv * dv <= lim * lim) {
+                        let within = du * du + dv * dv <= lim * lim;
+                        if !within {
                             (u, v) = (u0, v0);
                         }
                         sx[idx] = u;
@@ -890,7 +1109,7 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
 
 /// Dense flow: each pixel averages the vectors of the patches covering it,
 /// weighted by `1 / max(1, |cur(x + u) - ref(x)|)`.
-fn densify(lvl: &mut Level, _psz: usize) {
+fn densify(lvl: &mut Level) {
     let (w, h, ws) = (lvl.w, lvl.h, lvl.ws());
     let (i0, i1) = (&lvl.i0, &lvl.i1);
     let (sx, sy) = (&lvl.sx, &lvl.sy);
@@ -937,6 +1156,134 @@ mod tests {
                     let c0 = c[k as usize] as usize;
                     assert!(c0 <= x && x < c0 + p);
                 }
+            }
+        }
+    }
+
+    /// The slow, obviously correct patch cost: every pixel sampled on its
+    /// own with border replication, sums in f64, mean subtracted explicitly.
+    fn naive_eval(v: &LevelView, pr: &PatchRef, x0: usize, y0: usize, u: f32, vv: f32) -> Eval {
+        let p = v.psz;
+        let mut d = Vec::new();
+        for r in 0..p {
+            for c in 0..p {
+                let (x, y) = (x0 + c, y0 + r);
+                let s = pyramid::sample_clamped(v.i1, v.w, v.h, x as f32 + u, y as f32 + vv);
+                d.push((s - v.i0[y * v.w + x]) as f64);
+            }
+        }
+        let mean = if v.mean_norm {
+            d.iter().sum::<f64>() / d.len() as f64
+        } else {
+            0.0
+        };
+        let (mut ssd, mut bx, mut by) = (0.0, 0.0, 0.0);
+        for r in 0..p {
+            for c in 0..p {
+                let k = (y0 + r) * v.w + x0 + c;
+                let e = d[r * p + c] - mean;
+                ssd += e * e;
+                bx += e * v.gx[k] as f64;
+                by += e * v.gy[k] as f64;
+            }
+        }
+        let _ = pr;
+        Eval {
+            ssd: ssd as f32,
+            bx: bx as f32,
+            by: by as f32,
+        }
+    }
+
+    #[test]
+    fn patch_cost_matches_the_naive_oracle() {
+        let (w, h) = (40usize, 30usize);
+        let img = |k: u64| -> Vec<f32> {
+            (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    128.0
+                        + 60.0 * (0.5 * x + 0.3 * y + k as f32).sin()
+                        + 30.0 * (0.9 * y - 0.2 * x).cos()
+                })
+                .collect()
+        };
+        let (i0, i1) = (img(0), img(1));
+        let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
+        pyramid::sobel(&i0, w, h, 0.125, &mut gx, &mut gy).unwrap();
+        for psz in [8usize, 6] {
+            for mean_norm in [true, false] {
+                let view = LevelView {
+                    w,
+                    h,
+                    i0: &i0,
+                    gx: &gx,
+                    gy: &gy,
+                    i1: &i1,
+                    psz,
+                    mean_norm,
+                };
+                // Inside, at sub-pixel offsets, and hanging over every edge.
+                for &(x0, y0, u, v) in &[
+                    (10usize, 8usize, 0.0f32, 0.0f32),
+                    (10, 8, 0.37, -1.81),
+                    (0, 0, -2.6, -0.4),
+                    (w - psz, h - psz, 3.2, 2.9),
+                    (5, h - psz, -0.5, 7.5),
+                    (12, 4, -1e6, 1e6),
+                ] {
+                    let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm);
+                    let got = view.eval(x0, y0, &pr, u, v);
+                    let want = naive_eval(&view, &pr, x0, y0, u, v);
+                    let tol = |a: f32| 1e-3 * (1.0 + a.abs());
+                    assert!(
+                        (got.ssd - want.ssd).abs() < tol(want.ssd),
+                        "{psz} {x0},{y0} {u},{v}"
+                    );
+                    assert!((got.bx - want.bx).abs() < tol(want.bx) * 10.0);
+                    assert!((got.by - want.by).abs() < tol(want.by) * 10.0);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn densification_matches_the_naive_weighted_average() {
+        let mut dis = Dis::with_preset(DisPreset::Ultrafast);
+        let (w, h) = (96usize, 64usize);
+        let r = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
+            100.0 + 50.0 * (0.2 * x as f32).sin() * (0.3 * y as f32).cos()
+        });
+        let c = r.mapv(|v| v + 0.5);
+        dis.set_reference(&r).unwrap();
+        dis.compute_native(&c).unwrap();
+        let lvl = &dis.levels[0];
+        let ws = lvl.ws();
+        for y in 0..lvl.h {
+            for x in 0..lvl.w {
+                let (mut su, mut sv, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+                for (i, &py) in lvl.py.iter().enumerate() {
+                    for (j, &px) in lvl.px.iter().enumerate() {
+                        let (px, py) = (px as usize, py as usize);
+                        if x < px || x >= px + 8 || y < py || y >= py + 8 {
+                            continue;
+                        }
+                        let (pu, pv) = (lvl.sx[i * ws + j], lvl.sy[i * ws + j]);
+                        let s = pyramid::sample_clamped(
+                            &lvl.i1,
+                            lvl.w,
+                            lvl.h,
+                            x as f32 + pu,
+                            y as f32 + pv,
+                        );
+                        let wt = 1.0 / ((s - lvl.i0[y * lvl.w + x]).abs() as f64).max(1.0);
+                        su += wt * pu as f64;
+                        sv += wt * pv as f64;
+                        sw += wt;
+                    }
+                }
+                assert!((lvl.flow.u[[y, x]] as f64 - su / sw).abs() < 1e-5);
+                assert!((lvl.flow.v[[y, x]] as f64 - sv / sw).abs() < 1e-5);
             }
         }
     }

@@ -7,6 +7,20 @@
 
 use rayon::prelude::*;
 
+use crate::error::{Error, Result};
+
+/// Errors unless `buf` holds exactly `w * h` values.
+fn check_len(what: &str, buf: &[f32], w: usize, h: usize) -> Result<()> {
+    if buf.len() == w * h {
+        Ok(())
+    } else {
+        Err(Error::param(
+            what,
+            format!("buffer of {} values for a {w}x{h} image", buf.len()),
+        ))
+    }
+}
+
 /// Size of pyramid level `scale` for a `(width, height)` image: integer
 /// division by `2^scale`, as OpenCV's DIS does.
 pub fn level_size(width: usize, height: usize, scale: usize) -> (usize, usize) {
@@ -16,23 +30,35 @@ pub fn level_size(width: usize, height: usize, scale: usize) -> (usize, usize) {
 /// Box-averages `src` (`sw x sh`) by a `factor x factor` area into `dst`
 /// (`sw / factor x sh / factor`, integer division: trailing rows and columns
 /// that do not fill a whole box are dropped, as in OpenCV's `INTER_AREA` at
-/// integer ratios). `factor == 1` is a copy.
+/// integer ratios). `factor == 1` is a copy. Errors if `factor` is 0 or a
+/// buffer has the wrong length.
 ///
 /// Levels stay in `f32` (no 8-bit rounding), so sub-grey-level detail of small
 /// markers survives into the coarse levels.
-pub fn downsample_area(src: &[f32], sw: usize, sh: usize, factor: usize, dst: &mut [f32]) {
-    assert!(factor >= 1);
+pub fn downsample_area(
+    src: &[f32],
+    sw: usize,
+    sh: usize,
+    factor: usize,
+    dst: &mut [f32],
+) -> Result<()> {
+    if factor == 0 {
+        return Err(Error::param(
+            "factor",
+            "the averaging factor must be at least 1",
+        ));
+    }
     let (dw, dh) = (sw / factor, sh / factor);
-    assert_eq!(src.len(), sw * sh);
-    assert_eq!(dst.len(), dw * dh);
+    check_len("src", src, sw, sh)?;
+    check_len("dst", dst, dw, dh)?;
     if dw == 0 || dh == 0 {
-        return;
+        return Ok(());
     }
     if factor == 1 {
         dst.par_chunks_mut(dw)
             .zip(src.par_chunks(sw))
             .for_each(|(d, s)| d.copy_from_slice(&s[..dw]));
-        return;
+        return Ok(());
     }
     let norm = 1.0 / (factor * factor) as f32;
     dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
@@ -56,18 +82,27 @@ pub fn downsample_area(src: &[f32], sw: usize, sh: usize, factor: usize, dst: &m
             }
         }
     });
+    Ok(())
 }
 
 /// 3x3 Sobel gradients of `img` (`w x h`) into `gx`, `gy`, scaled by `scale`
 /// (`1.0` gives OpenCV's un-normalized Sobel where a unit ramp gives 8;
 /// `0.125` gives the true derivative). Borders are reflected without
-/// repeating the edge pixel (OpenCV's `BORDER_REFLECT_101`).
-pub fn sobel(img: &[f32], w: usize, h: usize, scale: f32, gx: &mut [f32], gy: &mut [f32]) {
-    assert_eq!(img.len(), w * h);
-    assert_eq!(gx.len(), w * h);
-    assert_eq!(gy.len(), w * h);
+/// repeating the edge pixel (OpenCV's `BORDER_REFLECT_101`). Errors if a
+/// buffer has the wrong length.
+pub fn sobel(
+    img: &[f32],
+    w: usize,
+    h: usize,
+    scale: f32,
+    gx: &mut [f32],
+    gy: &mut [f32],
+) -> Result<()> {
+    check_len("img", img, w, h)?;
+    check_len("gx", gx, w, h)?;
+    check_len("gy", gy, w, h)?;
     if w == 0 || h == 0 {
-        return;
+        return Ok(());
     }
     let refl = |i: isize, n: usize| -> usize {
         let n = n as isize;
@@ -99,14 +134,14 @@ pub fn sobel(img: &[f32], w: usize, h: usize, scale: f32, gx: &mut [f32], gy: &m
                 gyr[x] = dy * scale;
             }
         });
+    Ok(())
 }
 
-/// Separable Gaussian blur of `img` (`w x h`) in place with standard
-/// deviation `sigma` px (radius `ceil(3 sigma)`, reflect-101 borders), using
-/// `tmp` (same size) as scratch. `sigma <= 0` does nothing.
-pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, sigma: f32, tmp: &mut [f32]) {
-    if sigma <= 0.0 || w == 0 || h == 0 {
-        return;
+/// Normalized Gaussian taps of standard deviation `sigma` px, radius
+/// `ceil(3 sigma)`; empty for `sigma <= 0` (no filtering).
+pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
+    if sigma <= 0.0 {
+        return Vec::new();
     }
     let rad = (3.0 * sigma).ceil() as isize;
     let mut k: Vec<f32> = (-rad..=rad)
@@ -114,6 +149,29 @@ pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, sigma: f32, tmp: &mut 
         .collect();
     let sum: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= sum);
+    k
+}
+
+/// Separable convolution of `img` (`w x h`) in place with the symmetric
+/// taps `k` (odd length, e.g. from [`gaussian_kernel`]; empty does nothing),
+/// reflect-101 borders, using `tmp` (same size) as scratch. Errors if a
+/// buffer has the wrong length or `k` has an even length.
+pub fn gaussian_blur(
+    img: &mut [f32],
+    w: usize,
+    h: usize,
+    k: &[f32],
+    tmp: &mut [f32],
+) -> Result<()> {
+    check_len("img", img, w, h)?;
+    check_len("tmp", tmp, w, h)?;
+    if k.len() % 2 == 0 && !k.is_empty() {
+        return Err(Error::param("kernel", "needs an odd number of taps"));
+    }
+    if k.is_empty() || w == 0 || h == 0 {
+        return Ok(());
+    }
+    let rad = (k.len() / 2) as isize;
     let refl = |i: isize, n: usize| -> usize {
         let n = n as isize;
         if n == 1 {
@@ -161,6 +219,7 @@ pub fn gaussian_blur(img: &mut [f32], w: usize, h: usize, sigma: f32, tmp: &mut 
             }
         }
     });
+    Ok(())
 }
 
 /// Precomputed bilinear taps for resizing one axis from `src_n` to `dst_n`
@@ -177,8 +236,11 @@ pub struct ResizeAxis {
 }
 
 impl ResizeAxis {
-    /// Taps for `src_n -> dst_n` (both non-zero).
+    /// Taps for `src_n -> dst_n`; empty (no taps) if either is zero.
     pub fn new(src_n: usize, dst_n: usize) -> Self {
+        if src_n == 0 || dst_n == 0 {
+            return ResizeAxis::default();
+        }
         let ratio = src_n as f64 / dst_n as f64;
         let mut a = ResizeAxis {
             i0: Vec::with_capacity(dst_n),
@@ -200,40 +262,99 @@ impl ResizeAxis {
 
 /// Bilinear resize of `src` (`sw` columns) into `dst` (`dw` columns) with
 /// precomputed taps, multiplying every value by `gain` (the flow rescaling
-/// when moving between pyramid levels).
+/// when moving between pyramid levels). `tmp` (`sw * dh` values) holds the
+/// vertical pass: rows are blended first at the source width (contiguous,
+/// vectorizable), then each output row gathers from one blended row.
+/// Errors if a buffer length or a tap does not fit the sizes.
 pub fn resize_bilinear(
     src: &[f32],
     sw: usize,
     xs: &ResizeAxis,
     ys: &ResizeAxis,
     gain: f32,
+    tmp: &mut [f32],
     dst: &mut [f32],
-) {
+) -> Result<()> {
     let dw = xs.w.len();
-    assert_eq!(dst.len(), dw * ys.w.len());
-    dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
+    let dh = ys.w.len();
+    check_len("dst", dst, dw, dh)?;
+    check_len("tmp", tmp, sw, dh)?;
+    let sh = src.len().checked_div(sw).unwrap_or(0);
+    check_len("src", src, sw, sh)?;
+    let fits = |a: &ResizeAxis, n: usize| a.i1.iter().chain(&a.i0).all(|&i| (i as usize) < n);
+    if !fits(xs, sw) || !fits(ys, sh) {
+        return Err(Error::param(
+            "taps",
+            format!("resize taps reach outside the {sw}x{sh} source"),
+        ));
+    }
+    tmp.par_chunks_mut(sw).enumerate().for_each(|(y, trow)| {
         let r0 = &src[ys.i0[y] as usize * sw..][..sw];
         let r1 = &src[ys.i1[y] as usize * sw..][..sw];
         let wy = ys.w[y];
-        for x in 0..dw {
-            let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
-            let top = r0[a] + wx * (r0[b] - r0[a]);
-            let bot = r1[a] + wx * (r1[b] - r1[a]);
-            drow[x] = gain * (top + wy * (bot - top));
+        for x in 0..sw {
+            trow[x] = gain * (r0[x] + wy * (r1[x] - r0[x]));
         }
     });
+    let tmp = &*tmp;
+    let exact = |f: usize| dw == sw * f;
+    dst.par_chunks_mut(dw).enumerate().for_each(|(y, drow)| {
+        let t = &tmp[y * sw..][..sw];
+        // Integer power-of-two ratios (the pyramid's case) use fixed
+        // weights instead of per-column taps: the same values bit for bit
+        // (the weights are dyadic, exact in f32), without the gathers.
+        if exact(2) {
+            upsample_row::<2>(t, drow);
+        } else if exact(4) {
+            upsample_row::<4>(t, drow);
+        } else if exact(8) {
+            upsample_row::<8>(t, drow);
+        } else {
+            for x in 0..dw {
+                let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
+                drow[x] = t[a] + wx * (t[b] - t[a]);
+            }
+        }
+    });
+    Ok(())
+}
+
+/// One row of an exact `F`x bilinear upsampling with half-pixel centres:
+/// output `F k + m` lies at source `k + (m + 0.5) / F - 0.5`, i.e. between
+/// `k - 1` and `k` for `m < F/2` and between `k` and `k + 1` otherwise.
+fn upsample_row<const F: usize>(t: &[f32], out: &mut [f32]) {
+    let n = t.len();
+    let half = F / 2;
+    let w: [f32; F] = std::array::from_fn(|m| {
+        let p = (m as f32 + 0.5) / F as f32;
+        if m < half { p + 0.5 } else { p - 0.5 }
+    });
+    for (k, o) in out.chunks_exact_mut(F).enumerate() {
+        let lo = t[k.saturating_sub(1)];
+        let mid = t[k];
+        let hi = t[(k + 1).min(n - 1)];
+        for m in 0..half {
+            o[m] = lo + w[m] * (mid - lo);
+        }
+        for m in half..F {
+            o[m] = mid + w[m] * (hi - mid);
+        }
+    }
 }
 
 /// Bilinear sample of `img` (`w x h`) at `(x, y)`, clamping to the edge
 /// (border replication). Used where one sample at a time is needed.
+/// `img` must hold `w * h > 0` values; otherwise the result is NaN.
 #[inline]
 pub fn sample_clamped(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
+    if w == 0 || h == 0 || img.len() < w * h {
+        return f32::NAN;
+    }
     let xc = x.clamp(0.0, (w - 1) as f32);
     let yc = y.clamp(0.0, (h - 1) as f32);
-    let x0 = xc.floor();
-    let y0 = yc.floor();
-    let (fx, fy) = (xc - x0, yc - y0);
-    let (x0, y0) = (x0 as usize, y0 as usize);
+    // Non-negative after the clamp, so truncation is the floor.
+    let (x0, y0) = (xc as usize, yc as usize);
+    let (fx, fy) = (xc - x0 as f32, yc - y0 as f32);
     let x1 = (x0 + 1).min(w - 1);
     let y1 = (y0 + 1).min(h - 1);
     let top = img[y0 * w + x0] + fx * (img[y0 * w + x1] - img[y0 * w + x0]);
@@ -252,7 +373,7 @@ mod tests {
         for f in 1..=4 {
             let (dw, dh) = (w / f, h / f);
             let mut dst = vec![0.0; dw * dh];
-            downsample_area(&src, w, h, f, &mut dst);
+            downsample_area(&src, w, h, f, &mut dst).unwrap();
             for y in 0..dh {
                 for x in 0..dw {
                     let mut s = 0.0f64;
@@ -275,7 +396,7 @@ mod tests {
         let mut out = img.clone();
         let mut tmp = vec![0.0; w * h];
         let sigma = 0.8f32;
-        gaussian_blur(&mut out, w, h, sigma, &mut tmp);
+        gaussian_blur(&mut out, w, h, &gaussian_kernel(sigma), &mut tmp).unwrap();
         let rad = 3i64;
         let kern = |i: i64| (-(i * i) as f64 / (2.0 * (sigma as f64).powi(2))).exp();
         let ksum: f64 = (-rad..=rad).map(kern).sum();
@@ -302,8 +423,28 @@ mod tests {
             }
         }
         let mut c = vec![7.0f32; w * h];
-        gaussian_blur(&mut c, w, h, 1.5, &mut tmp);
+        gaussian_blur(&mut c, w, h, &gaussian_kernel(1.5), &mut tmp).unwrap();
         assert!(c.iter().all(|v| (v - 7.0).abs() < 1e-4));
+    }
+
+    #[test]
+    fn wrong_buffers_are_errors_not_panics() {
+        let img = vec![1.0f32; 12];
+        let mut small = vec![0.0f32; 5];
+        let mut ok = vec![0.0f32; 12];
+        assert!(downsample_area(&img, 4, 3, 0, &mut small).is_err());
+        assert!(downsample_area(&img, 4, 3, 2, &mut small).is_err());
+        assert!(sobel(&img, 4, 3, 1.0, &mut small, &mut ok.clone()).is_err());
+        let k = gaussian_kernel(1.0);
+        assert!(gaussian_blur(&mut ok, 4, 3, &k, &mut small).is_err());
+        assert!(gaussian_blur(&mut ok, 4, 3, &[0.5, 0.5], &mut [0.0; 12]).is_err());
+        let (xs, ys) = (ResizeAxis::new(4, 8), ResizeAxis::new(3, 6));
+        assert!(resize_bilinear(&img, 4, &xs, &ys, 1.0, &mut small, &mut ok).is_err());
+        let (bx, by) = (ResizeAxis::new(9, 8), ResizeAxis::new(3, 6));
+        let (mut t, mut d) = (vec![0.0; 4 * 6], vec![0.0; 48]);
+        assert!(resize_bilinear(&img, 4, &bx, &by, 1.0, &mut t, &mut d).is_err());
+        assert!(sample_clamped(&[], 0, 0, 0.5, 0.5).is_nan());
+        assert!(ResizeAxis::new(0, 5).w.is_empty());
     }
 
     #[test]
@@ -311,7 +452,7 @@ mod tests {
         let (w, h) = (7, 5);
         let img: Vec<f32> = (0..w * h).map(|i| (i % w) as f32 * 2.0).collect();
         let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
-        sobel(&img, w, h, 0.125, &mut gx, &mut gy);
+        sobel(&img, w, h, 0.125, &mut gx, &mut gy).unwrap();
         for y in 0..h {
             for x in 1..w - 1 {
                 assert!((gx[y * w + x] - 2.0).abs() < 1e-6);
@@ -320,8 +461,31 @@ mod tests {
             // Reflect-101 makes the edge derivative zero.
             assert_eq!(gx[y * w], 0.0);
         }
-        sobel(&img, w, h, 1.0, &mut gx, &mut gy);
+        sobel(&img, w, h, 1.0, &mut gx, &mut gy).unwrap();
         assert!((gx[2 * w + 3] - 16.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn exact_upsampling_matches_the_general_taps() {
+        let (sw, sh) = (9, 5);
+        let src: Vec<f32> = (0..sw * sh)
+            .map(|i| ((i * 7919) % 97) as f32 * 0.37)
+            .collect();
+        for f in [2usize, 4, 8] {
+            let (dw, dh) = (sw * f, sh * f);
+            let (xs, ys) = (ResizeAxis::new(sw, dw), ResizeAxis::new(sh, dh));
+            let mut tmp = vec![0.0; sw * dh];
+            let mut fast = vec![0.0; dw * dh];
+            resize_bilinear(&src, sw, &xs, &ys, 1.5, &mut tmp, &mut fast).unwrap();
+            for y in 0..dh {
+                for x in 0..dw {
+                    let t = &tmp[y * sw..];
+                    let (a, b, w) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
+                    let want = t[a] + w * (t[b] - t[a]);
+                    assert_eq!(fast[y * dw + x].to_bits(), want.to_bits(), "f={f} x={x}");
+                }
+            }
+        }
     }
 
     #[test]
@@ -334,7 +498,8 @@ mod tests {
         let xs = ResizeAxis::new(sw, dw);
         let ys = ResizeAxis::new(sh, dh);
         let mut dst = vec![0.0; dw * dh];
-        resize_bilinear(&src, sw, &xs, &ys, 2.0, &mut dst);
+        let mut tmp = vec![0.0; sw * dh];
+        resize_bilinear(&src, sw, &xs, &ys, 2.0, &mut tmp, &mut dst).unwrap();
         for y in 1..dh - 1 {
             for x in 1..dw - 1 {
                 let sx = (x as f32 + 0.5) / 2.0 - 0.5;

@@ -182,7 +182,7 @@ pub fn marker_pair(
 }
 
 /// A smooth random texture: a sum of `n` random plane waves with
-/// wavelengths of 10..40 px, around grey level 128.
+/// wavelengths of 16..48 px, around grey level 128.
 pub struct Texture {
     waves: Vec<(f64, f64, f64, f64)>, // kx, ky, phase, amplitude
 }
@@ -193,7 +193,7 @@ impl Texture {
         let mut rng = Rng::new(seed);
         let waves = (0..n)
             .map(|_| {
-                let lambda = rng.range(10.0, 40.0);
+                let lambda = rng.range(16.0, 48.0);
                 let th = rng.range(0.0, std::f64::consts::TAU);
                 let k = std::f64::consts::TAU / lambda;
                 (
@@ -238,7 +238,7 @@ pub fn texture_pair(
 pub fn press_motion(w: usize, h: usize, max_disp: f64, seed: u64) -> Motion {
     let mut rng = Rng::new(seed);
     let n = 3;
-    let s = (w.min(h) as f64) / 8.0;
+    let s = (w.min(h) as f64) / 4.0;
     let bumps = (0..n)
         .map(|_| Bump {
             cx: rng.range(0.2, 0.8) * w as f64,
