@@ -145,18 +145,15 @@ impl Default for RefineParams {
     }
 }
 
-// Quantities stored per colour row. Derivatives (recomputed per call):
-const IX: usize = 0;
-const IY: usize = 1;
-const IZ: usize = 2;
-const IXX: usize = 3;
-const IXY: usize = 4;
-const IYY: usize = 5;
-const IXZ: usize = 6;
-const IYZ: usize = 7;
-const N_DERIV: usize = 8;
-// Linear-system coefficients (per outer iteration) and smoothness weights of the edges
-// to the right and down neighbours (0 where there is no neighbour):
+// Quantities stored per colour row. Normalised derivatives of the data terms
+// (recomputed per call), each multiplied by 1/sqrt of its term's normaliser so that the
+// per-iteration work needs no division: brightness (I_x, I_y, I_z) / sqrt(I_x^2 + I_y^2
+// + zeta^2); constancy of I_x: (I_xx, I_xy, I_xz) / sqrt(I_xx^2 + I_xy^2 + zeta^2);
+// constancy of I_y: (I_xy, I_yy, I_yz) / sqrt(I_xy^2 + I_yy^2 + zeta^2).
+const N_DERIV: usize = 9;
+// Linear-system coefficients (per outer iteration; the A11 and A22 slots hold the
+// reciprocals of the diagonal) and smoothness weights of the edges to the right and
+// down neighbours (0 where there is no neighbour):
 const A11: usize = 0;
 const A12: usize = 1;
 const A22: usize = 2;
@@ -431,46 +428,59 @@ impl VariationalRefiner {
         let p = self.params;
         let work = &mut self.work;
 
-        // Current image as a contiguous slice (copy only if the caller's view is not).
-        let i1s: &[f32] = match i1.as_slice() {
-            Some(sl) => sl,
-            None => {
-                work.i1.clear();
-                work.i1.extend(i1.iter().copied());
-                &work.i1
+        // Run the whole call on a rayon worker: called from outside a pool, every
+        // parallel pass would otherwise be injected into the pool separately (~70 per
+        // call), each paying a cross-thread wake-up.
+        rayon::scope(|_| {
+            // Current image as a contiguous slice (copy only if the caller's view is not).
+            let i1s: &[f32] = match i1.as_slice() {
+                Some(sl) => sl,
+                None => {
+                    work.i1.clear();
+                    work.i1.extend(i1.iter().copied());
+                    &work.i1
+                }
+            };
+            warp(i1s, u, v, g, &mut work.warped);
+            deriv_x(&work.warped, &mut work.wx, g.w, s);
+            deriv_y(&work.warped, &mut work.wy, g.w, g.h, s);
+            split_derivatives(
+                r,
+                &work.warped,
+                &work.wx,
+                &work.wy,
+                s,
+                p.zeta * p.zeta,
+                &mut work.deriv,
+            );
+            split_flow(u, v, g, &mut work.base);
+            for d in work.delta.iter_mut() {
+                d.fill(0.0);
             }
-        };
-        warp(i1s, u, v, g, &mut work.warped);
-        deriv_x(&work.warped, &mut work.wx, g.w, s);
-        deriv_y(&work.warped, &mut work.wy, g.w, g.h, s);
-        split_derivatives(r, &work.warped, &work.wx, &work.wy, s, &mut work.deriv);
-        split_flow(u, v, g, &mut work.base);
-        for d in work.delta.iter_mut() {
-            d.fill(0.0);
-        }
 
-        for _ in 0..p.outer_iterations {
-            for c in 0..2 {
-                smoothness_weights(g, c, &p, &work.base, &work.delta, &mut work.coef);
-            }
-            for c in 0..2 {
-                assemble(
-                    g,
-                    c,
-                    &p,
-                    &work.deriv[c],
-                    &work.base,
-                    &work.delta[c],
-                    &mut work.coef,
-                );
-            }
-            for _ in 0..p.sor_iterations {
+            for _ in 0..p.outer_iterations {
                 for c in 0..2 {
-                    sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
+                    smoothness_weights(g, c, &p, &work.base, &work.delta, &mut work.coef);
+                }
+                for c in 0..2 {
+                    assemble(
+                        g,
+                        c,
+                        &p,
+                        &work.deriv[c],
+                        &work.base,
+                        &work.delta[c],
+                        &mut work.coef,
+                    );
+                }
+                for _ in 0..p.sor_iterations {
+                    for c in 0..2 {
+                        sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
+                    }
                 }
             }
-        }
-        merge_flow(g, &work.base, &work.delta, u, v);
+            merge_flow(g, &work.base, &work.delta, u, v);
+        });
         Ok(())
     }
 }
@@ -507,15 +517,17 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
         });
 }
 
-/// Builds the derivatives of the linearised data terms in the split layout:
-/// derivatives of the average of `I0` and the warped `I1` (from the cached reference
-/// derivatives plus those of the warped image), `I_z = warped - I0` and its derivatives.
+/// Builds the normalised derivatives of the linearised data terms in the split layout
+/// (see `N_DERIV`): derivatives of the average of `I0` and the warped `I1` (from the
+/// cached reference derivatives plus those of the warped image), `I_z = warped - I0`
+/// and its derivatives.
 fn split_derivatives(
     r: &Reference,
     warped: &[f32],
     wx: &[f32],
     wy: &[f32],
     s: f32,
+    z2: f32,
     deriv: &mut [Vec<f32>; 2],
 ) {
     let g = r.grid;
@@ -532,31 +544,34 @@ fn split_derivatives(
             let up = i.saturating_sub(1) * w;
             let dn = (i + 1).min(h - 1) * w;
             let o = i * w;
-            for j in 0..w {
-                let jl = j.saturating_sub(1);
-                let jr = (j + 1).min(w - 1);
-                let wxx = s * (wx[o + jr] - wx[o + jl]);
-                let wxy = s * (wx[dn + j] - wx[up + j]);
-                let wyy = s * (wy[dn + j] - wy[up + j]);
-                let k = o + j;
-                let vals = [
-                    0.5 * (r.gx[k] + wx[k]),
-                    0.5 * (r.gy[k] + wy[k]),
-                    warped[k] - r.i0[k],
-                    0.5 * (r.gxx[k] + wxx),
-                    0.5 * (r.gxy[k] + wxy),
-                    0.5 * (r.gyy[k] + wyy),
-                    wx[k] - r.gx[k],
-                    wy[k] - r.gy[k],
-                ];
-                let dst = if (i + j) % 2 == 0 {
-                    &mut *rrow
-                } else {
-                    &mut *brow
-                };
-                let kk = j / 2 + 1;
-                for (q, val) in vals.into_iter().enumerate() {
-                    dst[q * st + kk] = val;
+            for (c, dst) in [rrow, brow].into_iter().enumerate() {
+                let n = g.n(c, i);
+                let p = Grid::p(c, i);
+                let mut planes = dst.chunks_exact_mut(st).map(|q| &mut q[1..=n]);
+                let mut next = || planes.next().unwrap();
+                let [bx, by, bz, xx, xy, xz, yx, yy, yz] = std::array::from_fn(|_| next());
+                for k in 0..n {
+                    let j = 2 * k + p;
+                    let jl = j.saturating_sub(1);
+                    let jr = (j + 1).min(w - 1);
+                    let q = o + j;
+                    let wxx = s * (wx[o + jr] - wx[o + jl]);
+                    let wxy = s * (wx[dn + j] - wx[up + j]);
+                    let wyy = s * (wy[dn + j] - wy[up + j]);
+                    let ix = 0.5 * (r.gx[q] + wx[q]);
+                    let iy = 0.5 * (r.gy[q] + wy[q]);
+                    let iz = warped[q] - r.i0[q];
+                    let ixx = 0.5 * (r.gxx[q] + wxx);
+                    let ixy = 0.5 * (r.gxy[q] + wxy);
+                    let iyy = 0.5 * (r.gyy[q] + wyy);
+                    let ixz = wx[q] - r.gx[q];
+                    let iyz = wy[q] - r.gy[q];
+                    let nb = 1.0 / (ix * ix + iy * iy + z2).sqrt();
+                    let n1 = 1.0 / (ixx * ixx + ixy * ixy + z2).sqrt();
+                    let n2 = 1.0 / (iyy * iyy + ixy * ixy + z2).sqrt();
+                    (bx[k], by[k], bz[k]) = (ix * nb, iy * nb, iz * nb);
+                    (xx[k], xy[k], xz[k]) = (ixx * n1, ixy * n1, ixz * n1);
+                    (yx[k], yy[k], yz[k]) = (ixy * n2, iyy * n2, iyz * n2);
                 }
             }
         });
@@ -680,17 +695,15 @@ fn smoothness_weights(
             let (wr_part, wd_part) = row[WR * st..(WD + 1) * st].split_at_mut(st);
             let wr = &mut wr_part[1..][..n];
             let wd = &mut wd_part[1..][..n];
-            for k in 0..n {
-                let cu = bu[k] + du[k];
-                let cv = bv[k] + dv[k];
-                let ux = (rbu[k] + rdu[k]) - cu;
-                let vx = (rbv[k] + rdv[k]) - cv;
-                let uy = (dbu[k] + ddu[k]) - cu;
-                let vy = (dbv[k] + ddv[k]) - cv;
-                let wgt = alpha2 / (ux * ux + vx * vx + uy * uy + vy * vy + e2).sqrt();
-                wr[k] = wgt;
-                wd[k] = wgt;
-            }
+            weights_row(
+                alpha2,
+                e2,
+                [bu, du, bv, dv],
+                [rbu, rdu, rbv, rdv],
+                [dbu, ddu, dbv, ddv],
+                wr,
+                wd,
+            );
             // The pixel in the last column (if of this colour) has no right neighbour.
             if n > 0 && 2 * (n - 1) + pp == w - 1 {
                 let k = n - 1;
@@ -708,6 +721,37 @@ fn smoothness_weights(
         });
 }
 
+/// Smoothness weights of one colour row from the flow (`[base u, delta u, base v,
+/// delta v]`) at the pixels, their right and their down neighbours. Separate function
+/// so that the outputs are known not to alias the inputs (the loop vectorises).
+#[inline(never)]
+fn weights_row(
+    alpha2: f32,
+    e2: f32,
+    c: [&[f32]; 4],
+    r: [&[f32]; 4],
+    d: [&[f32]; 4],
+    wr: &mut [f32],
+    wd: &mut [f32],
+) {
+    let n = wr.len();
+    let wd = &mut wd[..n];
+    let [bu, du, bv, dv] = c.map(|s| &s[..n]);
+    let [rbu, rdu, rbv, rdv] = r.map(|s| &s[..n]);
+    let [dbu, ddu, dbv, ddv] = d.map(|s| &s[..n]);
+    for k in 0..n {
+        let cu = bu[k] + du[k];
+        let cv = bv[k] + dv[k];
+        let ux = (rbu[k] + rdu[k]) - cu;
+        let vx = (rbv[k] + rdv[k]) - cv;
+        let uy = (dbu[k] + ddu[k]) - cu;
+        let vy = (dbv[k] + ddv[k]) - cv;
+        let wgt = alpha2 / (ux * ux + vx * vx + uy * uy + vy * vy + e2).sqrt();
+        wr[k] = wgt;
+        wd[k] = wgt;
+    }
+}
+
 /// Linear-system coefficients of colour `c` for this outer iteration: the data terms
 /// linearised around the current increment (lagged Charbonnier weights) plus the
 /// smoothness terms (diagonal and right-hand side from the base flow).
@@ -723,10 +767,12 @@ fn assemble(
     let (w, h, st) = (g.w, g.h, g.stride);
     let o = 1 - c;
     let (dl, cl, fl) = (N_DERIV * st, N_COEF * st, N_FLOW * st);
-    let z2 = p.zeta * p.zeta;
-    let e2 = p.epsilon * p.epsilon;
-    let d2 = p.delta / 2.0;
-    let g2 = p.gamma / 2.0;
+    let k = AssembleConsts {
+        z2: p.zeta * p.zeta,
+        e2: p.epsilon * p.epsilon,
+        d2: p.delta / 2.0,
+        g2: p.gamma / 2.0,
+    };
     let (lo, hi) = coef.split_at_mut(1);
     let (own, other) = if c == 0 {
         (&mut lo[0], &hi[0])
@@ -743,9 +789,7 @@ fn assemble(
             let pp = Grid::p(c, i);
             let r = i + 1;
             let dr = &deriv[r * dl..][..dl];
-            let q = |x: usize| &dr[x * st + 1..][..n];
-            let (ix, iy, iz, ixx, ixy, iyy, ixz, iyz) =
-                (q(IX), q(IY), q(IZ), q(IXX), q(IXY), q(IYY), q(IXZ), q(IYZ));
+            let d: [&[f32]; N_DERIV] = std::array::from_fn(|x| &dr[x * st + 1..][..n]);
             let od = &delta[r * fl..][..fl];
             let du = &od[U * st + 1..][..n];
             let dv = &od[V * st + 1..][..n];
@@ -772,53 +816,141 @@ fn assemble(
             let (a12s, rest) = rest.split_at_mut(st);
             let (a22s, rest) = rest.split_at_mut(st);
             let (b1s, b2s) = rest.split_at_mut(st);
-            let a11 = &mut a11s[1..][..n];
-            let a12 = &mut a12s[1..][..n];
-            let a22 = &mut a22s[1..][..n];
-            let b1 = &mut b1s[1..][..n];
-            let b2 = &mut b2s[1..][..n];
-            for k in 0..n {
-                let (gx, gy, gz) = (ix[k], iy[k], iz[k]);
-                // Normalised brightness constancy.
-                let dn = gx * gx + gy * gy + z2;
-                let res = gz + gx * du[k] + gy * dv[k];
-                let wb = (d2 / (res * res / dn + e2).sqrt()) / dn;
-                let mut s11 = wb * (gx * gx) + z2;
-                let mut s12 = wb * (gx * gy);
-                let mut s22 = wb * (gy * gy) + z2;
-                let mut r1 = -wb * (gz * gx);
-                let mut r2 = -wb * (gz * gy);
-                // Normalised gradient constancy.
-                let (hxx, hxy, hyy) = (ixx[k], ixy[k], iyy[k]);
-                let (zx, zy) = (ixz[k], iyz[k]);
-                let n1 = hxx * hxx + hxy * hxy + z2;
-                let n2 = hyy * hyy + hxy * hxy + z2;
-                let rx = zx + hxx * du[k] + hxy * dv[k];
-                let ry = zy + hxy * du[k] + hyy * dv[k];
-                let wg = g2 / (rx * rx / n1 + ry * ry / n2 + e2).sqrt();
-                s11 += wg * (hxx * hxx / n1 + hxy * hxy / n2);
-                s12 += wg * (hxx * hxy / n1 + hxy * hyy / n2);
-                s22 += wg * (hxy * hxy / n1 + hyy * hyy / n2);
-                r1 -= wg * (hxx * zx / n1 + hxy * zy / n2);
-                r2 -= wg * (hxy * zx / n1 + hyy * zy / n2);
-                // Smoothness: edges left, right, up, down.
-                let ws = wl[k] + wr[k] + wu[k] + wd[k];
-                let (cu, cv) = (bu[k], bv[k]);
-                r1 += wl[k] * (lu[k] - cu)
-                    + wr[k] * (ru[k] - cu)
-                    + wu[k] * (uu[k] - cu)
-                    + wd[k] * (du_[k] - cu);
-                r2 += wl[k] * (lv[k] - cv)
-                    + wr[k] * (rv[k] - cv)
-                    + wu[k] * (uv[k] - cv)
-                    + wd[k] * (dv_[k] - cv);
-                a11[k] = s11 + ws;
-                a12[k] = s12;
-                a22[k] = s22 + ws;
-                b1[k] = r1;
-                b2[k] = r2;
-            }
+            let input = AssembleIn {
+                d,
+                du,
+                dv,
+                bu,
+                bv,
+                nbu: [lu, ru, uu, du_],
+                nbv: [lv, rv, uv, dv_],
+                w: [wl, wr, wu, wd],
+            };
+            assemble_row(
+                &k,
+                &input,
+                &mut a11s[1..][..n],
+                &mut a12s[1..][..n],
+                &mut a22s[1..][..n],
+                &mut b1s[1..][..n],
+                &mut b2s[1..][..n],
+            );
         });
+}
+
+/// Constants of the data and smoothness terms.
+struct AssembleConsts {
+    z2: f32,
+    e2: f32,
+    d2: f32,
+    g2: f32,
+}
+
+/// Inputs of one colour row of [`assemble`], each `n` long: normalised derivatives
+/// (see `N_DERIV`), current increment, base flow, base flow of the neighbours and edge weights
+/// (left, right, up, down).
+struct AssembleIn<'a> {
+    d: [&'a [f32]; N_DERIV],
+    du: &'a [f32],
+    dv: &'a [f32],
+    bu: &'a [f32],
+    bv: &'a [f32],
+    nbu: [&'a [f32]; 4],
+    nbv: [&'a [f32]; 4],
+    w: [&'a [f32]; 4],
+}
+
+/// The per-pixel system of one colour row. A separate function so that the outputs are
+/// distinct `&mut` arguments (no aliasing), which lets the loop vectorise. Stores the
+/// reciprocals of the diagonal (`A11`, `A22` slots) so SOR multiplies instead of
+/// dividing.
+#[inline(never)]
+fn assemble_row(
+    k: &AssembleConsts,
+    x: &AssembleIn,
+    inv_a11: &mut [f32],
+    a12: &mut [f32],
+    inv_a22: &mut [f32],
+    b1: &mut [f32],
+    b2: &mut [f32],
+) {
+    let n = inv_a11.len();
+    let (a12, inv_a22, b1, b2) = (&mut a12[..n], &mut inv_a22[..n], &mut b1[..n], &mut b2[..n]);
+    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = x.d.map(|s| &s[..n]);
+    let (du, dv, bu, bv) = (&x.du[..n], &x.dv[..n], &x.bu[..n], &x.bv[..n]);
+    let [lu, ru, uu, du_] = x.nbu.map(|s| &s[..n]);
+    let [lv, rv, uv, dv_] = x.nbv.map(|s| &s[..n]);
+    let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
+    let AssembleConsts { z2, e2, d2, g2 } = *k;
+    for i in 0..n {
+        // Normalised brightness constancy, Charbonnier weight lagged at the current
+        // increment.
+        let (gx, gy, gz) = (bx[i], by[i], bz[i]);
+        let res = gz + gx * du[i] + gy * dv[i];
+        let wb = d2 / (res * res + e2).sqrt();
+        let mut s11 = wb * (gx * gx) + z2;
+        let mut s12 = wb * (gx * gy);
+        let mut s22 = wb * (gy * gy) + z2;
+        let mut r1 = -wb * (gz * gx);
+        let mut r2 = -wb * (gz * gy);
+        // Normalised gradient constancy (of I_x and of I_y).
+        let (p0, p1, p2) = (xx[i], xy[i], xz[i]);
+        let (q0, q1, q2) = (yx[i], yy[i], yz[i]);
+        let rx = p2 + p0 * du[i] + p1 * dv[i];
+        let ry = q2 + q0 * du[i] + q1 * dv[i];
+        let wg = g2 / (rx * rx + ry * ry + e2).sqrt();
+        s11 += wg * (p0 * p0 + q0 * q0);
+        s12 += wg * (p0 * p1 + q0 * q1);
+        s22 += wg * (p1 * p1 + q1 * q1);
+        r1 -= wg * (p0 * p2 + q0 * q2);
+        r2 -= wg * (p1 * p2 + q1 * q2);
+        // Smoothness: edges left, right, up, down (weight 0 where there is none).
+        let ws = wl[i] + wr[i] + wu[i] + wd[i];
+        let (cu, cv) = (bu[i], bv[i]);
+        r1 += wl[i] * (lu[i] - cu)
+            + wr[i] * (ru[i] - cu)
+            + wu[i] * (uu[i] - cu)
+            + wd[i] * (du_[i] - cu);
+        r2 += wl[i] * (lv[i] - cv)
+            + wr[i] * (rv[i] - cv)
+            + wu[i] * (uv[i] - cv)
+            + wd[i] * (dv_[i] - cv);
+        inv_a11[i] = 1.0 / (s11 + ws);
+        a12[i] = s12;
+        inv_a22[i] = 1.0 / (s22 + ws);
+        b1[i] = r1;
+        b2[i] = r2;
+    }
+}
+
+/// Inputs of one colour row of an SOR half-sweep, each `n` long: the system
+/// (`1/A11, A12, 1/A22, B1, B2`), the edge weights (left, right, up, down) and the
+/// neighbours' increments (left, right, up, down).
+struct SorIn<'a> {
+    sys: [&'a [f32]; 5],
+    w: [&'a [f32]; 4],
+    nu: [&'a [f32]; 4],
+    nv: [&'a [f32]; 4],
+}
+
+/// SOR update of one colour row (separate function: `du`, `dv` are then known not to
+/// alias the inputs, so the loop vectorises).
+#[inline(never)]
+fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
+    let n = du.len();
+    let dv = &mut dv[..n];
+    let [ia11, a12, ia22, b1, b2] = x.sys.map(|s| &s[..n]);
+    let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
+    let [lu, ru, uu, du_] = x.nu.map(|s| &s[..n]);
+    let [lv, rv, uv, dv_] = x.nv.map(|s| &s[..n]);
+    for i in 0..n {
+        let su = wl[i] * lu[i] + wr[i] * ru[i] + wu[i] * uu[i] + wd[i] * du_[i];
+        let sv = wl[i] * lv[i] + wr[i] * rv[i] + wu[i] * uv[i] + wd[i] * dv_[i];
+        let nu = du[i] + omega * ((su + b1[i] - a12[i] * dv[i]) * ia11[i] - du[i]);
+        let nv = dv[i] + omega * ((sv + b2[i] - a12[i] * nu) * ia22[i] - dv[i]);
+        du[i] = nu;
+        dv[i] = nv;
+    }
 }
 
 /// One SOR half-sweep over the pixels of colour `c` (they depend only on the other
@@ -861,16 +993,13 @@ fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], delta: &m
             let du_ = &drow[U * st + 1..][..n];
             let dv_ = &drow[V * st + 1..][..n];
             let (us, vs) = row.split_at_mut(st);
-            let du = &mut us[1..][..n];
-            let dv = &mut vs[1..][..n];
-            for k in 0..n {
-                let su = wl[k] * lu[k] + wr[k] * ru[k] + wu[k] * uu[k] + wd[k] * du_[k];
-                let sv = wl[k] * lv[k] + wr[k] * rv[k] + wu[k] * uv[k] + wd[k] * dv_[k];
-                let nu = du[k] + omega * ((su + b1[k] - a12[k] * dv[k]) / a11[k] - du[k]);
-                let nv = dv[k] + omega * ((sv + b2[k] - a12[k] * nu) / a22[k] - dv[k]);
-                du[k] = nu;
-                dv[k] = nv;
-            }
+            let input = SorIn {
+                sys: [a11, a12, a22, b1, b2],
+                w: [wl, wr, wu, wd],
+                nu: [lu, ru, uu, du_],
+                nv: [lv, rv, uv, dv_],
+            };
+            sor_row(omega, &input, &mut us[1..][..n], &mut vs[1..][..n]);
         });
 }
 
