@@ -482,9 +482,13 @@ impl VariationalRefiner {
                         &mut work.coef,
                     );
                 }
-                for _ in 0..p.sor_iterations {
-                    for c in 0..2 {
-                        sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
+                if rayon::current_num_threads() == 1 {
+                    sor_wavefront(g, p.sor_iterations, p.omega, &work.coef, &mut work.delta);
+                } else {
+                    for _ in 0..p.sor_iterations {
+                        for c in 0..2 {
+                            sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
+                        }
                     }
                 }
             }
@@ -511,8 +515,10 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
                 // border-replicated image.
                 let x = (j as f32 + ur[j]).clamp(0.0, xmax);
                 let y = (i as f32 + vr[j]).clamp(0.0, ymax);
-                let x0 = (x.floor() as usize).min(w - 2);
-                let y0 = (y.floor() as usize).min(h - 2);
+                // x, y >= 0, so truncation is floor (and avoids a libm call: SSE2 has
+                // no vector floor).
+                let x0 = (x as usize).min(w - 2);
+                let y0 = (y as usize).min(h - 2);
                 let fx = x - x0 as f32;
                 let fy = y - y0 as f32;
                 let r0 = &i1[y0 * w + x0..][..2];
@@ -962,54 +968,109 @@ fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
     }
 }
 
-/// One SOR half-sweep over the pixels of colour `c` (they depend only on the other
-/// colour, so rows are independent and the result does not depend on scheduling).
-fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], delta: &mut [Vec<f32>; 2]) {
-    let (w, h, st) = (g.w, g.h, g.stride);
-    let (cl, fl) = (N_COEF * st, N_FLOW * st);
-    let (lo, hi) = delta.split_at_mut(1);
-    let (own, other) = if c == 0 {
+/// Splits the two colour buffers into (colour `c` mutable, the other colour).
+fn own_other<T>(pair: &mut [T; 2], c: usize) -> (&mut T, &T) {
+    let (lo, hi) = pair.split_at_mut(1);
+    if c == 0 {
         (&mut lo[0], &hi[0])
     } else {
         (&mut hi[0], &lo[0])
+    }
+}
+
+/// SOR update of the pixels of colour `c` in image row `i`; `row` is that row of the
+/// colour's increment buffer, `other` the other colour's whole increment buffer.
+fn sor_one_row(
+    g: Grid,
+    c: usize,
+    i: usize,
+    omega: f32,
+    coef: &[Vec<f32>; 2],
+    row: &mut [f32],
+    other: &[f32],
+) {
+    let st = g.stride;
+    let (cl, fl) = (N_COEF * st, N_FLOW * st);
+    let (oc, nc) = (&coef[c], &coef[1 - c]);
+    let n = g.n(c, i);
+    let pp = Grid::p(c, i);
+    let r = i + 1;
+    let cr = &oc[r * cl..][..cl];
+    let q = |x: usize| &cr[x * st + 1..][..n];
+    let (a11, a12, a22, b1, b2, wr, wd) = (q(A11), q(A12), q(A22), q(B1), q(B2), q(WR), q(WD));
+    let wl = &nc[r * cl + WR * st + pp..][..n];
+    let wu = &nc[(r - 1) * cl + WD * st + 1..][..n];
+    let nrow = &other[r * fl..][..fl];
+    let urow = &other[(r - 1) * fl..][..fl];
+    let drow = &other[(r + 1) * fl..][..fl];
+    let input = SorIn {
+        sys: [a11, a12, a22, b1, b2],
+        w: [wl, wr, wu, wd],
+        nu: [
+            &nrow[U * st + pp..][..n],
+            &nrow[U * st + pp + 1..][..n],
+            &urow[U * st + 1..][..n],
+            &drow[U * st + 1..][..n],
+        ],
+        nv: [
+            &nrow[V * st + pp..][..n],
+            &nrow[V * st + pp + 1..][..n],
+            &urow[V * st + 1..][..n],
+            &drow[V * st + 1..][..n],
+        ],
     };
+    let (us, vs) = row.split_at_mut(st);
+    sor_row(omega, &input, &mut us[1..][..n], &mut vs[1..][..n]);
+}
+
+/// One SOR half-sweep over the pixels of colour `c` (they depend only on the other
+/// colour, so rows are independent and the result does not depend on scheduling).
+fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], delta: &mut [Vec<f32>; 2]) {
+    let fl = N_FLOW * g.stride;
+    let (own, other) = own_other(delta, c);
     let other: &[f32] = other;
-    let oc = &coef[c];
-    let nc = &coef[1 - c];
-    own[fl..(h + 1) * fl]
+    own[fl..(g.h + 1) * fl]
         .par_chunks_mut(fl)
         .enumerate()
-        .with_min_len(rows_per_task(w))
-        .for_each(|(i, row)| {
-            let n = g.n(c, i);
-            let pp = Grid::p(c, i);
-            let r = i + 1;
-            let cr = &oc[r * cl..][..cl];
-            let q = |x: usize| &cr[x * st + 1..][..n];
-            let (a11, a12, a22, b1, b2, wr, wd) =
-                (q(A11), q(A12), q(A22), q(B1), q(B2), q(WR), q(WD));
-            let wl = &nc[r * cl + WR * st + pp..][..n];
-            let wu = &nc[(r - 1) * cl + WD * st + 1..][..n];
-            let nrow = &other[r * fl..][..fl];
-            let urow = &other[(r - 1) * fl..][..fl];
-            let drow = &other[(r + 1) * fl..][..fl];
-            let lu = &nrow[U * st + pp..][..n];
-            let lv = &nrow[V * st + pp..][..n];
-            let ru = &nrow[U * st + pp + 1..][..n];
-            let rv = &nrow[V * st + pp + 1..][..n];
-            let uu = &urow[U * st + 1..][..n];
-            let uv = &urow[V * st + 1..][..n];
-            let du_ = &drow[U * st + 1..][..n];
-            let dv_ = &drow[V * st + 1..][..n];
-            let (us, vs) = row.split_at_mut(st);
-            let input = SorIn {
-                sys: [a11, a12, a22, b1, b2],
-                w: [wl, wr, wu, wd],
-                nu: [lu, ru, uu, du_],
-                nv: [lv, rv, uv, dv_],
-            };
-            sor_row(omega, &input, &mut us[1..][..n], &mut vs[1..][..n]);
-        });
+        .with_min_len(rows_per_task(g.w))
+        .for_each(|(i, row)| sor_one_row(g, c, i, omega, coef, row, other));
+}
+
+/// All `sweeps` red-black SOR sweeps in one pass over the rows (temporal blocking), for
+/// a single thread: half-sweep `t` (red for even `t`, black for odd) of row `i` runs at
+/// step `i + t`, after half-sweep `t - 1` of rows `i - 1..=i + 1` and before anything
+/// that still needs row `i`'s previous values. Every pixel update therefore sees exactly
+/// the values it sees in [`sor_half_sweep`] order (bit-identical results), but only
+/// about `2 * sweeps` rows are live at a time, so they stay in cache instead of every
+/// half-sweep streaming the whole level through memory.
+fn sor_wavefront(
+    g: Grid,
+    sweeps: usize,
+    omega: f32,
+    coef: &[Vec<f32>; 2],
+    delta: &mut [Vec<f32>; 2],
+) {
+    let fl = N_FLOW * g.stride;
+    let stages = 2 * sweeps;
+    for step in 0..g.h + stages {
+        for t in 0..stages.min(step + 1) {
+            let i = step - t;
+            if i >= g.h {
+                continue;
+            }
+            let c = t % 2;
+            let (own, other) = own_other(delta, c);
+            sor_one_row(
+                g,
+                c,
+                i,
+                omega,
+                coef,
+                &mut own[(i + 1) * fl..(i + 2) * fl],
+                other,
+            );
+        }
+    }
 }
 
 #[cfg(test)]
