@@ -317,14 +317,23 @@ fn check_size(what: &str, w: usize, h: usize) -> Result<()> {
 }
 
 fn check_finite(what: &str, a: ArrayView2<f32>) -> Result<()> {
-    if let Some(((row, col), _)) = a.indexed_iter().find(|(_, x)| !x.is_finite()) {
-        return Err(Error::NonFinite {
-            what: what.to_string(),
-            row,
-            col,
-        });
+    // Fast scan first (contiguous, vectorisable); locate the culprit only on failure.
+    let all_finite = match a.as_slice() {
+        Some(sl) => sl.iter().fold(true, |ok, x| ok & x.is_finite()),
+        None => a.iter().all(|x| x.is_finite()),
+    };
+    if all_finite {
+        return Ok(());
     }
-    Ok(())
+    let ((row, col), _) = a
+        .indexed_iter()
+        .find(|(_, x)| !x.is_finite())
+        .expect("a non-finite value exists");
+    Err(Error::NonFinite {
+        what: what.to_string(),
+        row,
+        col,
+    })
 }
 
 impl VariationalRefiner {
@@ -603,17 +612,14 @@ fn split_flow(u: &Array2<f32>, v: &Array2<f32>, g: Grid, base: &mut [Vec<f32>; 2
         .enumerate()
         .with_min_len(rows_per_task(w))
         .for_each(|(i, (rrow, brow))| {
-            let ur = u.row(i);
-            let vr = v.row(i);
-            for j in 0..w {
-                let dst = if (i + j) % 2 == 0 {
-                    &mut *rrow
-                } else {
-                    &mut *brow
-                };
-                let kk = j / 2 + 1;
-                dst[U * st + kk] = ur[j];
-                dst[V * st + kk] = vr[j];
+            let (ur, vr) = (u.row(i), v.row(i));
+            for (c, dst) in [rrow, brow].into_iter().enumerate() {
+                let (n, p) = (g.n(c, i), Grid::p(c, i));
+                let (du, dv) = dst.split_at_mut(st);
+                for k in 0..n {
+                    du[k + 1] = ur[2 * k + p];
+                    dv[k + 1] = vr[2 * k + p];
+                }
             }
         });
 }
@@ -640,8 +646,14 @@ fn merge_flow(
                 .enumerate()
                 .with_min_len(mt)
                 .for_each(|(i, row)| {
-                    for (j, x) in row.iter_mut().enumerate() {
-                        *x = value(i, j, q);
+                    let off = (i + 1) * rl + q * st + 1;
+                    for c in 0..2 {
+                        let (n, p) = (g.n(c, i), Grid::p(c, i));
+                        let b = &base[c][off..][..n];
+                        let d = &delta[c][off..][..n];
+                        for k in 0..n {
+                            row[2 * k + p] = b[k] + d[k];
+                        }
                     }
                 });
         } else {
@@ -902,18 +914,21 @@ fn assemble_row(
         // increment.
         let (gx, gy, gz) = (bx[i], by[i], bz[i]);
         let res = gz + gx * du[i] + gy * dv[i];
-        let wb = d2 / (res * res + e2).sqrt();
-        let mut s11 = wb * (gx * gx) + z2;
-        let mut s12 = wb * (gx * gy);
-        let mut s22 = wb * (gy * gy) + z2;
-        let mut r1 = -wb * (gz * gx);
-        let mut r2 = -wb * (gz * gy);
+        let sb = (res * res + e2).sqrt();
         // Normalised gradient constancy (of I_x and of I_y).
         let (p0, p1, p2) = (xx[i], xy[i], xz[i]);
         let (q0, q1, q2) = (yx[i], yy[i], yz[i]);
         let rx = p2 + p0 * du[i] + p1 * dv[i];
         let ry = q2 + q0 * du[i] + q1 * dv[i];
-        let wg = g2 / (rx * rx + ry * ry + e2).sqrt();
+        let sg = (rx * rx + ry * ry + e2).sqrt();
+        // One division for both Charbonnier weights d2 / sb and g2 / sg.
+        let t = 1.0 / (sb * sg);
+        let (wb, wg) = (d2 * sg * t, g2 * sb * t);
+        let mut s11 = wb * (gx * gx) + z2;
+        let mut s12 = wb * (gx * gy);
+        let mut s22 = wb * (gy * gy) + z2;
+        let mut r1 = -wb * (gz * gx);
+        let mut r2 = -wb * (gz * gy);
         s11 += wg * (p0 * p0 + q0 * q0);
         s12 += wg * (p0 * p1 + q0 * q1);
         s22 += wg * (p1 * p1 + q1 * q1);
@@ -930,9 +945,12 @@ fn assemble_row(
             + wr[i] * (rv[i] - cv)
             + wu[i] * (uv[i] - cv)
             + wd[i] * (dv_[i] - cv);
-        inv_a11[i] = 1.0 / (s11 + ws);
+        // One division for both reciprocals of the diagonal.
+        let (d11, d22) = (s11 + ws, s22 + ws);
+        let t = 1.0 / (d11 * d22);
+        inv_a11[i] = d22 * t;
         a12[i] = s12;
-        inv_a22[i] = 1.0 / (s22 + ws);
+        inv_a22[i] = d11 * t;
         b1[i] = r1;
         b2[i] = r2;
     }
