@@ -476,7 +476,20 @@ impl VariationalRefiner {
                 d.fill(0.0);
             }
 
+            let single = rayon::current_num_threads() == 1;
             for _ in 0..p.outer_iterations {
+                if single {
+                    // One thread: the whole outer iteration in one cache-friendly pass.
+                    outer_wavefront(
+                        g,
+                        &p,
+                        &work.deriv,
+                        &work.base,
+                        &mut work.coef,
+                        &mut work.delta,
+                    );
+                    continue;
+                }
                 for c in 0..2 {
                     smoothness_weights(g, c, &p, &work.base, &work.delta, &mut work.coef);
                 }
@@ -491,13 +504,9 @@ impl VariationalRefiner {
                         &mut work.coef,
                     );
                 }
-                if rayon::current_num_threads() == 1 {
-                    sor_wavefront(g, p.sor_iterations, p.omega, &work.coef, &mut work.delta);
-                } else {
-                    for _ in 0..p.sor_iterations {
-                        for c in 0..2 {
-                            sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
-                        }
+                for _ in 0..p.sor_iterations {
+                    for c in 0..2 {
+                        sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
                     }
                 }
             }
@@ -678,74 +687,87 @@ fn smoothness_weights(
     delta: &[Vec<f32>; 2],
     coef: &mut [Vec<f32>; 2],
 ) {
+    let cl = N_COEF * g.stride;
+    coef[c][cl..(g.h + 1) * cl]
+        .par_chunks_mut(cl)
+        .enumerate()
+        .with_min_len(rows_per_task(g.w))
+        .for_each(|(i, row)| weights_one_row(g, c, i, p, base, delta, row));
+}
+
+/// [`smoothness_weights`] for image row `i`; `row` is that row of colour `c`'s
+/// coefficient buffer.
+fn weights_one_row(
+    g: Grid,
+    c: usize,
+    i: usize,
+    p: &RefineParams,
+    base: &[Vec<f32>; 2],
+    delta: &[Vec<f32>; 2],
+    row: &mut [f32],
+) {
     let (w, h, st) = (g.w, g.h, g.stride);
     let alpha2 = p.alpha / 2.0;
     let e2 = p.epsilon * p.epsilon;
     let o = 1 - c;
-    let (fl, cl) = (N_FLOW * st, N_COEF * st);
-    let own = &mut coef[c];
-    own[cl..(h + 1) * cl]
-        .par_chunks_mut(cl)
-        .enumerate()
-        .with_min_len(rows_per_task(w))
-        .for_each(|(i, row)| {
-            let n = g.n(c, i);
-            let pp = Grid::p(c, i);
-            let r = i + 1;
-            let ob = &base[c][r * fl..][..fl];
-            let od = &delta[c][r * fl..][..fl];
-            let nb = &base[o][r * fl..][..fl];
-            let nd = &delta[o][r * fl..][..fl];
-            // Down neighbour row; in the last row use the pixel itself (difference 0).
-            let last_row = i == h - 1;
-            let (db, dd, doff) = if last_row {
-                (ob, od, 1)
-            } else {
-                (
-                    &base[o][(r + 1) * fl..][..fl],
-                    &delta[o][(r + 1) * fl..][..fl],
-                    1,
-                )
-            };
-            let bu = &ob[U * st + 1..][..n];
-            let bv = &ob[V * st + 1..][..n];
-            let du = &od[U * st + 1..][..n];
-            let dv = &od[V * st + 1..][..n];
-            let rbu = &nb[U * st + 1 + pp..][..n];
-            let rbv = &nb[V * st + 1 + pp..][..n];
-            let rdu = &nd[U * st + 1 + pp..][..n];
-            let rdv = &nd[V * st + 1 + pp..][..n];
-            let dbu = &db[U * st + doff..][..n];
-            let dbv = &db[V * st + doff..][..n];
-            let ddu = &dd[U * st + doff..][..n];
-            let ddv = &dd[V * st + doff..][..n];
-            let (wr_part, wd_part) = row[WR * st..(WD + 1) * st].split_at_mut(st);
-            let wr = &mut wr_part[1..][..n];
-            let wd = &mut wd_part[1..][..n];
-            weights_row(
-                alpha2,
-                e2,
-                [bu, du, bv, dv],
-                [rbu, rdu, rbv, rdv],
-                [dbu, ddu, dbv, ddv],
-                wr,
-                wd,
-            );
-            // The pixel in the last column (if of this colour) has no right neighbour.
-            if n > 0 && 2 * (n - 1) + pp == w - 1 {
-                let k = n - 1;
-                let cu = bu[k] + du[k];
-                let cv = bv[k] + dv[k];
-                let uy = (dbu[k] + ddu[k]) - cu;
-                let vy = (dbv[k] + ddv[k]) - cv;
-                let wgt = alpha2 / (uy * uy + vy * vy + e2).sqrt();
-                wr[k] = 0.0;
-                wd[k] = wgt;
-            }
-            if last_row {
-                wd.fill(0.0);
-            }
-        });
+    let fl = N_FLOW * st;
+    let n = g.n(c, i);
+    let pp = Grid::p(c, i);
+    let r = i + 1;
+    let ob = &base[c][r * fl..][..fl];
+    let od = &delta[c][r * fl..][..fl];
+    let nb = &base[o][r * fl..][..fl];
+    let nd = &delta[o][r * fl..][..fl];
+    // Down neighbour row; in the last row use the pixel itself (difference 0).
+    let last_row = i == h - 1;
+    let (db, dd) = if last_row {
+        (ob, od)
+    } else {
+        (
+            &base[o][(r + 1) * fl..][..fl],
+            &delta[o][(r + 1) * fl..][..fl],
+        )
+    };
+    let (bu, bv, du, dv) = (
+        at_n(ob, U * st + 1, n),
+        at_n(ob, V * st + 1, n),
+        at_n(od, U * st + 1, n),
+        at_n(od, V * st + 1, n),
+    );
+    let (rbu, rbv) = (at_n(nb, U * st + 1 + pp, n), at_n(nb, V * st + 1 + pp, n));
+    let (rdu, rdv) = (at_n(nd, U * st + 1 + pp, n), at_n(nd, V * st + 1 + pp, n));
+    let (dbu, dbv, ddu, ddv) = (
+        at_n(db, U * st + 1, n),
+        at_n(db, V * st + 1, n),
+        at_n(dd, U * st + 1, n),
+        at_n(dd, V * st + 1, n),
+    );
+    let (wr_part, wd_part) = row[WR * st..(WD + 1) * st].split_at_mut(st);
+    let wr = &mut wr_part[1..][..n];
+    let wd = &mut wd_part[1..][..n];
+    weights_row(
+        alpha2,
+        e2,
+        [bu, du, bv, dv],
+        [rbu, rdu, rbv, rdv],
+        [dbu, ddu, dbv, ddv],
+        wr,
+        wd,
+    );
+    // The pixel in the last column (if of this colour) has no right neighbour.
+    if n > 0 && 2 * (n - 1) + pp == w - 1 {
+        let k = n - 1;
+        let cu = bu[k] + du[k];
+        let cv = bv[k] + dv[k];
+        let uy = (dbu[k] + ddu[k]) - cu;
+        let vy = (dbv[k] + ddv[k]) - cv;
+        let wgt = alpha2 / (uy * uy + vy * vy + e2).sqrt();
+        wr[k] = 0.0;
+        wd[k] = wgt;
+    }
+    if last_row {
+        wd.fill(0.0);
+    }
 }
 
 /// Smoothness weights of one colour row from the flow (`[base u, delta u, base v,
@@ -791,78 +813,82 @@ fn assemble(
     delta: &[f32],
     coef: &mut [Vec<f32>; 2],
 ) {
-    let (w, h, st) = (g.w, g.h, g.stride);
-    let o = 1 - c;
-    let (dl, cl, fl) = (N_DERIV * st, N_COEF * st, N_FLOW * st);
-    let k = AssembleConsts {
-        z2: p.zeta * p.zeta,
-        e2: p.epsilon * p.epsilon,
-        d2: p.delta / 2.0,
-        g2: p.gamma / 2.0,
-    };
-    let (lo, hi) = coef.split_at_mut(1);
-    let (own, other) = if c == 0 {
-        (&mut lo[0], &hi[0])
-    } else {
-        (&mut hi[0], &lo[0])
-    };
+    let cl = N_COEF * g.stride;
+    let k = AssembleConsts::new(p);
+    let (own, other) = own_other(coef, c);
     let other: &[f32] = other;
-    own[cl..(h + 1) * cl]
+    own[cl..(g.h + 1) * cl]
         .par_chunks_mut(cl)
         .enumerate()
-        .with_min_len(rows_per_task(w))
-        .for_each(|(i, row)| {
-            let n = g.n(c, i);
-            let pp = Grid::p(c, i);
-            let r = i + 1;
-            let dr = &deriv[r * dl..][..dl];
-            let d: [&[f32]; N_DERIV] = std::array::from_fn(|x| &dr[x * st + 1..][..n]);
-            let od = &delta[r * fl..][..fl];
-            let du = &od[U * st + 1..][..n];
-            let dv = &od[V * st + 1..][..n];
-            let ob = &base[c][r * fl..][..fl];
-            let bu = &ob[U * st + 1..][..n];
-            let bv = &ob[V * st + 1..][..n];
-            let nb = &base[o][r * fl..][..fl];
-            let ub = &base[o][(r - 1) * fl..][..fl];
-            let db = &base[o][(r + 1) * fl..][..fl];
-            let lu = &nb[U * st + pp..][..n];
-            let lv = &nb[V * st + pp..][..n];
-            let ru = &nb[U * st + pp + 1..][..n];
-            let rv = &nb[V * st + pp + 1..][..n];
-            let uu = &ub[U * st + 1..][..n];
-            let uv = &ub[V * st + 1..][..n];
-            let du_ = &db[U * st + 1..][..n];
-            let dv_ = &db[V * st + 1..][..n];
-            let wl = &other[r * cl + WR * st + pp..][..n];
-            let wu = &other[(r - 1) * cl + WD * st + 1..][..n];
-            let (sys, wts) = row.split_at_mut(WR * st);
-            let wr = &wts[1..][..n];
-            let wd = &wts[st + 1..][..n];
-            let (a11s, rest) = sys.split_at_mut(st);
-            let (a12s, rest) = rest.split_at_mut(st);
-            let (a22s, rest) = rest.split_at_mut(st);
-            let (b1s, b2s) = rest.split_at_mut(st);
-            let input = AssembleIn {
-                d,
-                du,
-                dv,
-                bu,
-                bv,
-                nbu: [lu, ru, uu, du_],
-                nbv: [lv, rv, uv, dv_],
-                w: [wl, wr, wu, wd],
-            };
-            assemble_row(
-                &k,
-                &input,
-                &mut a11s[1..][..n],
-                &mut a12s[1..][..n],
-                &mut a22s[1..][..n],
-                &mut b1s[1..][..n],
-                &mut b2s[1..][..n],
-            );
-        });
+        .with_min_len(rows_per_task(g.w))
+        .for_each(|(i, row)| assemble_one_row(g, c, i, &k, deriv, base, delta, row, other));
+}
+
+/// [`assemble`] for image row `i`: `deriv` and `delta` are colour `c`'s buffers, `row`
+/// is that row of its coefficient buffer, `other` the other colour's coefficients.
+fn assemble_one_row(
+    g: Grid,
+    c: usize,
+    i: usize,
+    k: &AssembleConsts,
+    deriv: &[f32],
+    base: &[Vec<f32>; 2],
+    delta: &[f32],
+    row: &mut [f32],
+    other: &[f32],
+) {
+    let st = g.stride;
+    let o = 1 - c;
+    let (dl, cl, fl) = (N_DERIV * st, N_COEF * st, N_FLOW * st);
+    let n = g.n(c, i);
+    let pp = Grid::p(c, i);
+    let r = i + 1;
+    let dr = &deriv[r * dl..][..dl];
+    let d: [&[f32]; N_DERIV] = std::array::from_fn(|x| &dr[x * st + 1..][..n]);
+    let od = &delta[r * fl..][..fl];
+    let ob = &base[c][r * fl..][..fl];
+    let nb = &base[o][r * fl..][..fl];
+    let ub = &base[o][(r - 1) * fl..][..fl];
+    let db = &base[o][(r + 1) * fl..][..fl];
+    let (sys, wts) = row.split_at_mut(WR * st);
+    let (a11s, rest) = sys.split_at_mut(st);
+    let (a12s, rest) = rest.split_at_mut(st);
+    let (a22s, rest) = rest.split_at_mut(st);
+    let (b1s, b2s) = rest.split_at_mut(st);
+    let input = AssembleIn {
+        d,
+        du: at_n(od, U * st + 1, n),
+        dv: at_n(od, V * st + 1, n),
+        bu: at_n(ob, U * st + 1, n),
+        bv: at_n(ob, V * st + 1, n),
+        nbu: [
+            at_n(nb, U * st + pp, n),
+            at_n(nb, U * st + pp + 1, n),
+            at_n(ub, U * st + 1, n),
+            at_n(db, U * st + 1, n),
+        ],
+        nbv: [
+            at_n(nb, V * st + pp, n),
+            at_n(nb, V * st + pp + 1, n),
+            at_n(ub, V * st + 1, n),
+            at_n(db, V * st + 1, n),
+        ],
+        w: [
+            at_n(other, r * cl + WR * st + pp, n),
+            at_n(wts, 1, n),
+            at_n(other, (r - 1) * cl + WD * st + 1, n),
+            at_n(wts, st + 1, n),
+        ],
+    };
+    assemble_row(
+        k,
+        &input,
+        &mut a11s[1..][..n],
+        &mut a12s[1..][..n],
+        &mut a22s[1..][..n],
+        &mut b1s[1..][..n],
+        &mut b2s[1..][..n],
+    );
 }
 
 /// Constants of the data and smoothness terms.
@@ -871,6 +897,17 @@ struct AssembleConsts {
     e2: f32,
     d2: f32,
     g2: f32,
+}
+
+impl AssembleConsts {
+    fn new(p: &RefineParams) -> Self {
+        AssembleConsts {
+            z2: p.zeta * p.zeta,
+            e2: p.epsilon * p.epsilon,
+            d2: p.delta / 2.0,
+            g2: p.gamma / 2.0,
+        }
+    }
 }
 
 /// Inputs of one colour row of [`assemble`], each `n` long: normalised derivatives
@@ -986,6 +1023,12 @@ fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
     }
 }
 
+/// `n` values of `a` from offset `x`.
+#[inline]
+fn at_n(a: &[f32], x: usize, n: usize) -> &[f32] {
+    &a[x..][..n]
+}
+
 /// Splits the two colour buffers into (colour `c` mutable, the other colour).
 fn own_other<T>(pair: &mut [T; 2], c: usize) -> (&mut T, &T) {
     let (lo, hi) = pair.split_at_mut(1);
@@ -1054,39 +1097,53 @@ fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], delta: &m
         .for_each(|(i, row)| sor_one_row(g, c, i, omega, coef, row, other));
 }
 
-/// All `sweeps` red-black SOR sweeps in one pass over the rows (temporal blocking), for
-/// a single thread: half-sweep `t` (red for even `t`, black for odd) of row `i` runs at
-/// step `i + t`, after half-sweep `t - 1` of rows `i - 1..=i + 1` and before anything
-/// that still needs row `i`'s previous values. Every pixel update therefore sees exactly
-/// the values it sees in [`sor_half_sweep`] order (bit-identical results), but only
-/// about `2 * sweeps` rows are live at a time, so they stay in cache instead of every
-/// half-sweep streaming the whole level through memory.
-fn sor_wavefront(
+/// One whole outer iteration (smoothness weights, system assembly, all red-black SOR
+/// sweeps) in a single pass over the rows, for one thread (temporal blocking).
+///
+/// At step `s`: the weights of row `s`, the system of row `s - 1`, and SOR half-sweep
+/// `t` (red for even `t`, black for odd) of row `s - 2 - t`, in that order. Each of
+/// these runs after everything it reads has been produced (weights of rows `i - 1, i`
+/// for the system of row `i`; systems of rows `i - 1, i` and half-sweep `t - 1` of rows
+/// `i - 1..=i + 1` for half-sweep `t` of row `i`) and before anything overwrites what
+/// it reads (the previous increments of rows `i, i + 1`), so every value is exactly the
+/// one the pass-by-pass order computes: the result is bit-identical, but only about
+/// `2 * sweeps + 3` rows are live at a time and stay in cache, instead of every pass
+/// streaming the whole level through memory.
+fn outer_wavefront(
     g: Grid,
-    sweeps: usize,
-    omega: f32,
-    coef: &[Vec<f32>; 2],
+    p: &RefineParams,
+    deriv: &[Vec<f32>; 2],
+    base: &[Vec<f32>; 2],
+    coef: &mut [Vec<f32>; 2],
     delta: &mut [Vec<f32>; 2],
 ) {
-    let fl = N_FLOW * g.stride;
-    let stages = 2 * sweeps;
-    for step in 0..g.h + stages {
-        for t in 0..stages.min(step + 1) {
-            let i = step - t;
+    let (cl, fl) = (N_COEF * g.stride, N_FLOW * g.stride);
+    let k = AssembleConsts::new(p);
+    let stages = 2 * p.sor_iterations;
+    for step in 0..g.h + stages + 2 {
+        if step < g.h {
+            for c in 0..2 {
+                let row = &mut coef[c][(step + 1) * cl..(step + 2) * cl];
+                weights_one_row(g, c, step, p, base, delta, row);
+            }
+        }
+        if (1..=g.h).contains(&step) {
+            let i = step - 1;
+            for c in 0..2 {
+                let (own, other) = own_other(coef, c);
+                let row = &mut own[(i + 1) * cl..(i + 2) * cl];
+                assemble_one_row(g, c, i, &k, &deriv[c], base, &delta[c], row, other);
+            }
+        }
+        for t in 0..stages.min(step.saturating_sub(1)) {
+            let i = step - 2 - t;
             if i >= g.h {
                 continue;
             }
             let c = t % 2;
             let (own, other) = own_other(delta, c);
-            sor_one_row(
-                g,
-                c,
-                i,
-                omega,
-                coef,
-                &mut own[(i + 1) * fl..(i + 2) * fl],
-                other,
-            );
+            let row = &mut own[(i + 1) * fl..(i + 2) * fl];
+            sor_one_row(g, c, i, p.omega, coef, row, other);
         }
     }
 }
