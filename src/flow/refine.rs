@@ -472,8 +472,9 @@ impl VariationalRefiner {
                 &mut work.deriv,
             );
             split_flow(u, v, g, &mut work.base);
-            for d in work.delta.iter_mut() {
-                d.fill(0.0);
+            // The solver iterates on the total flow, starting from the incoming one.
+            for c in 0..2 {
+                work.delta[c].copy_from_slice(&work.base[c]);
             }
 
             let single = rayon::current_num_threads() == 1;
@@ -491,7 +492,7 @@ impl VariationalRefiner {
                     continue;
                 }
                 for c in 0..2 {
-                    smoothness_weights(g, c, &p, &work.base, &work.delta, &mut work.coef);
+                    smoothness_weights(g, c, &p, &work.delta, &mut work.coef);
                 }
                 for c in 0..2 {
                     assemble(
@@ -510,7 +511,7 @@ impl VariationalRefiner {
                     }
                 }
             }
-            merge_flow(g, &work.base, &work.delta, u, v);
+            merge_flow(g, &work.delta, u, v);
         });
         Ok(())
     }
@@ -633,21 +634,15 @@ fn split_flow(u: &Array2<f32>, v: &Array2<f32>, g: Grid, base: &mut [Vec<f32>; 2
         });
 }
 
-/// Writes `base + delta` back into `u`, `v`.
-fn merge_flow(
-    g: Grid,
-    base: &[Vec<f32>; 2],
-    delta: &[Vec<f32>; 2],
-    u: &mut Array2<f32>,
-    v: &mut Array2<f32>,
-) {
+/// Writes the split flow back into `u`, `v`.
+fn merge_flow(g: Grid, delta: &[Vec<f32>; 2], u: &mut Array2<f32>, v: &mut Array2<f32>) {
     let (w, st) = (g.w, g.stride);
     let rl = N_FLOW * st;
     let mt = rows_per_task(w);
     let value = |i: usize, j: usize, q: usize| {
         let c = (i + j) % 2;
         let idx = (i + 1) * rl + q * st + j / 2 + 1;
-        base[c][idx] + delta[c][idx]
+        delta[c][idx]
     };
     let fill = |out: &mut Array2<f32>, q: usize| {
         if let Some(sl) = out.as_slice_mut() {
@@ -658,10 +653,9 @@ fn merge_flow(
                     let off = (i + 1) * rl + q * st + 1;
                     for c in 0..2 {
                         let (n, p) = (g.n(c, i), Grid::p(c, i));
-                        let b = &base[c][off..][..n];
-                        let d = &delta[c][off..][..n];
+                        let f = &delta[c][off..][..n];
                         for k in 0..n {
-                            row[2 * k + p] = b[k] + d[k];
+                            row[2 * k + p] = f[k];
                         }
                     }
                 });
@@ -683,8 +677,7 @@ fn smoothness_weights(
     g: Grid,
     c: usize,
     p: &RefineParams,
-    base: &[Vec<f32>; 2],
-    delta: &[Vec<f32>; 2],
+    flow: &[Vec<f32>; 2],
     coef: &mut [Vec<f32>; 2],
 ) {
     let cl = N_COEF * g.stride;
@@ -692,7 +685,7 @@ fn smoothness_weights(
         .par_chunks_mut(cl)
         .enumerate()
         .with_min_len(rows_per_task(g.w))
-        .for_each(|(i, row)| weights_one_row(g, c, i, p, base, delta, row));
+        .for_each(|(i, row)| weights_one_row(g, c, i, p, flow, row));
 }
 
 /// [`smoothness_weights`] for image row `i`; `row` is that row of colour `c`'s
@@ -702,8 +695,7 @@ fn weights_one_row(
     c: usize,
     i: usize,
     p: &RefineParams,
-    base: &[Vec<f32>; 2],
-    delta: &[Vec<f32>; 2],
+    flow: &[Vec<f32>; 2],
     row: &mut [f32],
 ) {
     let (w, h, st) = (g.w, g.h, g.stride);
@@ -714,53 +706,27 @@ fn weights_one_row(
     let n = g.n(c, i);
     let pp = Grid::p(c, i);
     let r = i + 1;
-    let ob = &base[c][r * fl..][..fl];
-    let od = &delta[c][r * fl..][..fl];
-    let nb = &base[o][r * fl..][..fl];
-    let nd = &delta[o][r * fl..][..fl];
+    let of = &flow[c][r * fl..][..fl];
+    let nf = &flow[o][r * fl..][..fl];
     // Down neighbour row; in the last row use the pixel itself (difference 0).
     let last_row = i == h - 1;
-    let (db, dd) = if last_row {
-        (ob, od)
+    let df = if last_row {
+        of
     } else {
-        (
-            &base[o][(r + 1) * fl..][..fl],
-            &delta[o][(r + 1) * fl..][..fl],
-        )
+        &flow[o][(r + 1) * fl..][..fl]
     };
-    let (bu, bv, du, dv) = (
-        at_n(ob, U * st + 1, n),
-        at_n(ob, V * st + 1, n),
-        at_n(od, U * st + 1, n),
-        at_n(od, V * st + 1, n),
-    );
-    let (rbu, rbv) = (at_n(nb, U * st + 1 + pp, n), at_n(nb, V * st + 1 + pp, n));
-    let (rdu, rdv) = (at_n(nd, U * st + 1 + pp, n), at_n(nd, V * st + 1 + pp, n));
-    let (dbu, dbv, ddu, ddv) = (
-        at_n(db, U * st + 1, n),
-        at_n(db, V * st + 1, n),
-        at_n(dd, U * st + 1, n),
-        at_n(dd, V * st + 1, n),
-    );
+    let (cu, cv) = (at_n(of, U * st + 1, n), at_n(of, V * st + 1, n));
+    let (ru, rv) = (at_n(nf, U * st + 1 + pp, n), at_n(nf, V * st + 1 + pp, n));
+    let (du, dv) = (at_n(df, U * st + 1, n), at_n(df, V * st + 1, n));
     let (wr_part, wd_part) = row[WR * st..(WD + 1) * st].split_at_mut(st);
     let wr = &mut wr_part[1..][..n];
     let wd = &mut wd_part[1..][..n];
-    weights_row(
-        alpha2,
-        e2,
-        [bu, du, bv, dv],
-        [rbu, rdu, rbv, rdv],
-        [dbu, ddu, dbv, ddv],
-        wr,
-        wd,
-    );
+    weights_row(alpha2, e2, [cu, cv], [ru, rv], [du, dv], wr, wd);
     // The pixel in the last column (if of this colour) has no right neighbour.
     if n > 0 && 2 * (n - 1) + pp == w - 1 {
         let k = n - 1;
-        let cu = bu[k] + du[k];
-        let cv = bv[k] + dv[k];
-        let uy = (dbu[k] + ddu[k]) - cu;
-        let vy = (dbv[k] + ddv[k]) - cv;
+        let uy = du[k] - cu[k];
+        let vy = dv[k] - cv[k];
         let wgt = alpha2 / (uy * uy + vy * vy + e2).sqrt();
         wr[k] = 0.0;
         wd[k] = wgt;
@@ -770,31 +736,29 @@ fn weights_one_row(
     }
 }
 
-/// Smoothness weights of one colour row from the flow (`[base u, delta u, base v,
-/// delta v]`) at the pixels, their right and their down neighbours. Separate function
+/// Smoothness weights of one colour row from the flow (`[u, v]`) at the pixels, their
+/// right and their down neighbours. Separate function
 /// so that the outputs are known not to alias the inputs (the loop vectorises).
 #[inline(never)]
 fn weights_row(
     alpha2: f32,
     e2: f32,
-    c: [&[f32]; 4],
-    r: [&[f32]; 4],
-    d: [&[f32]; 4],
+    c: [&[f32]; 2],
+    r: [&[f32]; 2],
+    d: [&[f32]; 2],
     wr: &mut [f32],
     wd: &mut [f32],
 ) {
     let n = wr.len();
     let wd = &mut wd[..n];
-    let [bu, du, bv, dv] = c.map(|s| &s[..n]);
-    let [rbu, rdu, rbv, rdv] = r.map(|s| &s[..n]);
-    let [dbu, ddu, dbv, ddv] = d.map(|s| &s[..n]);
+    let [cu, cv] = c.map(|s| &s[..n]);
+    let [ru, rv] = r.map(|s| &s[..n]);
+    let [du, dv] = d.map(|s| &s[..n]);
     for k in 0..n {
-        let cu = bu[k] + du[k];
-        let cv = bv[k] + dv[k];
-        let ux = (rbu[k] + rdu[k]) - cu;
-        let vx = (rbv[k] + rdv[k]) - cv;
-        let uy = (dbu[k] + ddu[k]) - cu;
-        let vy = (dbv[k] + ddv[k]) - cv;
+        let ux = ru[k] - cu[k];
+        let vx = rv[k] - cv[k];
+        let uy = du[k] - cu[k];
+        let vy = dv[k] - cv[k];
         let wgt = alpha2 / (ux * ux + vx * vx + uy * uy + vy * vy + e2).sqrt();
         wr[k] = wgt;
         wd[k] = wgt;
@@ -838,7 +802,6 @@ fn assemble_one_row(
     other: &[f32],
 ) {
     let st = g.stride;
-    let o = 1 - c;
     let (dl, cl, fl) = (N_DERIV * st, N_COEF * st, N_FLOW * st);
     let n = g.n(c, i);
     let pp = Grid::p(c, i);
@@ -847,9 +810,6 @@ fn assemble_one_row(
     let d: [&[f32]; N_DERIV] = std::array::from_fn(|x| &dr[x * st + 1..][..n]);
     let od = &delta[r * fl..][..fl];
     let ob = &base[c][r * fl..][..fl];
-    let nb = &base[o][r * fl..][..fl];
-    let ub = &base[o][(r - 1) * fl..][..fl];
-    let db = &base[o][(r + 1) * fl..][..fl];
     let (sys, wts) = row.split_at_mut(WR * st);
     let (a11s, rest) = sys.split_at_mut(st);
     let (a12s, rest) = rest.split_at_mut(st);
@@ -857,22 +817,10 @@ fn assemble_one_row(
     let (b1s, b2s) = rest.split_at_mut(st);
     let input = AssembleIn {
         d,
-        du: at_n(od, U * st + 1, n),
-        dv: at_n(od, V * st + 1, n),
+        fu: at_n(od, U * st + 1, n),
+        fv: at_n(od, V * st + 1, n),
         bu: at_n(ob, U * st + 1, n),
         bv: at_n(ob, V * st + 1, n),
-        nbu: [
-            at_n(nb, U * st + pp, n),
-            at_n(nb, U * st + pp + 1, n),
-            at_n(ub, U * st + 1, n),
-            at_n(db, U * st + 1, n),
-        ],
-        nbv: [
-            at_n(nb, V * st + pp, n),
-            at_n(nb, V * st + pp + 1, n),
-            at_n(ub, V * st + 1, n),
-            at_n(db, V * st + 1, n),
-        ],
         w: [
             at_n(other, r * cl + WR * st + pp, n),
             at_n(wts, 1, n),
@@ -911,16 +859,14 @@ impl AssembleConsts {
 }
 
 /// Inputs of one colour row of [`assemble`], each `n` long: normalised derivatives
-/// (see `N_DERIV`), current increment, base flow, base flow of the neighbours and edge weights
-/// (left, right, up, down).
+/// (see `N_DERIV`), current flow, base (incoming) flow and edge weights (left, right,
+/// up, down).
 struct AssembleIn<'a> {
     d: [&'a [f32]; N_DERIV],
-    du: &'a [f32],
-    dv: &'a [f32],
+    fu: &'a [f32],
+    fv: &'a [f32],
     bu: &'a [f32],
     bv: &'a [f32],
-    nbu: [&'a [f32]; 4],
-    nbv: [&'a [f32]; 4],
     w: [&'a [f32]; 4],
 }
 
@@ -941,22 +887,22 @@ fn assemble_row(
     let n = inv_a11.len();
     let (a12, inv_a22, b1, b2) = (&mut a12[..n], &mut inv_a22[..n], &mut b1[..n], &mut b2[..n]);
     let [bx, by, bz, xx, xy, xz, yx, yy, yz] = x.d.map(|s| &s[..n]);
-    let (du, dv, bu, bv) = (&x.du[..n], &x.dv[..n], &x.bu[..n], &x.bv[..n]);
-    let [lu, ru, uu, du_] = x.nbu.map(|s| &s[..n]);
-    let [lv, rv, uv, dv_] = x.nbv.map(|s| &s[..n]);
+    let (fu, fv, bu, bv) = (&x.fu[..n], &x.fv[..n], &x.bu[..n], &x.bv[..n]);
     let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
     let AssembleConsts { z2, e2, d2, g2 } = *k;
     for i in 0..n {
+        // Increment over the incoming flow (the data terms are linearised there).
+        let (du_i, dv_i) = (fu[i] - bu[i], fv[i] - bv[i]);
         // Normalised brightness constancy, Charbonnier weight lagged at the current
         // increment.
         let (gx, gy, gz) = (bx[i], by[i], bz[i]);
-        let res = gz + gx * du[i] + gy * dv[i];
+        let res = gz + gx * du_i + gy * dv_i;
         let sb = (res * res + e2).sqrt();
         // Normalised gradient constancy (of I_x and of I_y).
         let (p0, p1, p2) = (xx[i], xy[i], xz[i]);
         let (q0, q1, q2) = (yx[i], yy[i], yz[i]);
-        let rx = p2 + p0 * du[i] + p1 * dv[i];
-        let ry = q2 + q0 * du[i] + q1 * dv[i];
+        let rx = p2 + p0 * du_i + p1 * dv_i;
+        let ry = q2 + q0 * du_i + q1 * dv_i;
         let sg = (rx * rx + ry * ry + e2).sqrt();
         // One division for both Charbonnier weights d2 / sb and g2 / sg.
         let t = 1.0 / (sb * sg);
@@ -971,17 +917,13 @@ fn assemble_row(
         s22 += wg * (p1 * p1 + q1 * q1);
         r1 -= wg * (p0 * p2 + q0 * q2);
         r2 -= wg * (p1 * p2 + q1 * q2);
-        // Smoothness: edges left, right, up, down (weight 0 where there is none).
+        // Solving for the total flow f = base + increment: the data rows become
+        // D f = r + D base (D the 2x2 data block), so the smoothness terms need no
+        // right-hand side; their weights join the diagonal (left, right, up, down edges,
+        // weight 0 where there is none).
         let ws = wl[i] + wr[i] + wu[i] + wd[i];
-        let (cu, cv) = (bu[i], bv[i]);
-        r1 += wl[i] * (lu[i] - cu)
-            + wr[i] * (ru[i] - cu)
-            + wu[i] * (uu[i] - cu)
-            + wd[i] * (du_[i] - cu);
-        r2 += wl[i] * (lv[i] - cv)
-            + wr[i] * (rv[i] - cv)
-            + wu[i] * (uv[i] - cv)
-            + wd[i] * (dv_[i] - cv);
+        r1 += s11 * bu[i] + s12 * bv[i];
+        r2 += s12 * bu[i] + s22 * bv[i];
         // One division for both reciprocals of the diagonal.
         let (d11, d22) = (s11 + ws, s22 + ws);
         let t = 1.0 / (d11 * d22);
@@ -1124,7 +1066,7 @@ fn outer_wavefront(
         if step < g.h {
             for c in 0..2 {
                 let row = &mut coef[c][(step + 1) * cl..(step + 2) * cl];
-                weights_one_row(g, c, step, p, base, delta, row);
+                weights_one_row(g, c, step, p, delta, row);
             }
         }
         if (1..=g.h).contains(&step) {
@@ -1168,10 +1110,9 @@ mod tests {
             let u = Array2::from_shape_fn((h, w), |(i, j)| (i * 100 + j) as f32);
             let v = u.mapv(|x| -x);
             let mut base: [Vec<f32>; 2] = std::array::from_fn(|_| vec![0.0; g.buf_len(N_FLOW)]);
-            let delta: [Vec<f32>; 2] = std::array::from_fn(|_| vec![0.0; g.buf_len(N_FLOW)]);
             split_flow(&u, &v, g, &mut base);
             let (mut u2, mut v2) = (Array2::zeros((h, w)), Array2::zeros((h, w)));
-            merge_flow(g, &base, &delta, &mut u2, &mut v2);
+            merge_flow(g, &base, &mut u2, &mut v2);
             assert_eq!(u, u2);
             assert_eq!(v, v2);
         }
