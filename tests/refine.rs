@@ -841,6 +841,14 @@ fn bad_input_gives_typed_errors() {
             zeta: -0.1,
             ..RefineParams::opencv()
         },
+        RefineParams {
+            zeta: 1e-30,
+            ..RefineParams::opencv()
+        },
+        RefineParams {
+            epsilon: 1e30,
+            ..RefineParams::opencv()
+        },
     ] {
         let mut vr = VariationalRefiner::new(p);
         assert!(

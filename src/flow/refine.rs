@@ -165,8 +165,8 @@ impl Default for RefineParams {
 // + zeta^2); constancy of I_x: (I_xx, I_xy, I_xz) / sqrt(I_xx^2 + I_xy^2 + zeta^2);
 // constancy of I_y: (I_xy, I_yy, I_yz) / sqrt(I_xy^2 + I_yy^2 + zeta^2).
 const N_DERIV: usize = 9;
-// Linear-system coefficients (per outer iteration; the A11 and A22 slots hold the
-// reciprocals of the diagonal) and smoothness weights of the edges to the right and
+// Linear-system coefficients (per outer iteration; the A11 and A22 slots hold
+// omega / diagonal) and smoothness weights of the edges to the right and
 // down neighbours (0 where there is no neighbour):
 const A11: usize = 0;
 const A12: usize = 1;
@@ -850,6 +850,7 @@ struct AssembleConsts {
     e2: f32,
     d2: f32,
     g2: f32,
+    omega: f32,
 }
 
 impl AssembleConsts {
@@ -859,6 +860,7 @@ impl AssembleConsts {
             e2: p.epsilon * p.epsilon,
             d2: p.delta / 2.0,
             g2: p.gamma / 2.0,
+            omega: p.omega,
         }
     }
 }
@@ -877,7 +879,7 @@ struct AssembleIn<'a> {
 
 /// The per-pixel system of one colour row. A separate function so that the outputs are
 /// distinct `&mut` arguments (no aliasing), which lets the loop vectorise. Stores the
-/// reciprocals of the diagonal (`A11`, `A22` slots) so SOR multiplies instead of
+/// `omega / diagonal` (`A11`, `A22` slots) so SOR multiplies instead of
 /// dividing.
 #[inline(never)]
 fn assemble_row(
@@ -894,7 +896,13 @@ fn assemble_row(
     let [bx, by, bz, xx, xy, xz, yx, yy, yz] = x.d.map(|s| &s[..n]);
     let (fu, fv, bu, bv) = (&x.fu[..n], &x.fv[..n], &x.bu[..n], &x.bv[..n]);
     let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
-    let AssembleConsts { z2, e2, d2, g2 } = *k;
+    let AssembleConsts {
+        z2,
+        e2,
+        d2,
+        g2,
+        omega,
+    } = *k;
     for i in 0..n {
         // Increment over the incoming flow (the data terms are linearised there).
         let (du_i, dv_i) = (fu[i] - bu[i], fv[i] - bv[i]);
@@ -929,9 +937,9 @@ fn assemble_row(
         let ws = wl[i] + wr[i] + wu[i] + wd[i];
         r1 += s11 * bu[i] + s12 * bv[i];
         r2 += s12 * bu[i] + s22 * bv[i];
-        // One division for both reciprocals of the diagonal.
+        // One division for both reciprocals of the diagonal, pre-multiplied by omega.
         let (d11, d22) = (s11 + ws, s22 + ws);
-        let t = 1.0 / (d11 * d22);
+        let t = omega / (d11 * d22);
         inv_a11[i] = d22 * t;
         a12[i] = s12;
         inv_a22[i] = d11 * t;
@@ -941,7 +949,7 @@ fn assemble_row(
 }
 
 /// Inputs of one colour row of an SOR half-sweep, each `n` long: the system
-/// (`1/A11, A12, 1/A22, B1, B2`), the edge weights (left, right, up, down) and the
+/// (`omega/A11, A12, omega/A22, B1, B2`), the edge weights (left, right, up, down) and the
 /// neighbours' increments (left, right, up, down).
 struct SorIn<'a> {
     sys: [&'a [f32]; 5],
@@ -954,6 +962,7 @@ struct SorIn<'a> {
 /// alias the inputs, so the loop vectorises).
 #[inline(never)]
 fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
+    let keep = 1.0 - omega;
     let n = du.len();
     let dv = &mut dv[..n];
     let [ia11, a12, ia22, b1, b2] = x.sys.map(|s| &s[..n]);
@@ -963,8 +972,9 @@ fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
     for i in 0..n {
         let su = wl[i] * lu[i] + wr[i] * ru[i] + wu[i] * uu[i] + wd[i] * du_[i];
         let sv = wl[i] * lv[i] + wr[i] * rv[i] + wu[i] * uv[i] + wd[i] * dv_[i];
-        let nu = du[i] + omega * ((su + b1[i] - a12[i] * dv[i]) * ia11[i] - du[i]);
-        let nv = dv[i] + omega * ((sv + b2[i] - a12[i] * nu) * ia22[i] - dv[i]);
+        // du + omega * (gauss_seidel - du), with omega / a11 precomputed.
+        let nu = keep * du[i] + (su + b1[i] - a12[i] * dv[i]) * ia11[i];
+        let nv = keep * dv[i] + (sv + b2[i] - a12[i] * nu) * ia22[i];
         du[i] = nu;
         dv[i] = nv;
     }
