@@ -127,13 +127,15 @@ impl RefineParams {
                 ))
             }
         };
+        // epsilon and zeta enter squared, as divisors: their squares must be normal
+        // positive f32 values (no underflow to 0, no overflow to infinity).
         let finite_pos = |name: &str, x: f32| {
-            if x.is_finite() && x > 0.0 {
+            if x > 0.0 && (x * x).is_normal() {
                 Ok(())
             } else {
                 Err(Error::param(
                     name,
-                    format!("must be finite and > 0, got {x}"),
+                    format!("must be > 0 with a finite, non-denormal square, got {x}"),
                 ))
             }
         };
