@@ -364,8 +364,9 @@ fn random_case(
     (i0, i1, FlowField { u, v })
 }
 
-/// Fast against oracle, the fast one run on one thread (single-pass wavefront SOR) and
-/// on two (parallel half-sweeps); returns the largest difference of u or v.
+/// Fast against oracle, the fast one run on 1, 2 and 3 threads (three schedules: one
+/// row sweep, two half sweeps and a band, pass-by-pass); returns the largest difference
+/// of u or v.
 fn compare_with_oracle(
     p: &RefineParams,
     i0: &Array2<f32>,
@@ -375,7 +376,7 @@ fn compare_with_oracle(
     let (mut u, mut v) = (init.u.clone(), init.v.clone());
     oracle_refine(p, i0, i1, &mut u, &mut v);
     let mut worst = 0.0f32;
-    for threads in [1, 2] {
+    for threads in [1, 2, 3] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
@@ -652,7 +653,7 @@ fn translating_the_content_translates_the_result() {
 }
 
 #[test]
-fn same_output_with_one_and_two_threads() {
+fn same_output_with_one_two_and_three_threads() {
     let (w, h) = (203, 117);
     let (i0, i1, truth) = marker_pair(
         w,
@@ -673,21 +674,22 @@ fn same_output_with_one_and_two_threads() {
             .unwrap();
         pool.install(|| run(p, &i0, &i1, &init))
     };
+    // 1 thread: one row sweep per outer iteration; 2: two half sweeps and a band;
+    // 3: pass-by-pass parallel half-sweeps. All must agree bit for bit.
     for p in [RefineParams::opencv(), RefineParams::accurate()] {
         let one = go(1, p);
-        let two = go(2, p);
-        assert!(
-            one.u
-                .iter()
-                .zip(two.u.iter())
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
-        assert!(
-            one.v
-                .iter()
-                .zip(two.v.iter())
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
+        for threads in [2, 3] {
+            let other = go(threads, p);
+            let same = |a: &Array2<f32>, b: &Array2<f32>| {
+                a.iter()
+                    .zip(b.iter())
+                    .all(|(x, y)| x.to_bits() == y.to_bits())
+            };
+            assert!(
+                same(&one.u, &other.u) && same(&one.v, &other.v),
+                "{threads} threads"
+            );
+        }
     }
 }
 

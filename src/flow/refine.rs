@@ -484,10 +484,10 @@ impl VariationalRefiner {
                 work.delta[c].copy_from_slice(&work.base[c]);
             }
 
-            let single = rayon::current_num_threads() == 1;
+            let threads = rayon::current_num_threads();
             for _ in 0..p.outer_iterations {
-                if single {
-                    // One thread: the whole outer iteration in one cache-friendly pass.
+                if threads <= 2 {
+                    // The whole outer iteration in cache-friendly row sweeps.
                     outer_wavefront(
                         g,
                         &p,
@@ -495,6 +495,7 @@ impl VariationalRefiner {
                         &work.base,
                         &mut work.coef,
                         &mut work.delta,
+                        threads == 2,
                     );
                     continue;
                 }
@@ -692,7 +693,7 @@ fn smoothness_weights(
         .par_chunks_mut(cl)
         .enumerate()
         .with_min_len(rows_per_task(g.w))
-        .for_each(|(i, row)| weights_one_row(g, c, i, p, flow, row));
+        .for_each(|(i, row)| weights_one_row(g, c, i, p, [&flow[0], &flow[1]], 0, row));
 }
 
 /// [`smoothness_weights`] for image row `i`; `row` is that row of colour `c`'s
@@ -702,7 +703,8 @@ fn weights_one_row(
     c: usize,
     i: usize,
     p: &RefineParams,
-    flow: &[Vec<f32>; 2],
+    flow: [&[f32]; 2],
+    off: usize,
     row: &mut [f32],
 ) {
     let (w, h, st) = (g.w, g.h, g.stride);
@@ -712,7 +714,7 @@ fn weights_one_row(
     let fl = N_FLOW * st;
     let n = g.n(c, i);
     let pp = Grid::p(c, i);
-    let r = i + 1;
+    let r = i + 1 - off;
     let of = &flow[c][r * fl..][..fl];
     let nf = &flow[o][r * fl..][..fl];
     // Down neighbour row; in the last row use the pixel itself (difference 0).
@@ -792,7 +794,7 @@ fn assemble(
         .par_chunks_mut(cl)
         .enumerate()
         .with_min_len(rows_per_task(g.w))
-        .for_each(|(i, row)| assemble_one_row(g, c, i, &k, deriv, base, delta, row, other));
+        .for_each(|(i, row)| assemble_one_row(g, c, i, &k, deriv, base, delta, 0, row, other));
 }
 
 /// [`assemble`] for image row `i`: `deriv` and `delta` are colour `c`'s buffers, `row`
@@ -805,6 +807,7 @@ fn assemble_one_row(
     deriv: &[f32],
     base: &[Vec<f32>; 2],
     delta: &[f32],
+    off: usize,
     row: &mut [f32],
     other: &[f32],
 ) {
@@ -812,10 +815,13 @@ fn assemble_one_row(
     let (dl, cl, fl) = (N_DERIV * st, N_COEF * st, N_FLOW * st);
     let n = g.n(c, i);
     let pp = Grid::p(c, i);
+    // Padded row in the full buffers (`deriv`, `base`) and in the slices that start
+    // at padded row `off` (`delta`, `other`).
     let r = i + 1;
+    let ro = r - off;
     let dr = &deriv[r * dl..][..dl];
     let d: [&[f32]; N_DERIV] = std::array::from_fn(|x| &dr[x * st + 1..][..n]);
-    let od = &delta[r * fl..][..fl];
+    let od = &delta[ro * fl..][..fl];
     let ob = &base[c][r * fl..][..fl];
     let (sys, wts) = row.split_at_mut(WR * st);
     let (a11s, rest) = sys.split_at_mut(st);
@@ -829,9 +835,9 @@ fn assemble_one_row(
         bu: at_n(ob, U * st + 1, n),
         bv: at_n(ob, V * st + 1, n),
         w: [
-            at_n(other, r * cl + WR * st + pp, n),
+            at_n(other, ro * cl + WR * st + pp, n),
             at_n(wts, 1, n),
-            at_n(other, (r - 1) * cl + WD * st + 1, n),
+            at_n(other, (ro - 1) * cl + WD * st + 1, n),
             at_n(wts, st + 1, n),
         ],
     };
@@ -999,22 +1005,24 @@ fn own_other<T>(pair: &mut [T; 2], c: usize) -> (&mut T, &T) {
 }
 
 /// SOR update of the pixels of colour `c` in image row `i`; `row` is that row of the
-/// colour's increment buffer, `other` the other colour's whole increment buffer.
+/// colour's flow buffer; `coef` and `other` (the other colour's flow) are buffers from
+/// padded row `off` on.
 fn sor_one_row(
     g: Grid,
     c: usize,
     i: usize,
     omega: f32,
-    coef: &[Vec<f32>; 2],
+    coef: [&[f32]; 2],
+    off: usize,
     row: &mut [f32],
     other: &[f32],
 ) {
     let st = g.stride;
     let (cl, fl) = (N_COEF * st, N_FLOW * st);
-    let (oc, nc) = (&coef[c], &coef[1 - c]);
+    let (oc, nc) = (coef[c], coef[1 - c]);
     let n = g.n(c, i);
     let pp = Grid::p(c, i);
-    let r = i + 1;
+    let r = i + 1 - off;
     let cr = &oc[r * cl..][..cl];
     let q = |x: usize| &cr[x * st + 1..][..n];
     let (a11, a12, a22, b1, b2, wr, wd) = (q(A11), q(A12), q(A22), q(B1), q(B2), q(WR), q(WD));
@@ -1053,58 +1061,152 @@ fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], delta: &m
         .par_chunks_mut(fl)
         .enumerate()
         .with_min_len(rows_per_task(g.w))
-        .for_each(|(i, row)| sor_one_row(g, c, i, omega, coef, row, other));
+        .for_each(|(i, row)| sor_one_row(g, c, i, omega, [&coef[0], &coef[1]], 0, row, other));
+}
+
+/// Shared inputs of one outer iteration.
+struct OuterCtx<'a> {
+    g: Grid,
+    p: &'a RefineParams,
+    k: AssembleConsts,
+    deriv: &'a [Vec<f32>; 2],
+    base: &'a [Vec<f32>; 2],
+}
+
+/// Runs work items of one outer iteration. Items are in "stage" order `k`: `0` the
+/// smoothness weights of a row, `1` its system, `2 + t` SOR half-sweep `t` (red for
+/// even `t`). Item `(k, i)` reads only what items `(k - 1, i - 1..=i + 1)` (or earlier)
+/// wrote, and whatever overwrites what it reads depends on it, so any order that runs
+/// `(k - 1, i')` before `(k, i)` for `|i - i'| <= 1` gives the pass-by-pass result bit
+/// for bit.
+///
+/// `coef` and `flow` are the colours' buffers from padded row `off` on; `ranges[k]` the
+/// inclusive image-row range of stage `k` to run here (empty if `lo > hi`). Rows are
+/// swept downwards (item `(k, i)` at step `i + k`) or upwards (at step `k - i`).
+fn run_items(
+    x: &OuterCtx,
+    coef: &mut [&mut [f32]; 2],
+    flow: &mut [&mut [f32]; 2],
+    off: usize,
+    ranges: &[(isize, isize)],
+    downward: bool,
+) {
+    let (g, st) = (x.g, x.g.stride);
+    let (cl, fl) = (N_COEF * st, N_FLOW * st);
+    let at = |k: usize, i: isize| {
+        if downward {
+            i + k as isize
+        } else {
+            k as isize - i
+        }
+    };
+    let live = || ranges.iter().enumerate().filter(|(_, r)| r.0 <= r.1);
+    let first = live().map(|(k, r)| at(k, r.0).min(at(k, r.1))).min();
+    let last = live().map(|(k, r)| at(k, r.0).max(at(k, r.1))).max();
+    let (Some(first), Some(last)) = (first, last) else {
+        return;
+    };
+    for step in first..=last {
+        for (k, &(lo, hi)) in ranges.iter().enumerate() {
+            let i = if downward {
+                step - k as isize
+            } else {
+                k as isize - step
+            };
+            if i < lo || i > hi {
+                continue;
+            }
+            let i = i as usize;
+            let ro = i + 1 - off;
+            match k {
+                0 => {
+                    for c in 0..2 {
+                        let row = &mut coef[c][ro * cl..(ro + 1) * cl];
+                        weights_one_row(g, c, i, x.p, [&*flow[0], &*flow[1]], off, row);
+                    }
+                }
+                1 => {
+                    for c in 0..2 {
+                        let (own, other) = own_other(coef, c);
+                        let row = &mut own[ro * cl..(ro + 1) * cl];
+                        let fc: &[f32] = &*flow[c];
+                        assemble_one_row(g, c, i, &x.k, &x.deriv[c], x.base, fc, off, row, other);
+                    }
+                }
+                _ => {
+                    let c = (k - 2) % 2;
+                    let (own, other) = own_other(flow, c);
+                    let row = &mut own[ro * fl..(ro + 1) * fl];
+                    sor_one_row(g, c, i, x.p.omega, [&*coef[0], &*coef[1]], off, row, other);
+                }
+            }
+        }
+    }
 }
 
 /// One whole outer iteration (smoothness weights, system assembly, all red-black SOR
-/// sweeps) in a single pass over the rows, for one thread (temporal blocking).
+/// sweeps) without separate passes over the level (temporal blocking): each row goes
+/// through all stages while it and its neighbours are in cache, instead of every pass
+/// streaming the whole level through memory. Bit-identical to the pass-by-pass order
+/// (see [`run_items`]).
 ///
-/// At step `s`: the weights of row `s`, the system of row `s - 1`, and SOR half-sweep
-/// `t` (red for even `t`, black for odd) of row `s - 2 - t`, in that order. Each of
-/// these runs after everything it reads has been produced (weights of rows `i - 1, i`
-/// for the system of row `i`; systems of rows `i - 1, i` and half-sweep `t - 1` of rows
-/// `i - 1..=i + 1` for half-sweep `t` of row `i`) and before anything overwrites what
-/// it reads (the previous increments of rows `i, i + 1`), so every value is exactly the
-/// one the pass-by-pass order computes: the result is bit-identical, but only about
-/// `2 * sweeps + 3` rows are live at a time and stay in cache, instead of every pass
-/// streaming the whole level through memory.
+/// One thread: a single downward sweep. Two threads: the top half sweeps down and the
+/// bottom half sweeps up at the same time, each doing only the items whose inputs lie
+/// in its half; then the band left between them (about `2 * sweeps + 3` rows) is swept
+/// on one thread.
 fn outer_wavefront(
     g: Grid,
     p: &RefineParams,
     deriv: &[Vec<f32>; 2],
     base: &[Vec<f32>; 2],
     coef: &mut [Vec<f32>; 2],
-    delta: &mut [Vec<f32>; 2],
+    flow: &mut [Vec<f32>; 2],
+    two_halves: bool,
 ) {
-    let (cl, fl) = (N_COEF * g.stride, N_FLOW * g.stride);
-    let k = AssembleConsts::new(p);
-    let stages = 2 * p.sor_iterations;
-    for step in 0..g.h + stages + 2 {
-        if step < g.h {
-            for c in 0..2 {
-                let row = &mut coef[c][(step + 1) * cl..(step + 2) * cl];
-                weights_one_row(g, c, step, p, delta, row);
-            }
-        }
-        if (1..=g.h).contains(&step) {
-            let i = step - 1;
-            for c in 0..2 {
-                let (own, other) = own_other(coef, c);
-                let row = &mut own[(i + 1) * cl..(i + 2) * cl];
-                assemble_one_row(g, c, i, &k, &deriv[c], base, &delta[c], row, other);
-            }
-        }
-        for t in 0..stages.min(step.saturating_sub(1)) {
-            let i = step - 2 - t;
-            if i >= g.h {
-                continue;
-            }
-            let c = t % 2;
-            let (own, other) = own_other(delta, c);
-            let row = &mut own[(i + 1) * fl..(i + 2) * fl];
-            sor_one_row(g, c, i, p.omega, coef, row, other);
-        }
+    let x = OuterCtx {
+        g,
+        p,
+        k: AssembleConsts::new(p),
+        deriv,
+        base,
+    };
+    let stages = 2 + 2 * p.sor_iterations;
+    let h = g.h as isize;
+    let [c0, c1] = coef;
+    let [f0, f1] = flow;
+    if !two_halves || g.h < 2 * stages + 16 {
+        let all = vec![(0, h - 1); stages];
+        let (mut cs, mut fs) = ([&mut c0[..], &mut c1[..]], [&mut f0[..], &mut f1[..]]);
+        run_items(&x, &mut cs, &mut fs, 0, &all, true);
+        return;
     }
+    let m = h / 2;
+    // Top half (image rows < m): weights and systems up to row m - 2, SOR half-sweep t
+    // up to row m - 2 - t. Bottom half (rows >= m): weights from row m, systems from
+    // m + 1, half-sweep t from m + 2 + t. The band between them comes last.
+    let top: Vec<(isize, isize)> = (0..stages as isize)
+        .map(|k| (0, m - 2 - (k - 2).max(0)))
+        .collect();
+    let bottom: Vec<(isize, isize)> = (0..stages as isize).map(|k| (m + k, h - 1)).collect();
+    let band: Vec<(isize, isize)> = top
+        .iter()
+        .zip(&bottom)
+        .map(|(t, b)| ((t.1 + 1).max(0), (b.0 - 1).min(h - 1)))
+        .collect();
+    {
+        let m = m as usize;
+        let (csplit, fsplit) = ((m + 1) * N_COEF * g.stride, (m + 1) * N_FLOW * g.stride);
+        let (c0a, c0b) = c0.split_at_mut(csplit);
+        let (c1a, c1b) = c1.split_at_mut(csplit);
+        let (f0a, f0b) = f0.split_at_mut(fsplit);
+        let (f1a, f1b) = f1.split_at_mut(fsplit);
+        rayon::join(
+            || run_items(&x, &mut [c0a, c1a], &mut [f0a, f1a], 0, &top, true),
+            || run_items(&x, &mut [c0b, c1b], &mut [f0b, f1b], m + 1, &bottom, false),
+        );
+    }
+    let (mut cs, mut fs) = ([&mut c0[..], &mut c1[..]], [&mut f0[..], &mut f1[..]]);
+    run_items(&x, &mut cs, &mut fs, 0, &band, true);
 }
 
 #[cfg(test)]
