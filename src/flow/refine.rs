@@ -13,7 +13,8 @@
 //! the Charbonnier penalty. The energy is linearised once per call around the current
 //! image warped by the incoming flow; then `outer_iterations` fixed-point iterations
 //! re-evaluate the Charbonnier weights (lagged non-linearity) and solve the resulting
-//! linear system for the flow increment with `sor_iterations` red-black SOR sweeps.
+//! linear system (for the flow; equivalently its increment over the incoming flow) with
+//! `sor_iterations` red-black SOR sweeps.
 //!
 //! Image derivatives are taken on the average of the reference and the warped current
 //! image; `I_z` is their difference. The derivative kernel is `[-1 0 1]` (OpenCV's, twice
@@ -23,9 +24,14 @@
 //!
 //! Everything that depends only on the reference (its derivatives) is computed once in
 //! [`VariationalRefiner::set_reference`]; [`VariationalRefiner::refine`] reuses buffers
-//! sized for the level and allocates nothing. Work is split over rows with rayon; every
-//! half-sweep updates each pixel from values that no other task writes, so the result is
-//! bit-identical for any number of threads.
+//! sized for the level and allocates nothing. Work is split over rows with rayon. Each
+//! outer iteration is a set of row items (weights, system, SOR half-sweeps) whose
+//! dependencies are only between neighbouring rows of consecutive stages, so every
+//! schedule that respects them computes exactly the same values: on one thread the
+//! items run in a single row sweep (cache-resident), on two threads the two halves
+//! sweep towards each other and the band between them follows, on more threads each
+//! stage is a parallel pass over rows. The result is bit-identical for any number of
+//! threads.
 //!
 //! Layout: the solver stores every per-pixel quantity split by checkerboard colour
 //! ("red" where `row + col` is even, "black" where it is odd), one contiguous padded row
@@ -178,7 +184,7 @@ const B2: usize = 4;
 const WR: usize = 5;
 const WD: usize = 6;
 const N_COEF: usize = 7;
-// Flow planes (base flow of the call, and the increment being solved for):
+// Flow planes (the incoming flow of the call, and the current flow being solved for):
 const U: usize = 0;
 const V: usize = 1;
 const N_FLOW: usize = 2;
@@ -250,7 +256,7 @@ struct Work {
     deriv: [Vec<f32>; 2],
     coef: [Vec<f32>; 2],
     base: [Vec<f32>; 2],
-    delta: [Vec<f32>; 2],
+    flow: [Vec<f32>; 2],
 }
 
 /// Variational refinement planned for one image size (one DIS pyramid level) and one
@@ -395,7 +401,7 @@ impl VariationalRefiner {
                 deriv: std::array::from_fn(|_| vec![0.0; grid.buf_len(N_DERIV)]),
                 coef: std::array::from_fn(|_| vec![0.0; grid.buf_len(N_COEF)]),
                 base: std::array::from_fn(|_| vec![0.0; grid.buf_len(N_FLOW)]),
-                delta: std::array::from_fn(|_| vec![0.0; grid.buf_len(N_FLOW)]),
+                flow: std::array::from_fn(|_| vec![0.0; grid.buf_len(N_FLOW)]),
             };
         }
         for (d, &x) in r.i0.iter_mut().zip(i0.iter()) {
@@ -481,7 +487,7 @@ impl VariationalRefiner {
             split_flow(u, v, g, &mut work.base);
             // The solver iterates on the total flow, starting from the incoming one.
             for c in 0..2 {
-                work.delta[c].copy_from_slice(&work.base[c]);
+                work.flow[c].copy_from_slice(&work.base[c]);
             }
 
             let threads = rayon::current_num_threads();
@@ -494,13 +500,13 @@ impl VariationalRefiner {
                         &work.deriv,
                         &work.base,
                         &mut work.coef,
-                        &mut work.delta,
+                        &mut work.flow,
                         threads == 2,
                     );
                     continue;
                 }
                 for c in 0..2 {
-                    smoothness_weights(g, c, &p, &work.delta, &mut work.coef);
+                    smoothness_weights(g, c, &p, &work.flow, &mut work.coef);
                 }
                 for c in 0..2 {
                     assemble(
@@ -509,17 +515,17 @@ impl VariationalRefiner {
                         &p,
                         &work.deriv[c],
                         &work.base,
-                        &work.delta[c],
+                        &work.flow[c],
                         &mut work.coef,
                     );
                 }
                 for _ in 0..p.sor_iterations {
                     for c in 0..2 {
-                        sor_half_sweep(g, c, p.omega, &work.coef, &mut work.delta);
+                        sor_half_sweep(g, c, p.omega, &work.coef, &mut work.flow);
                     }
                 }
             }
-            merge_flow(g, &work.delta, u, v);
+            merge_flow(g, &work.flow, u, v);
         });
         Ok(())
     }
@@ -643,14 +649,14 @@ fn split_flow(u: &Array2<f32>, v: &Array2<f32>, g: Grid, base: &mut [Vec<f32>; 2
 }
 
 /// Writes the split flow back into `u`, `v`.
-fn merge_flow(g: Grid, delta: &[Vec<f32>; 2], u: &mut Array2<f32>, v: &mut Array2<f32>) {
+fn merge_flow(g: Grid, flow: &[Vec<f32>; 2], u: &mut Array2<f32>, v: &mut Array2<f32>) {
     let (w, st) = (g.w, g.stride);
     let rl = N_FLOW * st;
     let mt = rows_per_task(w);
     let value = |i: usize, j: usize, q: usize| {
         let c = (i + j) % 2;
         let idx = (i + 1) * rl + q * st + j / 2 + 1;
-        delta[c][idx]
+        flow[c][idx]
     };
     let fill = |out: &mut Array2<f32>, q: usize| {
         if let Some(sl) = out.as_slice_mut() {
@@ -661,7 +667,7 @@ fn merge_flow(g: Grid, delta: &[Vec<f32>; 2], u: &mut Array2<f32>, v: &mut Array
                     let off = (i + 1) * rl + q * st + 1;
                     for c in 0..2 {
                         let (n, p) = (g.n(c, i), Grid::p(c, i));
-                        let f = &delta[c][off..][..n];
+                        let f = &flow[c][off..][..n];
                         for k in 0..n {
                             row[2 * k + p] = f[k];
                         }
@@ -677,7 +683,7 @@ fn merge_flow(g: Grid, delta: &[Vec<f32>; 2], u: &mut Array2<f32>, v: &mut Array
     fill(v, V);
 }
 
-/// Smoothness weights of colour `c`, from the current total flow `base + delta`:
+/// Smoothness weights of colour `c`, from the current flow:
 /// `alpha/2 / sqrt(|grad u|^2 + |grad v|^2 + epsilon^2)` with forward differences
 /// (zero across the right and bottom borders), stored as the weights of the edges to
 /// the right (`WR`) and down (`WD`) neighbours; missing edges get weight 0.
@@ -783,7 +789,7 @@ fn assemble(
     p: &RefineParams,
     deriv: &[f32],
     base: &[Vec<f32>; 2],
-    delta: &[f32],
+    flow: &[f32],
     coef: &mut [Vec<f32>; 2],
 ) {
     let cl = N_COEF * g.stride;
@@ -794,10 +800,10 @@ fn assemble(
         .par_chunks_mut(cl)
         .enumerate()
         .with_min_len(rows_per_task(g.w))
-        .for_each(|(i, row)| assemble_one_row(g, c, i, &k, deriv, base, delta, 0, row, other));
+        .for_each(|(i, row)| assemble_one_row(g, c, i, &k, deriv, base, flow, 0, row, other));
 }
 
-/// [`assemble`] for image row `i`: `deriv` and `delta` are colour `c`'s buffers, `row`
+/// [`assemble`] for image row `i`: `deriv` and `flow` are colour `c`'s buffers, `row`
 /// is that row of its coefficient buffer, `other` the other colour's coefficients.
 fn assemble_one_row(
     g: Grid,
@@ -806,7 +812,7 @@ fn assemble_one_row(
     k: &AssembleConsts,
     deriv: &[f32],
     base: &[Vec<f32>; 2],
-    delta: &[f32],
+    flow: &[f32],
     off: usize,
     row: &mut [f32],
     other: &[f32],
@@ -816,12 +822,12 @@ fn assemble_one_row(
     let n = g.n(c, i);
     let pp = Grid::p(c, i);
     // Padded row in the full buffers (`deriv`, `base`) and in the slices that start
-    // at padded row `off` (`delta`, `other`).
+    // at padded row `off` (`flow`, `other`).
     let r = i + 1;
     let ro = r - off;
     let dr = &deriv[r * dl..][..dl];
     let d: [&[f32]; N_DERIV] = std::array::from_fn(|x| &dr[x * st + 1..][..n]);
-    let od = &delta[ro * fl..][..fl];
+    let od = &flow[ro * fl..][..fl];
     let ob = &base[c][r * fl..][..fl];
     let (sys, wts) = row.split_at_mut(WR * st);
     let (a11s, rest) = sys.split_at_mut(st);
@@ -958,7 +964,7 @@ fn assemble_row(
 
 /// Inputs of one colour row of an SOR half-sweep, each `n` long: the system
 /// (`omega/A11, A12, omega/A22, B1, B2`), the edge weights (left, right, up, down) and the
-/// neighbours' increments (left, right, up, down).
+/// neighbours' current flow (left, right, up, down).
 struct SorIn<'a> {
     sys: [&'a [f32]; 5],
     w: [&'a [f32]; 4],
@@ -1053,9 +1059,9 @@ fn sor_one_row(
 
 /// One SOR half-sweep over the pixels of colour `c` (they depend only on the other
 /// colour, so rows are independent and the result does not depend on scheduling).
-fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], delta: &mut [Vec<f32>; 2]) {
+fn sor_half_sweep(g: Grid, c: usize, omega: f32, coef: &[Vec<f32>; 2], flow: &mut [Vec<f32>; 2]) {
     let fl = N_FLOW * g.stride;
-    let (own, other) = own_other(delta, c);
+    let (own, other) = own_other(flow, c);
     let other: &[f32] = other;
     own[fl..(g.h + 1) * fl]
         .par_chunks_mut(fl)
@@ -1080,15 +1086,16 @@ struct OuterCtx<'a> {
 /// `(k - 1, i')` before `(k, i)` for `|i - i'| <= 1` gives the pass-by-pass result bit
 /// for bit.
 ///
-/// `coef` and `flow` are the colours' buffers from padded row `off` on; `ranges[k]` the
-/// inclusive image-row range of stage `k` to run here (empty if `lo > hi`). Rows are
+/// `coef` and `flow` are the colours' buffers from padded row `off` on; `range(k)` the
+/// inclusive image-row range of stage `k < stages` to run here (empty if `lo > hi`). Rows are
 /// swept downwards (item `(k, i)` at step `i + k`) or upwards (at step `k - i`).
 fn run_items(
     x: &OuterCtx,
     coef: &mut [&mut [f32]; 2],
     flow: &mut [&mut [f32]; 2],
     off: usize,
-    ranges: &[(isize, isize)],
+    stages: usize,
+    range: &(dyn Fn(usize) -> (isize, isize) + Sync),
     downward: bool,
 ) {
     let (g, st) = (x.g, x.g.stride);
@@ -1100,14 +1107,19 @@ fn run_items(
             k as isize - i
         }
     };
-    let live = || ranges.iter().enumerate().filter(|(_, r)| r.0 <= r.1);
+    let live = || {
+        (0..stages)
+            .map(|k| (k, range(k)))
+            .filter(|(_, r)| r.0 <= r.1)
+    };
     let first = live().map(|(k, r)| at(k, r.0).min(at(k, r.1))).min();
     let last = live().map(|(k, r)| at(k, r.0).max(at(k, r.1))).max();
     let (Some(first), Some(last)) = (first, last) else {
         return;
     };
     for step in first..=last {
-        for (k, &(lo, hi)) in ranges.iter().enumerate() {
+        for k in 0..stages {
+            let (lo, hi) = range(k);
             let i = if downward {
                 step - k as isize
             } else {
@@ -1175,24 +1187,17 @@ fn outer_wavefront(
     let [c0, c1] = coef;
     let [f0, f1] = flow;
     if !two_halves || g.h < 2 * stages + 16 {
-        let all = vec![(0, h - 1); stages];
         let (mut cs, mut fs) = ([&mut c0[..], &mut c1[..]], [&mut f0[..], &mut f1[..]]);
-        run_items(&x, &mut cs, &mut fs, 0, &all, true);
+        run_items(&x, &mut cs, &mut fs, 0, stages, &|_| (0, h - 1), true);
         return;
     }
     let m = h / 2;
     // Top half (image rows < m): weights and systems up to row m - 2, SOR half-sweep t
     // up to row m - 2 - t. Bottom half (rows >= m): weights from row m, systems from
     // m + 1, half-sweep t from m + 2 + t. The band between them comes last.
-    let top: Vec<(isize, isize)> = (0..stages as isize)
-        .map(|k| (0, m - 2 - (k - 2).max(0)))
-        .collect();
-    let bottom: Vec<(isize, isize)> = (0..stages as isize).map(|k| (m + k, h - 1)).collect();
-    let band: Vec<(isize, isize)> = top
-        .iter()
-        .zip(&bottom)
-        .map(|(t, b)| ((t.1 + 1).max(0), (b.0 - 1).min(h - 1)))
-        .collect();
+    let top = |k: usize| (0, m - 2 - (k as isize - 2).max(0));
+    let bottom = |k: usize| (m + k as isize, h - 1);
+    let band = |k: usize| ((top(k).1 + 1).max(0), (bottom(k).0 - 1).min(h - 1));
     {
         let m = m as usize;
         let (csplit, fsplit) = ((m + 1) * N_COEF * g.stride, (m + 1) * N_FLOW * g.stride);
@@ -1201,12 +1206,22 @@ fn outer_wavefront(
         let (f0a, f0b) = f0.split_at_mut(fsplit);
         let (f1a, f1b) = f1.split_at_mut(fsplit);
         rayon::join(
-            || run_items(&x, &mut [c0a, c1a], &mut [f0a, f1a], 0, &top, true),
-            || run_items(&x, &mut [c0b, c1b], &mut [f0b, f1b], m + 1, &bottom, false),
+            || run_items(&x, &mut [c0a, c1a], &mut [f0a, f1a], 0, stages, &top, true),
+            || {
+                run_items(
+                    &x,
+                    &mut [c0b, c1b],
+                    &mut [f0b, f1b],
+                    m + 1,
+                    stages,
+                    &bottom,
+                    false,
+                )
+            },
         );
     }
     let (mut cs, mut fs) = ([&mut c0[..], &mut c1[..]], [&mut f0[..], &mut f1[..]]);
-    run_items(&x, &mut cs, &mut fs, 0, &band, true);
+    run_items(&x, &mut cs, &mut fs, 0, stages, &band, true);
 }
 
 #[cfg(test)]
