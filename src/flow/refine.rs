@@ -36,7 +36,7 @@
 //! Layout: the solver stores every per-pixel quantity split by checkerboard colour
 //! ("red" where `row + col` is even, "black" where it is odd), one contiguous padded row
 //! per image row and colour, so that a red half-sweep reads contiguous black rows and the
-//! inner loops vectorise. See [`Grid`].
+//! inner loops vectorise (see the private `Grid`).
 
 use ndarray::{Array2, ArrayView2};
 use rayon::prelude::*;
