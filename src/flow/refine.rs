@@ -614,15 +614,29 @@ fn split_derivatives(
                     let iyy = 0.5 * (r.gyy[q] + wyy);
                     let ixz = wx[q] - r.gx[q];
                     let iyz = wy[q] - r.gy[q];
-                    let nb = 1.0 / (ix * ix + iy * iy + z2).sqrt();
-                    let n1 = 1.0 / (ixx * ixx + ixy * ixy + z2).sqrt();
-                    let n2 = 1.0 / (iyy * iyy + ixy * ixy + z2).sqrt();
-                    (bx[k], by[k], bz[k]) = (ix * nb, iy * nb, iz * nb);
-                    (xx[k], xy[k], xz[k]) = (ixx * n1, ixy * n1, ixz * n1);
-                    (yx[k], yy[k], yz[k]) = (ixy * n2, iyy * n2, iyz * n2);
+                    (bx[k], by[k], bz[k]) = (ix, iy, iz);
+                    (xx[k], xy[k], xz[k]) = (ixx, ixy, ixz);
+                    (yx[k], yy[k], yz[k]) = (ixy, iyy, iyz);
                 }
+                // The square roots and divisions in a contiguous loop that vectorises.
+                normalise([bx, by, bz], z2);
+                normalise([xx, xy, xz], z2);
+                normalise([yx, yy, yz], z2);
             }
         });
+}
+
+/// Divides `(a, b, c)` by `sqrt(a^2 + b^2 + z2)` element-wise, in place.
+#[inline(never)]
+fn normalise([a, b, c]: [&mut [f32]; 3], z2: f32) {
+    let n = a.len();
+    let (b, c) = (&mut b[..n], &mut c[..n]);
+    for k in 0..n {
+        let f = 1.0 / (a[k] * a[k] + b[k] * b[k] + z2).sqrt();
+        a[k] *= f;
+        b[k] *= f;
+        c[k] *= f;
+    }
 }
 
 /// Copies the incoming flow into the split layout (pads stay zero).
