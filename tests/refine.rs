@@ -1005,3 +1005,30 @@ fn accuracy_table() {
             .join(" | ")
     );
 }
+
+#[test]
+fn extreme_valid_parameters_stay_finite() {
+    let (i0, i1, init) = random_case(23, 17, 77, 3.0);
+    let corners = [
+        (1e-6, 1e-6, 1e6),
+        (1e-6, 1e3, 0.0),
+        (1e3, 1e-6, 1e6),
+        (1e3, 1e3, 1e6),
+    ];
+    for (epsilon, zeta, weight) in corners {
+        for exact in [false, true] {
+            let p = RefineParams {
+                epsilon,
+                zeta,
+                alpha: weight,
+                delta: weight,
+                gamma: weight,
+                omega: 1.99,
+                exact_derivatives: exact,
+                ..RefineParams::opencv()
+            };
+            let f = run(p, &i0, &i1, &init);
+            assert!(f.check_finite("refined").is_ok(), "{p:?}");
+        }
+    }
+}

@@ -58,17 +58,17 @@ pub struct RefineParams {
     pub sor_iterations: usize,
     /// SOR relaxation factor, in `(0, 2)`; `1` is plain Gauss-Seidel.
     pub omega: f32,
-    /// Weight of the smoothness term (flow gradients), `>= 0`.
+    /// Weight of the smoothness term (flow gradients), in `[0, 1e6]`.
     pub alpha: f32,
-    /// Weight of the normalised brightness-constancy term, `>= 0`.
+    /// Weight of the normalised brightness-constancy term, in `[0, 1e6]`.
     pub delta: f32,
-    /// Weight of the normalised gradient-constancy term, `>= 0`.
+    /// Weight of the normalised gradient-constancy term, in `[0, 1e6]`.
     pub gamma: f32,
-    /// Charbonnier epsilon: `Psi(s^2) = sqrt(s^2 + epsilon^2)`, `> 0`. Below about
+    /// Charbonnier epsilon: `Psi(s^2) = sqrt(s^2 + epsilon^2)`, in `[1e-6, 1e3]`. Below
     /// `epsilon` (in the units of the normalised residual, about pixels of motion) the
     /// penalties behave quadratically, above it like L1.
     pub epsilon: f32,
-    /// Normalisation regulariser, `> 0`: the data terms are divided by
+    /// Normalisation regulariser, in `[1e-6, 1e3]`: the data terms are divided by
     /// `|gradient|^2 + zeta^2`, so flat regions (gradient below `zeta`) get little data
     /// weight. `zeta^2` is also added to the diagonal of the system.
     pub zeta: f32,
@@ -123,25 +123,23 @@ impl RefineParams {
 
     /// Checks that every parameter is in its valid range.
     pub fn validate(&self) -> Result<()> {
-        let finite_nonneg = |name: &str, x: f32| {
-            if x.is_finite() && x >= 0.0 {
+        // The solver multiplies weights (up to about alpha / epsilon and delta, gamma /
+        // epsilon) and forms products of two diagonal entries (at least zeta^2 each)
+        // in f32: these bounds keep every intermediate finite and normal.
+        let weight = |name: &str, x: f32| {
+            if (0.0..=1e6).contains(&x) {
                 Ok(())
             } else {
-                Err(Error::param(
-                    name,
-                    format!("must be finite and >= 0, got {x}"),
-                ))
+                Err(Error::param(name, format!("must be in [0, 1e6], got {x}")))
             }
         };
-        // epsilon and zeta enter squared, as divisors: their squares must be normal
-        // positive f32 values (no underflow to 0, no overflow to infinity).
-        let finite_pos = |name: &str, x: f32| {
-            if x > 0.0 && (x * x).is_normal() {
+        let small = |name: &str, x: f32| {
+            if (1e-6..=1e3).contains(&x) {
                 Ok(())
             } else {
                 Err(Error::param(
                     name,
-                    format!("must be > 0 with a finite, non-denormal square, got {x}"),
+                    format!("must be in [1e-6, 1e3], got {x}"),
                 ))
             }
         };
@@ -151,11 +149,11 @@ impl RefineParams {
                 format!("SOR needs 0 < omega < 2, got {}", self.omega),
             ));
         }
-        finite_nonneg("alpha", self.alpha)?;
-        finite_nonneg("delta", self.delta)?;
-        finite_nonneg("gamma", self.gamma)?;
-        finite_pos("epsilon", self.epsilon)?;
-        finite_pos("zeta", self.zeta)?;
+        weight("alpha", self.alpha)?;
+        weight("delta", self.delta)?;
+        weight("gamma", self.gamma)?;
+        small("epsilon", self.epsilon)?;
+        small("zeta", self.zeta)?;
         Ok(())
     }
 }
