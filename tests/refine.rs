@@ -196,10 +196,10 @@ fn oracle_sample(a: &Array2<f32>, x: f32, y: f32) -> f32 {
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
     let (x0, y0) = (x0 as isize, y0 as isize);
-    (1.0 - fx) * (1.0 - fy) * at(a, y0, x0)
-        + fx * (1.0 - fy) * at(a, y0, x0 + 1)
-        + (1.0 - fx) * fy * at(a, y0 + 1, x0)
-        + fx * fy * at(a, y0 + 1, x0 + 1)
+    // Separable: interpolate along x in the two rows, then along y.
+    let top = (1.0 - fx) * at(a, y0, x0) + fx * at(a, y0, x0 + 1);
+    let bot = (1.0 - fx) * at(a, y0 + 1, x0) + fx * at(a, y0 + 1, x0 + 1);
+    (1.0 - fy) * top + fy * bot
 }
 
 fn oracle_refine(
@@ -364,23 +364,40 @@ fn random_case(
     (i0, i1, FlowField { u, v })
 }
 
-/// Fast against oracle; returns the largest difference of u or v.
+/// Fast against oracle, the fast one run on 1, 2 and 3 threads (three schedules: one
+/// row sweep, two half sweeps and a band, pass-by-pass); returns the largest difference
+/// of u or v.
 fn compare_with_oracle(
     p: &RefineParams,
     i0: &Array2<f32>,
     i1: &Array2<f32>,
     init: &FlowField,
 ) -> f32 {
-    let fast = run(*p, i0, i1, init);
     let (mut u, mut v) = (init.u.clone(), init.v.clone());
     oracle_refine(p, i0, i1, &mut u, &mut v);
-    max_abs_diff(&fast.u, &u).max(max_abs_diff(&fast.v, &v))
+    let mut worst = 0.0f32;
+    for threads in [1, 2, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let fast = pool.install(|| run(*p, i0, i1, init));
+        worst = worst
+            .max(max_abs_diff(&fast.u, &u))
+            .max(max_abs_diff(&fast.v, &v));
+    }
+    worst
 }
 
-// Tolerance of fast against oracle, in pixels. The two differ only by the rounding of
-// the bilinear warp (the oracle uses the four-weight formula), which the iterations
-// carry along; differences are typically ~1e-6 px.
-const ORACLE_TOL: f32 = 2e-4;
+// Tolerance of fast against oracle, in pixels. The two compute the same equations with
+// different rounding: the oracle divides by the normalisers and the diagonal where the
+// fast code multiplies by stored reciprocals and pre-normalised derivatives. On marker
+// images the results agree to ~1e-6 px (measured 9e-7, `MARKER_TOL`). On random-noise
+// images with random flows, where gradients are arbitrary and the normalised residuals
+// (intensity / gradient) amplify rounding, up to ~5e-5 px (measured 4.7e-5, `ORACLE_TOL`).
+// A wrong index or a missing term shows up as 1e-3..1 px.
+const ORACLE_TOL: f32 = 1e-4;
+const MARKER_TOL: f32 = 5e-6;
 
 #[test]
 fn fast_matches_oracle_on_random_inputs() {
@@ -416,7 +433,8 @@ fn fast_matches_oracle_on_markers() {
     let init = perturb(&truth, 0.3);
     for p in [RefineParams::opencv(), RefineParams::accurate()] {
         let d = compare_with_oracle(&p, &i0, &i1, &init);
-        assert!(d <= ORACLE_TOL, "{p:?}: fast differs from oracle by {d}");
+        eprintln!("markers: fast-oracle difference {d:e} px");
+        assert!(d <= MARKER_TOL, "{p:?}: fast differs from oracle by {d}");
     }
 }
 
@@ -635,7 +653,7 @@ fn translating_the_content_translates_the_result() {
 }
 
 #[test]
-fn same_output_with_one_and_two_threads() {
+fn same_output_with_one_two_and_three_threads() {
     let (w, h) = (203, 117);
     let (i0, i1, truth) = marker_pair(
         w,
@@ -656,21 +674,22 @@ fn same_output_with_one_and_two_threads() {
             .unwrap();
         pool.install(|| run(p, &i0, &i1, &init))
     };
+    // 1 thread: one row sweep per outer iteration; 2: two half sweeps and a band;
+    // 3: pass-by-pass parallel half-sweeps. All must agree bit for bit.
     for p in [RefineParams::opencv(), RefineParams::accurate()] {
         let one = go(1, p);
-        let two = go(2, p);
-        assert!(
-            one.u
-                .iter()
-                .zip(two.u.iter())
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
-        assert!(
-            one.v
-                .iter()
-                .zip(two.v.iter())
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
+        for threads in [2, 3] {
+            let other = go(threads, p);
+            let same = |a: &Array2<f32>, b: &Array2<f32>| {
+                a.iter()
+                    .zip(b.iter())
+                    .all(|(x, y)| x.to_bits() == y.to_bits())
+            };
+            assert!(
+                same(&one.u, &other.u) && same(&one.v, &other.v),
+                "{threads} threads"
+            );
+        }
     }
 }
 
@@ -824,6 +843,14 @@ fn bad_input_gives_typed_errors() {
             zeta: -0.1,
             ..RefineParams::opencv()
         },
+        RefineParams {
+            zeta: 1e-30,
+            ..RefineParams::opencv()
+        },
+        RefineParams {
+            epsilon: 1e30,
+            ..RefineParams::opencv()
+        },
     ] {
         let mut vr = VariationalRefiner::new(p);
         assert!(
@@ -833,5 +860,175 @@ fn bad_input_gives_typed_errors() {
             ),
             "{p:?}"
         );
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Accuracy table (not a check: prints the figures behind `RefineParams::accurate`).
+// Run: cargo test --release --test refine accuracy_table -- --ignored --nocapture
+// ---------------------------------------------------------------------------------
+
+#[test]
+#[ignore]
+fn accuracy_table() {
+    let (w, h) = (480, 270);
+    let ex = RefineParams {
+        exact_derivatives: true,
+        ..RefineParams::opencv()
+    };
+    let configs: Vec<(&str, RefineParams)> = vec![
+        ("opencv", RefineParams::opencv()),
+        ("exact", ex),
+        ("exact om1.8", RefineParams { omega: 1.8, ..ex }),
+        ("exact om1.9", RefineParams { omega: 1.9, ..ex }),
+        ("exact om1.95", RefineParams { omega: 1.95, ..ex }),
+        (
+            "om1.9 a10",
+            RefineParams {
+                omega: 1.9,
+                alpha: 10.0,
+                ..ex
+            },
+        ),
+        (
+            "om1.9 a15",
+            RefineParams {
+                omega: 1.9,
+                alpha: 15.0,
+                ..ex
+            },
+        ),
+        (
+            "om1.9 d10",
+            RefineParams {
+                omega: 1.9,
+                delta: 10.0,
+                ..ex
+            },
+        ),
+        (
+            "om1.9 a10 d10",
+            RefineParams {
+                omega: 1.9,
+                alpha: 10.0,
+                delta: 10.0,
+                ..ex
+            },
+        ),
+        (
+            "opencv om1.9",
+            RefineParams {
+                omega: 1.9,
+                ..RefineParams::opencv()
+            },
+        ),
+        (
+            "exact 10x5",
+            RefineParams {
+                outer_iterations: 10,
+                ..ex
+            },
+        ),
+    ];
+    let motions = [
+        (
+            "bump 1.2 px",
+            Motion {
+                tx: 0.3,
+                ty: -0.2,
+                amp: 1.2,
+                cx: 240.0,
+                cy: 135.0,
+                radius: 40.0,
+            },
+        ),
+        (
+            "bump 2.7 px",
+            Motion {
+                tx: 0.1,
+                ty: 0.4,
+                amp: 2.7,
+                cx: 200.0,
+                cy: 150.0,
+                radius: 30.0,
+            },
+        ),
+        (
+            "shift 0.25 px",
+            Motion {
+                tx: 0.25,
+                ty: -0.1,
+                amp: 0.0,
+                cx: 0.0,
+                cy: 0.0,
+                radius: 1.0,
+            },
+        ),
+    ];
+    println!(
+        "| markers sigma | motion | init AEPE | {} |",
+        configs.iter().map(|c| c.0).collect::<Vec<_>>().join(" | ")
+    );
+    println!("|---|---|---|{}", "---|".repeat(configs.len()));
+    let mut sums = vec![0.0f64; configs.len()];
+    let mut count = 0;
+    for sigma in [1.0f32, 0.7] {
+        for (mname, m) in motions {
+            for scale in [0.1f32, 0.3] {
+                let (i0, i1, truth) = marker_pair(w, h, m, sigma, 31);
+                let init = perturb(&truth, scale);
+                let before = init.aepe(&truth, 16).unwrap();
+                let after: Vec<f64> = configs
+                    .iter()
+                    .map(|(_, p)| run(*p, &i0, &i1, &init).aepe(&truth, 16).unwrap())
+                    .collect();
+                for (s, a) in sums.iter_mut().zip(&after) {
+                    *s += a / before;
+                }
+                count += 1;
+                println!(
+                    "| {sigma} | {mname} | {before:.4} | {} |",
+                    after
+                        .iter()
+                        .map(|a| format!("{a:.4}"))
+                        .collect::<Vec<_>>()
+                        .join(" | ")
+                );
+            }
+        }
+    }
+    println!(
+        "| mean after/before | | | {} |",
+        sums.iter()
+            .map(|s| format!("{:.3}", s / count as f64))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+}
+
+#[test]
+fn extreme_valid_parameters_stay_finite() {
+    let (i0, i1, init) = random_case(23, 17, 77, 3.0);
+    let corners = [
+        (1e-6, 1e-6, 1e6),
+        (1e-6, 1e3, 0.0),
+        (1e3, 1e-6, 1e6),
+        (1e3, 1e3, 1e6),
+    ];
+    for (epsilon, zeta, weight) in corners {
+        for exact in [false, true] {
+            let p = RefineParams {
+                epsilon,
+                zeta,
+                alpha: weight,
+                delta: weight,
+                gamma: weight,
+                omega: 1.99,
+                exact_derivatives: exact,
+                ..RefineParams::opencv()
+            };
+            let f = run(p, &i0, &i1, &init);
+            assert!(f.check_finite("refined").is_ok(), "{p:?}");
+        }
     }
 }
