@@ -145,6 +145,7 @@ fn apply_set(p: &mut DisParams, s: &str) -> Result<()> {
         "prefilter_sigma" => p.prefilter_sigma = parse_num(k, v)?,
         "backtracking" => p.backtracking = b(v),
         "stripes" => p.stripes = parse_num(k, v)?,
+        "min_texture" => p.min_texture = parse_num(k, v)?,
         "zero_candidate" => p.zero_candidate = b(v),
         "prefilter_all_levels" => p.prefilter_all_levels = b(v),
         "refine_iterations" => p.refinement.outer_iterations = parse_num(k, v)?,

@@ -126,7 +126,7 @@ impl ContactExtractor {
         let segmenter = Segmenter::new(SegmenterConfig {
             thresholds: config.thresholds,
             margin: config.margin_px,
-            scale: 1.0 / scale as f32,
+            scale: scale as f64,
         })?;
         Ok(ContactExtractor {
             config,
@@ -294,7 +294,6 @@ pub struct SensorConfig {
     /// When to take a fresh reference.
     pub rereference: ReferencePolicy,
 }
-
 
 /// A calibrated optical tactile sensor: frames in, contacts out (see the module docs).
 #[derive(Debug)]

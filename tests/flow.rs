@@ -281,3 +281,32 @@ fn bad_input_gives_typed_errors() {
     };
     assert!(matches!(Dis::new(bad), Err(Error::InvalidParameter { .. })));
 }
+
+/// Two rest frames of a strip whose ends hold no markers, only sensor noise
+/// (like the black coating beyond a real skin): the texture gate keeps the
+/// flow there at rest, where full Gauss-Newton steps would fit the noise.
+#[test]
+fn untextured_ends_stay_still_at_rest() {
+    let (w, h) = (400, 64);
+    let centres = support::marker_centres(w, h, 4.5, 11);
+    let base = support::render_markers(w, h, &centres, 1.0);
+    let mut rng = support::Rng::new(5);
+    let mut frame = |dark: usize| {
+        let mut img = base.clone();
+        for ((_, x), v) in img.indexed_iter_mut() {
+            if x < dark || x >= w - dark {
+                *v = 3.0;
+            }
+            *v += 5.2 * (rng.uniform() - 0.5) as f32;
+        }
+        img
+    };
+    let (a, b) = (frame(24), frame(24));
+    for preset in [DisPreset::Accurate, DisPreset::Balanced] {
+        let mut dis = Dis::new(DisParams::preset(preset)).unwrap();
+        dis.set_reference(&a).unwrap();
+        let f = dis.compute(&b).unwrap();
+        let worst = f.magnitude().iter().cloned().fold(0.0f32, f32::max);
+        assert!(worst < 0.5, "{preset:?}: largest flow at rest {worst} px");
+    }
+}

@@ -166,6 +166,14 @@ pub struct DisParams {
     /// Fixed number of stripes of patch rows that propagation does not cross
     /// (the unit of parallel work; results do not depend on thread count).
     pub stripes: usize,
+    /// Texture a patch needs to be searched: the smallest eigenvalue of its
+    /// mean-normalized structure tensor per pixel, in (grey levels per pixel)^2
+    /// of the true derivative. A patch below it (the black coating beyond the
+    /// skin, a saturated spot) holds only sensor noise: a full Gauss-Newton
+    /// step would fit that noise into a large bogus vector, so the patch keeps
+    /// the vector the coarser level and propagation give it. 0 = off, as in
+    /// OpenCV.
+    pub min_texture: f32,
 }
 
 impl DisParams {
@@ -186,6 +194,7 @@ impl DisParams {
             refinement: RefineParams::opencv(),
             zero_candidate: false,
             stripes: 8,
+            min_texture: 0.0,
         };
         match preset {
             DisPreset::Ultrafast => DisParams {
@@ -214,6 +223,7 @@ impl DisParams {
                     ..RefineParams::opencv()
                 },
                 zero_candidate: true,
+                min_texture: 1.0,
                 ..base
             },
             DisPreset::Accurate => DisParams {
@@ -266,6 +276,12 @@ impl DisParams {
         }
         if self.stripes == 0 {
             return Err(Error::param("stripes", "must be at least 1"));
+        }
+        if !(self.min_texture.is_finite() && self.min_texture >= 0.0) {
+            return Err(Error::param(
+                "min_texture",
+                format!("must be finite and >= 0, got {}", self.min_texture),
+            ));
         }
         self.refinement.validate()?;
         Ok(())
@@ -472,6 +488,8 @@ impl Dis {
         let psz = p.patch_size;
         let stride = p.patch_stride;
         let mean_norm = p.mean_normalization;
+        // The gate in the units of the stored gradients, summed over a patch.
+        let min_eig = p.min_texture as f64 * (psz * psz) as f64 * (8.0 * grad_scale as f64).powi(2);
         let mut levels: Vec<Level> = Vec::with_capacity(scales.len());
         let mut levels_raw: Vec<Vec<f32>> = Vec::with_capacity(scales.len());
         let kernel = pyramid::gaussian_kernel(p.prefilter_sigma);
@@ -501,7 +519,7 @@ impl Dis {
                 .into_par_iter()
                 .map(|idx| {
                     let (x0, y0) = (px[idx % ws] as usize, py[idx / ws] as usize);
-                    patch_ref(&gx, &gy, lw, x0, y0, psz, mean_norm)
+                    patch_ref(&gx, &gy, lw, x0, y0, psz, mean_norm, min_eig)
                 })
                 .collect();
             let n = patches.len();
@@ -701,6 +719,7 @@ fn patch_ref(
     y0: usize,
     psz: usize,
     mean_norm: bool,
+    min_eig: f64,
 ) -> PatchRef {
     // Accumulate in f64: sums of 64 squared Sobel values lose digits in f32
     // after the mean is subtracted.
@@ -724,9 +743,10 @@ fn patch_ref(
     }
     let det = xx * yy - xy * xy;
     let tr = xx + yy;
+    let smallest = 0.5 * (tr - ((xx - yy) * (xx - yy) + 4.0 * xy * xy).sqrt());
     // A textureless or edge-only patch has no well-defined 2-D step: leave it
     // where propagation and the coarser level put it.
-    let (ih11, ih12, ih22) = if tr > 0.0 && det > 1e-6 * tr * tr {
+    let (ih11, ih12, ih22) = if tr > 0.0 && det > 1e-6 * tr * tr && smallest >= min_eig {
         (yy / det, -xy / det, xx / det)
     } else {
         (0.0, 0.0, 0.0)
@@ -1232,7 +1252,7 @@ mod tests {
                     (5, h - psz, -0.5, 7.5),
                     (12, 4, -1e6, 1e6),
                 ] {
-                    let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm);
+                    let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm, 0.0);
                     let got = view.eval(x0, y0, &pr, u, v);
                     let want = naive_eval(&view, &pr, x0, y0, u, v);
                     let tol = |a: f32| 1e-3 * (1.0 + a.abs());
