@@ -223,7 +223,7 @@ impl DisParams {
                     ..RefineParams::opencv()
                 },
                 zero_candidate: true,
-                min_texture: 1.0,
+                min_texture: 0.1,
                 ..base
             },
             DisPreset::Accurate => DisParams {
