@@ -971,12 +971,16 @@ impl LevelView<'_> {
                 acc[l] += a[l] * b[l];
             }
         }
+        // Rows are taken as fixed-size arrays: one bounds check per row and
+        // buffer instead of one per 4-lane load.
+        #[inline(always)]
+        fn row<const N: usize>(s: &[f32], o: usize) -> &[f32; N] {
+            s[o..o + N].try_into().expect("N values")
+        }
         #[inline(always)]
         fn hrow(win: &[f32], o: usize, ax: f32) -> (V, V) {
-            (
-                lerp(ld(win, o), ld(win, o + 1), ax),
-                lerp(ld(win, o + 4), ld(win, o + 5), ax),
-            )
+            let r: &[f32; 9] = row(win, o);
+            (lerp(ld(r, 0), ld(r, 1), ax), lerp(ld(r, 4), ld(r, 5), ax))
         }
         let (mut sd, mut sd2, mut sx, mut sy) =
             ([0.0f32; 4], [0.0f32; 4], [0.0f32; 4], [0.0f32; 4]);
@@ -984,16 +988,18 @@ impl LevelView<'_> {
         for r in 0..8 {
             let (b0, b1) = hrow(win, (r + 1) * stride, ax);
             let o = (y0 + r) * self.w + x0;
+            let (i0r, gxr, gyr): (&[f32; 8], &[f32; 8], &[f32; 8]) =
+                (row(self.i0, o), row(self.gx, o), row(self.gy, o));
             for (half, t, b) in [(0usize, t0, b0), (4, t1, b1)] {
                 let s = lerp(t, b, ay);
-                let i0 = ld(self.i0, o + half);
+                let i0 = ld(i0r, half);
                 let d: V = [s[0] - i0[0], s[1] - i0[1], s[2] - i0[2], s[3] - i0[3]];
                 for l in 0..4 {
                     sd[l] += d[l];
                 }
                 mac(&mut sd2, d, d);
-                mac(&mut sx, d, ld(self.gx, o + half));
-                mac(&mut sy, d, ld(self.gy, o + half));
+                mac(&mut sx, d, ld(gxr, half));
+                mac(&mut sy, d, ld(gyr, half));
             }
             (t0, t1) = (b0, b1);
         }
