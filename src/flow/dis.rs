@@ -322,9 +322,7 @@ struct Level {
     /// Patch grid: corner of patch column `j` / row `i`.
     px: Vec<u32>,
     py: Vec<u32>,
-    /// Patches covering column `x`: `jlo[x]..=jhi[x]`; same for rows.
-    jlo: Vec<u32>,
-    jhi: Vec<u32>,
+    /// Patch rows covering pixel row `y`: `ilo[y]..=ihi[y]`.
     ilo: Vec<u32>,
     ihi: Vec<u32>,
     patches: Vec<PatchRef>,
@@ -512,7 +510,6 @@ impl Dis {
             pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy)?;
             let px = patch_corners(lw, psz, stride);
             let py = patch_corners(lh, psz, stride);
-            let (jlo, jhi) = coverage(lw, psz, &px);
             let (ilo, ihi) = coverage(lh, psz, &py);
             let ws = px.len();
             let patches: Vec<PatchRef> = (0..py.len() * ws)
@@ -538,8 +535,6 @@ impl Dis {
                 tmp: vec![0.0; lw * lh],
                 px,
                 py,
-                jlo,
-                jhi,
                 ilo,
                 ihi,
                 patches,
@@ -612,7 +607,7 @@ impl Dis {
             let lvl = &mut finer[k];
             init_patches(lvl, coarser.first(), self.params.patch_size);
             search_level(lvl, &self.params);
-            densify(lvl);
+            densify(lvl, self.params.patch_size);
             if self.params.refinement.outer_iterations > 0 {
                 let i1 = ArrayView2::from_shape((lvl.h, lvl.w), &lvl.i1[..]).expect("level shape");
                 lvl.refiner.refine(i1, &mut lvl.flow.u, &mut lvl.flow.v)?;
@@ -919,17 +914,28 @@ impl LevelView<'_> {
         wts: [f32; 2],
     ) -> (f32, f32, f32, f32) {
         let st = self.psz + 1;
-        let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
         // Clamp in f32 first: a wild vector must not overflow the casts.
         let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
-        for r in 0..st {
-            let yy = cl(iyf + r as f32, self.h);
-            for c in 0..st {
-                let xx = cl(ixf + c as f32, self.w);
-                buf[r * st + c] = self.i1[yy * self.w + xx];
+        let fill = |buf: &mut [f32]| {
+            for r in 0..st {
+                let yy = cl(iyf + r as f32, self.h);
+                for c in 0..st {
+                    let xx = cl(ixf + c as f32, self.w);
+                    buf[r * st + c] = self.i1[yy * self.w + xx];
+                }
             }
+        };
+        // The 8x8 patches of every preset need only a 9x9 window: zeroing the
+        // largest (33x33) buffer cost more than the copy itself.
+        if self.psz == 8 {
+            let mut buf = [0.0f32; 81];
+            fill(&mut buf);
+            self.accumulate8(&buf, st, x0, y0, wts)
+        } else {
+            let mut buf = [0.0f32; (MAX_PATCH_SIZE + 1) * (MAX_PATCH_SIZE + 1)];
+            fill(&mut buf);
+            self.accumulate(&buf, st, x0, y0, wts)
         }
-        self.accumulate(&buf, st, x0, y0, wts)
     }
 
     /// [`LevelView::accumulate`] for 8x8 patches (every preset), written
@@ -965,12 +971,16 @@ impl LevelView<'_> {
                 acc[l] += a[l] * b[l];
             }
         }
+        // Rows are taken as fixed-size arrays: one bounds check per row and
+        // buffer instead of one per 4-lane load.
+        #[inline(always)]
+        fn row<const N: usize>(s: &[f32], o: usize) -> &[f32; N] {
+            s[o..o + N].try_into().expect("N values")
+        }
         #[inline(always)]
         fn hrow(win: &[f32], o: usize, ax: f32) -> (V, V) {
-            (
-                lerp(ld(win, o), ld(win, o + 1), ax),
-                lerp(ld(win, o + 4), ld(win, o + 5), ax),
-            )
+            let r: &[f32; 9] = row(win, o);
+            (lerp(ld(r, 0), ld(r, 1), ax), lerp(ld(r, 4), ld(r, 5), ax))
         }
         let (mut sd, mut sd2, mut sx, mut sy) =
             ([0.0f32; 4], [0.0f32; 4], [0.0f32; 4], [0.0f32; 4]);
@@ -978,16 +988,18 @@ impl LevelView<'_> {
         for r in 0..8 {
             let (b0, b1) = hrow(win, (r + 1) * stride, ax);
             let o = (y0 + r) * self.w + x0;
+            let (i0r, gxr, gyr): (&[f32; 8], &[f32; 8], &[f32; 8]) =
+                (row(self.i0, o), row(self.gx, o), row(self.gy, o));
             for (half, t, b) in [(0usize, t0, b0), (4, t1, b1)] {
                 let s = lerp(t, b, ay);
-                let i0 = ld(self.i0, o + half);
+                let i0 = ld(i0r, half);
                 let d: V = [s[0] - i0[0], s[1] - i0[1], s[2] - i0[2], s[3] - i0[3]];
                 for l in 0..4 {
                     sd[l] += d[l];
                 }
                 mac(&mut sd2, d, d);
-                mac(&mut sx, d, ld(self.gx, o + half));
-                mac(&mut sy, d, ld(self.gy, o + half));
+                mac(&mut sx, d, ld(gxr, half));
+                mac(&mut sy, d, ld(gyr, half));
             }
             (t0, t1) = (b0, b1);
         }
@@ -1129,35 +1141,98 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
 
 /// Dense flow: each pixel averages the vectors of the patches covering it,
 /// weighted by `1 / max(1, |cur(x + u) - ref(x)|)`.
-fn densify(lvl: &mut Level) {
+///
+/// Patch-wise per image row: a patch's 8 (psz) pixels of the row share its
+/// vector, so the bilinear weights are computed once per patch row and the
+/// samples come from two contiguous rows of `cur` (no per-pixel clamping or
+/// floor). Each pixel still sums its patches in the same order (patch row,
+/// then patch column), and rows are independent, so the result does not
+/// depend on the thread count. The weight sums go to `lvl.tmp` (free after
+/// the prefilter).
+fn densify(lvl: &mut Level, psz: usize) {
     let (w, h, ws) = (lvl.w, lvl.h, lvl.ws());
     let (i0, i1) = (&lvl.i0, &lvl.i1);
     let (sx, sy) = (&lvl.sx, &lvl.sy);
-    let (jlo, jhi, ilo, ihi) = (&lvl.jlo, &lvl.jhi, &lvl.ilo, &lvl.ihi);
+    let (px, ilo, ihi) = (&lvl.px, &lvl.ilo, &lvl.ihi);
     let fu = lvl.flow.u.as_slice_mut().expect("standard layout");
     let fv = lvl.flow.v.as_slice_mut().expect("standard layout");
     fu.par_chunks_mut(w)
         .zip(fv.par_chunks_mut(w))
+        .zip(lvl.tmp.par_chunks_mut(w))
         .enumerate()
-        .for_each(|(y, (ur, vr))| {
-            let (i_a, i_b) = (ilo[y] as usize, ihi[y] as usize);
-            for x in 0..w {
-                let r = i0[y * w + x];
-                let (mut su, mut sv, mut sw) = (0.0f32, 0.0f32, 0.0f32);
-                for i in i_a..=i_b {
-                    for j in jlo[x] as usize..=jhi[x] as usize {
-                        let (pu, pv) = (sx[i * ws + j], sy[i * ws + j]);
-                        let s = pyramid::sample_clamped(i1, w, h, x as f32 + pu, y as f32 + pv);
-                        let wgt = 1.0 / (s - r).abs().max(1.0);
-                        su += wgt * pu;
-                        sv += wgt * pv;
-                        sw += wgt;
+        .for_each(|(y, ((ur, vr), swr))| {
+            ur.fill(0.0);
+            vr.fill(0.0);
+            swr.fill(0.0);
+            let r0 = &i0[y * w..][..w];
+            for i in ilo[y] as usize..=ihi[y] as usize {
+                for j in 0..ws {
+                    let (pu, pv) = (sx[i * ws + j], sy[i * ws + j]);
+                    let x0 = px[j] as usize;
+                    let fx = x0 as f32 + pu;
+                    let fy = y as f32 + pv;
+                    let (ixf, iyf) = (fast_floor(fx), fast_floor(fy));
+                    let inside = fx.is_finite()
+                        && fy.is_finite()
+                        && ixf >= 0.0
+                        && iyf >= 0.0
+                        && ixf + (psz as f32) < w as f32
+                        && iyf + 1.0 < h as f32;
+                    let ref_row = &r0[x0..][..psz];
+                    let (u_acc, v_acc) = (&mut ur[x0..][..psz], &mut vr[x0..][..psz]);
+                    let w_acc = &mut swr[x0..][..psz];
+                    if inside {
+                        let (ax, ay) = (fx - ixf, fy - iyf);
+                        let o = iyf as usize * w + ixf as usize;
+                        let rows = [&i1[o..][..psz + 1], &i1[o + w..][..psz + 1]];
+                        let acc = [u_acc, v_acc, w_acc];
+                        if psz == 8 {
+                            // Constant length: unrolled into 4-lane vectors.
+                            densify_patch_row(8, rows, ref_row, [ax, ay], [pu, pv], acc);
+                        } else {
+                            densify_patch_row(psz, rows, ref_row, [ax, ay], [pu, pv], acc);
+                        }
+                    } else {
+                        for c in 0..psz {
+                            let s = pyramid::sample_clamped(i1, w, h, (x0 + c) as f32 + pu, fy);
+                            let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
+                            u_acc[c] += wgt * pu;
+                            v_acc[c] += wgt * pv;
+                            w_acc[c] += wgt;
+                        }
                     }
                 }
-                ur[x] = su / sw;
-                vr[x] = sv / sw;
+            }
+            for ((u, v), s) in ur.iter_mut().zip(vr.iter_mut()).zip(swr.iter()) {
+                *u /= s;
+                *v /= s;
             }
         });
+}
+
+/// One patch's contribution to `n` pixels of a row: bilinear samples of the
+/// two current-image rows `[top, bot]` at fractions `[ax, ay]`, weighted by
+/// `1 / max(1, |sample - ref|)`, added to the `[u, v, weight]` sums.
+#[inline(always)]
+fn densify_patch_row(
+    n: usize,
+    [top, bot]: [&[f32]; 2],
+    ref_row: &[f32],
+    [ax, ay]: [f32; 2],
+    [pu, pv]: [f32; 2],
+    [u_acc, v_acc, w_acc]: [&mut [f32]; 3],
+) {
+    let (top, bot, ref_row) = (&top[..n + 1], &bot[..n + 1], &ref_row[..n]);
+    let (u_acc, v_acc, w_acc) = (&mut u_acc[..n], &mut v_acc[..n], &mut w_acc[..n]);
+    for c in 0..n {
+        let t = top[c] + ax * (top[c + 1] - top[c]);
+        let b = bot[c] + ax * (bot[c + 1] - bot[c]);
+        let s = t + ay * (b - t);
+        let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
+        u_acc[c] += wgt * pu;
+        v_acc[c] += wgt * pv;
+        w_acc[c] += wgt;
+    }
 }
 
 #[cfg(test)]

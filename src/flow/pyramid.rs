@@ -69,6 +69,28 @@ pub fn downsample_area(
                 let c = 2 * x;
                 *d = (r0[c] + r0[c + 1] + r1[c] + r1[c + 1]) * 0.25;
             }
+        } else if factor <= 64 {
+            // Sum the `factor` rows column by column first (contiguous, vectorises),
+            // then each group of `factor` columns, through a stack buffer of a few
+            // hundred columns (no allocation). Integer-valued (8-bit) pixels sum
+            // exactly in any order, so this equals the box sum.
+            const BUF: usize = 512;
+            let mut buf = [0.0f32; BUF];
+            let per = BUF / factor;
+            for (ci, dchunk) in drow.chunks_mut(per).enumerate() {
+                let c0 = ci * per * factor;
+                let n = dchunk.len() * factor;
+                let col = &mut buf[..n];
+                col.copy_from_slice(&rows[c0..c0 + n]);
+                for r in rows.chunks_exact(sw).skip(1) {
+                    for (a, b) in col.iter_mut().zip(&r[c0..c0 + n]) {
+                        *a += b;
+                    }
+                }
+                for (d, g) in dchunk.iter_mut().zip(col.chunks_exact(factor)) {
+                    *d = g.iter().sum::<f32>() * norm;
+                }
+            }
         } else {
             drow.fill(0.0);
             for r in rows.chunks_exact(sw) {
@@ -322,24 +344,32 @@ pub fn resize_bilinear(
 /// One row of an exact `F`x bilinear upsampling with half-pixel centres:
 /// output `F k + m` lies at source `k + (m + 0.5) / F - 0.5`, i.e. between
 /// `k - 1` and `k` for `m < F/2` and between `k` and `k + 1` otherwise.
+///
+/// Written per source interval: the `F` outputs from `F k + F/2` to
+/// `F k + F + F/2 - 1` all interpolate `t[k]` -> `t[k + 1]` with weights
+/// `(j + 0.5) / F`, one broadcast and one `F`-wide multiply-add per interval
+/// (vectorises) instead of `F` scalar blends. The weights and the formula
+/// `a + c (b - a)` are those of the per-output form (exact for powers of two),
+/// so the values are identical; the `F/2` outputs at each end, beyond the first
+/// and last centre, are the edge value (border replication).
 fn upsample_row<const F: usize>(t: &[f32], out: &mut [f32]) {
     let n = t.len();
+    if n == 0 {
+        return;
+    }
     let half = F / 2;
-    let w: [f32; F] = std::array::from_fn(|m| {
-        let p = (m as f32 + 0.5) / F as f32;
-        if m < half { p + 0.5 } else { p - 0.5 }
-    });
-    for (k, o) in out.chunks_exact_mut(F).enumerate() {
-        let lo = t[k.saturating_sub(1)];
-        let mid = t[k];
-        let hi = t[(k + 1).min(n - 1)];
-        for m in 0..half {
-            o[m] = lo + w[m] * (mid - lo);
-        }
-        for m in half..F {
-            o[m] = mid + w[m] * (hi - mid);
+    let c: [f32; F] = std::array::from_fn(|j| (j as f32 + 0.5) / F as f32);
+    let out = &mut out[..F * n];
+    let (head, rest) = out.split_at_mut(half);
+    head.fill(t[0]);
+    let mut chunks = rest.chunks_exact_mut(F);
+    for (o, ab) in (&mut chunks).zip(t.windows(2)) {
+        let (a, d) = (ab[0], ab[1] - ab[0]);
+        for (o, &cj) in o.iter_mut().zip(&c) {
+            *o = a + cj * d;
         }
     }
+    chunks.into_remainder().fill(t[n - 1]);
 }
 
 /// Bilinear sample of `img` (`w x h`) at `(x, y)`, clamping to the edge
@@ -384,6 +414,34 @@ mod tests {
                     }
                     let want = s / (f * f) as f64;
                     assert!((dst[y * dw + x] as f64 - want).abs() < 1e-3, "f={f}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn area_average_of_wide_rows_spans_several_column_chunks() {
+        // Wider than the 512-column stack buffer of the factor > 2 path, with a
+        // width that is not a multiple of the factor and non-integer pixels.
+        let (w, h) = (1203, 9);
+        let src: Vec<f32> = (0..w * h)
+            .map(|i| ((i * 7919) % 2551) as f32 * 0.1)
+            .collect();
+        for f in [3usize, 4, 5, 8] {
+            let (dw, dh) = (w / f, h / f);
+            let mut dst = vec![0.0; dw * dh];
+            downsample_area(&src, w, h, f, &mut dst).unwrap();
+            for y in 0..dh {
+                for x in 0..dw {
+                    let mut s = 0.0f64;
+                    for yy in 0..f {
+                        for xx in 0..f {
+                            s += src[(y * f + yy) * w + x * f + xx] as f64;
+                        }
+                    }
+                    let want = s / (f * f) as f64;
+                    let got = dst[y * dw + x] as f64;
+                    assert!((got - want).abs() < 1e-4 * want.max(1.0), "f={f} {x},{y}");
                 }
             }
         }
@@ -483,6 +541,36 @@ mod tests {
                     let (a, b, w) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
                     let want = t[a] + w * (t[b] - t[a]);
                     assert_eq!(fast[y * dw + x].to_bits(), want.to_bits(), "f={f} x={x}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn exact_factor_upsampling_matches_the_generic_taps() {
+        // The specialised x2/x4/x8 rows against the per-output tap formula.
+        for (sw, sh) in [(1usize, 2usize), (2, 1), (7, 3), (33, 5)] {
+            let src: Vec<f32> = (0..sw * sh)
+                .map(|i| ((i * 7919) % 257) as f32 * 0.37 - 40.0)
+                .collect();
+            for f in [2usize, 4, 8] {
+                let (dw, dh) = (sw * f, sh * f);
+                let (xs, ys) = (ResizeAxis::new(sw, dw), ResizeAxis::new(sh, dh));
+                let mut tmp = vec![0.0; sw * dh];
+                let mut dst = vec![0.0; dw * dh];
+                resize_bilinear(&src, sw, &xs, &ys, 2.0, &mut tmp, &mut dst).unwrap();
+                for y in 0..dh {
+                    let (r0, r1, wy) = (ys.i0[y] as usize, ys.i1[y] as usize, ys.w[y]);
+                    let col = |x: usize| {
+                        let (a, b) = (src[r0 * sw + x], src[r1 * sw + x]);
+                        2.0 * (a + wy * (b - a))
+                    };
+                    for x in 0..dw {
+                        let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
+                        let want = col(a) + wx * (col(b) - col(a));
+                        let got = dst[y * dw + x];
+                        assert!((got - want).abs() < 1e-4, "{sw}x{sh} f={f} {x},{y}");
+                    }
                 }
             }
         }

@@ -539,8 +539,12 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
         .enumerate()
         .with_min_len(mt)
         .for_each(|(i, row)| {
-            let ur = u.row(i);
-            let vr = v.row(i);
+            let (ur, vr) = (u.row(i), v.row(i));
+            // Rows of standard-layout arrays as slices: no per-element index checks.
+            if let (Some(ur), Some(vr)) = (ur.as_slice(), vr.as_slice()) {
+                warp_row(i1, w, h, i, ur, vr, row);
+                return;
+            }
             for j in 0..w {
                 // Clamping the sample position is exactly bilinear interpolation of the
                 // border-replicated image.
@@ -561,6 +565,28 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
                 row[j] = (1.0 - fy) * top + fy * bot;
             }
         });
+}
+
+/// [`warp`] of image row `i` from contiguous flow rows (same arithmetic).
+#[inline(never)]
+fn warp_row(i1: &[f32], w: usize, h: usize, i: usize, ur: &[f32], vr: &[f32], row: &mut [f32]) {
+    let xmax = (w - 1) as f32;
+    let ymax = (h - 1) as f32;
+    let (ur, vr) = (&ur[..row.len()], &vr[..row.len()]);
+    for (j, ((o, &u), &v)) in row.iter_mut().zip(ur).zip(vr).enumerate() {
+        let x = (j as f32 + u).clamp(0.0, xmax);
+        let y = (i as f32 + v).clamp(0.0, ymax);
+        // 0 <= x, y < 2^31: the i32 conversion is one instruction (usize is not).
+        let x0 = (x as i32 as usize).min(w - 2);
+        let y0 = (y as i32 as usize).min(h - 2);
+        let fx = x - x0 as i32 as f32;
+        let fy = y - y0 as i32 as f32;
+        let r0 = &i1[y0 * w + x0..][..2];
+        let r1 = &i1[(y0 + 1) * w + x0..][..2];
+        let top = (1.0 - fx) * r0[0] + fx * r0[1];
+        let bot = (1.0 - fx) * r1[0] + fx * r1[1];
+        *o = (1.0 - fy) * top + fy * bot;
+    }
 }
 
 /// Builds the normalised derivatives of the linearised data terms in the split layout
