@@ -99,6 +99,7 @@ fn protocol_samples(noise: f64, seed: u64) -> Vec<Sample> {
                             + 10.0 * diam * fz / 5.0
                             + 20.0 * n(&mut rng),
                         d_pf: 0.4 * diam + 0.8 * f + n(&mut rng),
+                        shear: 0.0,
                         x_mm,
                         y_mm: 0.0,
                         fx,
@@ -179,6 +180,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
             dy,
             dz,
             d_pf,
+            shear: 0.0,
             // Order 3 in x2d, order 1 in y2d.
             x_mm: 150.0 * t - 4.0 * t * t + 2.0 * t * t * t,
             y_mm: 0.25 * (y2d - 100.0),
