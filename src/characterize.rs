@@ -180,8 +180,9 @@ pub fn fit_dataset(
         crop,
         thresholds: SegmentationThresholds {
             preset: thresholds_name.to_string(),
-            magnitude: t.magnitude as f64,
-            sum: t.sum as f64,
+            // Through the decimal text, so that 0.2f32 is recorded as 0.2.
+            magnitude: f32_to_f64(t.magnitude),
+            sum: f32_to_f64(t.sum),
             erode: t.erode as u32,
             dilate: t.dilate as u32,
         },
@@ -217,6 +218,11 @@ pub fn fit_dataset(
         min_force,
         test_table,
     })
+}
+
+/// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).
+fn f32_to_f64(x: f32) -> f64 {
+    x.to_string().parse().unwrap_or(f64::from(x))
 }
 
 /// The DIS preset whose parameters `config.flow` equals, or `custom`.
