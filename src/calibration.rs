@@ -65,8 +65,11 @@ use crate::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, Va
 /// The calibration file format version this library reads and writes.
 pub const FORMAT_VERSION: u32 = 1;
 
-/// Variables of `g1`.
-pub const G1_VARIABLES: [&str; 1] = ["x2d"];
+/// Variables of `g1` (files from before the shear input have `g1` of
+/// [`G1_VARIABLES_LEGACY`], which is still read).
+pub const G1_VARIABLES: [&str; 2] = ["x2d", "shear"];
+/// Variables of a `g1` without the shear input (older files).
+pub const G1_VARIABLES_LEGACY: [&str; 1] = ["x2d"];
 /// Variables of `g2`.
 pub const G2_VARIABLES: [&str; 1] = ["y2d"];
 /// Variables of the force maps `gx, gy, gz`, in evaluation order.
@@ -126,6 +129,11 @@ pub struct PipelineSettings {
     pub margin_px: usize,
     /// Whether the contact point was refined to sub-pixel precision.
     pub subpixel: bool,
+    /// Half-width (full-resolution pixels) of the window of the shear-robust
+    /// contact column ([`crate::contact::refine_contact_points`]); 0 when the
+    /// column is the argmin of the divergence potential (older files).
+    #[serde(default)]
+    pub contact_window_px: u32,
 }
 
 /// One characterization test, reduced to the raw quantities of its contact
@@ -148,6 +156,10 @@ pub struct Sample {
     pub dz: f64,
     /// Potential spread `max D - min D`.
     pub d_pf: f64,
+    /// Local shear-to-normal ratio `ds1 / dn` ([`RawContact::shear_ratio`]),
+    /// an input of `g1`.
+    #[serde(default)]
+    pub shear: f64,
     /// True contact x, mm.
     pub x_mm: f64,
     /// True contact y, mm.
@@ -173,6 +185,7 @@ impl Sample {
             dy: raw.d_sensor[1],
             dz: raw.d_sensor[2],
             d_pf: raw.d_pf,
+            shear: raw.shear_ratio(),
             x_mm: row.x_mm,
             y_mm: row.y_mm,
             fx: row.fx_n,
@@ -181,7 +194,7 @@ impl Sample {
         }
     }
 
-    fn fields(&self) -> [(&'static str, f64); 11] {
+    fn fields(&self) -> [(&'static str, f64); 12] {
         [
             ("x2d", self.x2d),
             ("y2d", self.y2d),
@@ -189,6 +202,7 @@ impl Sample {
             ("dy", self.dy),
             ("dz", self.dz),
             ("d_pf", self.d_pf),
+            ("shear", self.shear),
             ("x_mm", self.x_mm),
             ("y_mm", self.y_mm),
             ("fx", self.fx),
@@ -330,7 +344,11 @@ impl Calibration {
     }
 
     fn check(&self) -> std::result::Result<(), String> {
-        check_vars("g1", &self.g1, &G1_VARIABLES)?;
+        if self.g1.n_variables() == 1 {
+            check_vars("g1", &self.g1, &G1_VARIABLES_LEGACY)?;
+        } else {
+            check_vars("g1", &self.g1, &G1_VARIABLES)?;
+        }
         check_vars("g2", &self.g2, &G2_VARIABLES)?;
         check_vars("gx", &self.gx, &FORCE_VARIABLES)?;
         check_vars("gy", &self.gy, &FORCE_VARIABLES)?;
@@ -363,10 +381,22 @@ impl Calibration {
         &self.gz
     }
 
-    /// Contact location `[x, y, z]` in mm from the contact point in pixels:
-    /// `x = g1(x2d)`, `y = g2(y2d)`, `z = sqrt(R^2 - x^2) - d`.
+    /// Contact location `[x, y, z]` in mm from the contact point in pixels,
+    /// for a contact without shear: `x = g1(x2d, 0)`, `y = g2(y2d)`,
+    /// `z = sqrt(R^2 - x^2) - d`. See [`Calibration::location_sheared`].
     pub fn location(&self, x2d: f64, y2d: f64) -> Result<[f64; 3]> {
-        let x = self.g1.evaluate(&[x2d])?;
+        self.location_sheared(x2d, y2d, 0.0)
+    }
+
+    /// Contact location `[x, y, z]` in mm from the contact point in pixels
+    /// and the contact's shear-to-normal ratio ([`RawContact::shear_ratio`]):
+    /// `x = g1(x2d, shear)` (a legacy `g1` ignores `shear`).
+    pub fn location_sheared(&self, x2d: f64, y2d: f64, shear: f64) -> Result<[f64; 3]> {
+        let x = if self.g1.n_variables() == 1 {
+            self.g1.evaluate(&[x2d])?
+        } else {
+            self.g1.evaluate(&[x2d, shear])?
+        };
         let y = self.g2.evaluate(&[y2d])?;
         Ok([x, y, self.setup.geometry.z_at(x)])
     }
@@ -390,13 +420,40 @@ impl Calibration {
         ])
     }
 
+    /// Half-width of the shear-robust contact-column window this calibration
+    /// was fitted with (full-resolution pixels; 0 = the argmin of D).
+    pub fn contact_window_px(&self) -> u32 {
+        self.setup
+            .pipeline
+            .as_ref()
+            .map_or(0, |p| p.contact_window_px)
+    }
+
+    /// Measures the contact columns the way this calibration was fitted:
+    /// with a contact window recorded, replaces each `x_px` by
+    /// [`crate::contact::refine_contact_points`] on the frame's flow along x
+    /// (`u`, on a grid of `scale` full-resolution pixels per cell); otherwise
+    /// leaves them as they are. A sensor calls this on its patches before
+    /// [`Calibration::contact`].
+    pub fn refine_contacts(
+        &self,
+        raws: &mut [RawContact],
+        u: ndarray::ArrayView2<'_, f32>,
+        scale: f64,
+    ) -> Result<()> {
+        match self.contact_window_px() {
+            0 => Ok(()),
+            w => crate::contact::refine_contact_points(raws, u, scale, f64::from(w)),
+        }
+    }
+
     /// The calibrated contact of a patch's raw quantities (`id` and `missed`
     /// are 0: identity is the tracker's business).
     pub fn contact(&self, raw: &RawContact) -> Result<Contact> {
         let [dx, dy, dz] = raw.d_sensor;
         Ok(Contact {
             id: 0,
-            location_mm: self.location(raw.x_px, raw.y_px)?,
+            location_mm: self.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?,
             force_n: self.force(dx, dy, dz, raw.x_px, raw.y_px, raw.d_pf)?,
             raw: *raw,
             missed: 0,
@@ -405,7 +462,7 @@ impl Calibration {
 
     /// Location and force of a sample's raw quantities.
     pub fn predict(&self, s: &Sample) -> Result<Prediction> {
-        let [x_mm, y_mm, z_mm] = self.location(s.x2d, s.y2d)?;
+        let [x_mm, y_mm, z_mm] = self.location_sheared(s.x2d, s.y2d, s.shear)?;
         let [fx, fy, fz] = self.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf)?;
         Ok(Prediction {
             x_mm,
@@ -684,6 +741,11 @@ fn collapse_scalar_arrays(s: &str) -> String {
 pub struct FitOptions {
     /// Largest order of `g1` and `g2` (orders `1..=max` are tried).
     pub location_max_order: u32,
+    /// Largest order of the shear ratio in `g1` (orders `1..=max` are tried;
+    /// 0 leaves it out, the paper's `g1(x2d)`). Cross terms with `x2d` up to
+    /// the order of `x2d`.
+    #[serde(default)]
+    pub location_shear_order: u32,
     /// Largest order of the displacement group `{dx, dy, dz}` in the force maps.
     pub displacement_max_order: u32,
     /// Largest order of the location group `{x2d, y2d}` in the force maps.
@@ -709,6 +771,7 @@ impl Default for FitOptions {
     fn default() -> Self {
         FitOptions {
             location_max_order: 5,
+            location_shear_order: 2,
             displacement_max_order: 3,
             force_location_max_order: 2,
             d_pf_max_order: 2,
@@ -796,7 +859,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     }
     // Column arrays per split: g1 input, g2 input, force inputs, and targets.
     struct Cols {
-        x2d: Array2<f64>,
+        x2d_shear: Array2<f64>,
         y2d: Array2<f64>,
         force: Array2<f64>,
         x_mm: Array1<f64>,
@@ -806,7 +869,9 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let cols = |set: &[&Sample]| {
         let n = set.len();
         Cols {
-            x2d: Array2::from_shape_fn((n, 1), |(i, _)| set[i].x2d),
+            x2d_shear: Array2::from_shape_fn((n, 2), |(i, j)| {
+                if j == 0 { set[i].x2d } else { set[i].shear }
+            }),
             y2d: Array2::from_shape_fn((n, 1), |(i, _)| set[i].y2d),
             force: Array2::from_shape_fn((n, 6), |(i, j)| set[i].force_inputs()[j]),
             x_mm: set.iter().map(|s| s.x_mm).collect(),
@@ -829,11 +894,19 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
             CrossTerms::MaxOfGroups,
         )
     };
+    // g1 always has the shear input (order 0 = unused, then the paper's map).
+    let g1_spec = PolySpec::new(
+        vec![
+            VarGroup::new("x2d", &["x2d"], options.location_max_order),
+            VarGroup::new("shear", &["shear"], options.location_shear_order),
+        ],
+        CrossTerms::MaxOfGroups,
+    )?;
     let (g1, r1) = poly::search_orders(
-        &loc_spec("x2d")?,
-        FitData::new(tr.x2d.view(), tr.x_mm.view()),
-        FitData::new(va.x2d.view(), va.x_mm.view()),
-        has_test.then(|| FitData::new(te.x2d.view(), te.x_mm.view())),
+        &g1_spec,
+        FitData::new(tr.x2d_shear.view(), tr.x_mm.view()),
+        FitData::new(va.x2d_shear.view(), va.x_mm.view()),
+        has_test.then(|| FitData::new(te.x2d_shear.view(), te.x_mm.view())),
         ls,
     )
     .map_err(named("g1"))?;

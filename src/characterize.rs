@@ -20,7 +20,7 @@ use crate::calibration::{
     self, Calibration, DetectionLimit, FitOptions, PipelineSettings, PointTable, Sample,
     SegmentationThresholds, SensorSetup,
 };
-use crate::contact::{RawContact, rotate_to_sensor};
+use crate::contact::{RawContact, refine_contact_points, rotate_to_sensor};
 use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
 use crate::image::Roi;
@@ -60,14 +60,24 @@ fn load(dir: &Path, rel: &str, crop: Option<Roi>) -> Result<Array2<f32>> {
     }
 }
 
+/// The default half-width of the contact-column window
+/// ([`refine_contact_points`]), full-resolution pixels: wide enough to hold a
+/// press's whole motion (about 60 mm of arc on the default strip), so that
+/// the centroid is not cut asymmetrically.
+pub const DEFAULT_CONTACT_WINDOW_PX: u32 = 400;
+
 /// Runs the pipeline on every test of `rows` (images relative to `dir`),
-/// cropping each image to `crop` if given. `progress(done, total)` is called
+/// cropping each image to `crop` if given. With `contact_window_px > 0` the
+/// contact columns are replaced by the shear-robust estimate of
+/// [`refine_contact_points`] with that half-window (0 keeps the argmin of
+/// the divergence potential). `progress(done, total)` is called
 /// from worker threads as tests finish. The first unreadable image stops the
 /// run with an error that names it.
 pub fn extract_dataset(
     dir: impl AsRef<Path>,
     rows: &[TestRow],
     config: &ExtractorConfig,
+    contact_window_px: u32,
     crop: Option<Roi>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Vec<Extraction>> {
@@ -83,7 +93,16 @@ pub fn extract_dataset(
                 let reference = load(dir, &row.reference, crop)?;
                 let frame = load(dir, &row.frame, crop)?;
                 ex.set_reference(&reference)?;
-                let raws = ex.extract(&frame)?;
+                let mut raws = ex.extract(&frame)?.to_vec();
+                if contact_window_px > 0 {
+                    let (flow, s) = ex.flow();
+                    refine_contact_points(
+                        &mut raws,
+                        flow.u.view(),
+                        s as f64,
+                        contact_window_px as f64,
+                    )?;
+                }
                 let out = Extraction {
                     row: row.clone(),
                     raw: raws.first().copied(),
@@ -149,6 +168,7 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
 pub fn fit_dataset(
     extractions: &[Extraction],
     config: &ExtractorConfig,
+    contact_window_px: u32,
     thresholds_name: &str,
     crop: Roi,
     geometry: SensorGeometry,
@@ -160,8 +180,9 @@ pub fn fit_dataset(
         crop,
         thresholds: SegmentationThresholds {
             preset: thresholds_name.to_string(),
-            magnitude: t.magnitude as f64,
-            sum: t.sum as f64,
+            // Through the decimal text, so that 0.2f32 is recorded as 0.2.
+            magnitude: f32_to_f64(t.magnitude),
+            sum: f32_to_f64(t.sum),
             erode: t.erode as u32,
             dilate: t.dilate as u32,
         },
@@ -169,6 +190,7 @@ pub fn fit_dataset(
             flow_preset: preset_name(config),
             margin_px: config.margin_px,
             subpixel: config.subpixel,
+            contact_window_px,
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).
@@ -176,7 +198,7 @@ pub fn fit_dataset(
     let pass1 = calibration::fit(&first, &setup, options)?;
     // Pass 2: rotate at the predicted location, fit everything.
     let second = samples(extractions, &geometry, |r| {
-        Ok(pass1.location(r.x_px, r.y_px)?[0])
+        Ok(pass1.location_sheared(r.x_px, r.y_px, r.shear_ratio())?[0])
     })?;
     let cal = calibration::fit(&detected(&second), &setup, options)?;
     let mut misses = [0usize; 3];
@@ -196,6 +218,11 @@ pub fn fit_dataset(
         min_force,
         test_table,
     })
+}
+
+/// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).
+fn f32_to_f64(x: f32) -> f64 {
+    x.to_string().parse().unwrap_or(f64::from(x))
 }
 
 /// The DIS preset whose parameters `config.flow` equals, or `custom`.

@@ -35,6 +35,19 @@ pub struct RawContact {
     pub strength: f64,
 }
 
+impl RawContact {
+    /// The local shear-to-normal ratio `ds1 / dn` (0 when `dn` is 0): how much
+    /// of the load runs along the arc. It tells how far the contact point
+    /// estimate is pulled sideways, so the location map takes it as an input.
+    pub fn shear_ratio(&self) -> f64 {
+        if self.dn > 0.0 && self.ds1.is_finite() {
+            self.ds1 / self.dn
+        } else {
+            0.0
+        }
+    }
+}
+
 /// One contact: where (mm) and how hard (N), in the sensor frame.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Contact {
@@ -207,6 +220,128 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
     })
 }
 
+/// Column sums of a flow component over all rows: the profile along the
+/// arc that the centroid of [`refine_contact_points`] works on.
+fn column_sums(u: ArrayView2<'_, f32>) -> Vec<f64> {
+    let mut out = vec![0.0f64; u.ncols()];
+    for row in u.rows() {
+        for (o, &x) in out.iter_mut().zip(row.iter()) {
+            *o += x as f64;
+        }
+    }
+    out
+}
+
+/// Mean-shift centroid of `w` (non-negative weights per grid column) with a
+/// hard window of half-width `half` columns, restricted to `[lo, hi)`,
+/// starting from the centroid of the whole range. `None` if the weights in
+/// the range are all zero.
+fn windowed_centroid(w: &[f64], lo: usize, hi: usize, half: f64) -> Option<f64> {
+    let centroid = |a: f64, b: f64| {
+        let (mut s, mut sx) = (0.0, 0.0);
+        for (j, &x) in w.iter().enumerate().take(hi).skip(lo) {
+            let jf = j as f64;
+            if jf > a && jf < b {
+                s += x;
+                sx += x * jf;
+            }
+        }
+        (s > 0.0).then(|| sx / s)
+    };
+    let mut c = centroid(f64::NEG_INFINITY, f64::INFINITY)?;
+    // A mean shift with a flat kernel converges in a few steps; a fixed cap
+    // keeps the cost bounded when it oscillates between two nearby modes.
+    for _ in 0..50 {
+        let next = match centroid(c - half, c + half) {
+            Some(n) => n,
+            None => break,
+        };
+        let done = (next - c).abs() < 1e-6;
+        c = next;
+        if done {
+            break;
+        }
+    }
+    Some(c)
+}
+
+/// Replaces each contact's column `x_px` by a shear-robust estimate: the
+/// centroid of the squared column-summed flow `u` (motion along the arc)
+/// within a window of half-width `half_window_px` full-resolution pixels.
+///
+/// Why: under a line load, the surface motion along the arc is odd about the
+/// load point for the normal component and even for the tangential one, so
+/// the divergence potential (the integral of the motion) is even plus odd and
+/// its minimum slides sideways as soon as the load has any shear (tens of
+/// pixels at 15 deg). The energy of the motion, `u^2`, is even about the load
+/// point under either load alone, and its centroid moves far less; what
+/// remains is corrected by the calibration's `shear` input (see
+/// [`RawContact::shear_ratio`]). Column sums over the whole strip height
+/// average the noise, and the window keeps a distant contact (or noise far
+/// away) out of the centroid.
+///
+/// `u` is the flow along x on a grid of `scale` full-resolution pixels per
+/// cell (cell `j` covers pixel `(j + 0.5) * scale - 0.5`). With several
+/// contacts, each one's search range ends halfway to its neighbours' current
+/// `x_px`, so that one press does not pull another's centroid. A contact whose
+/// range holds no motion keeps its `x_px`. Errors on a non-positive or
+/// non-finite window or scale.
+pub fn refine_contact_points(
+    raws: &mut [RawContact],
+    u: ArrayView2<'_, f32>,
+    scale: f64,
+    half_window_px: f64,
+) -> Result<()> {
+    if !(scale > 0.0 && scale.is_finite()) {
+        return Err(Error::param("scale", format!("must be > 0, got {scale}")));
+    }
+    if !(half_window_px > 0.0 && half_window_px.is_finite()) {
+        return Err(Error::param(
+            "half_window_px",
+            format!("must be > 0, got {half_window_px}"),
+        ));
+    }
+    if raws.is_empty() || u.ncols() == 0 {
+        return Ok(());
+    }
+    let w: Vec<f64> = column_sums(u).into_iter().map(|x| x * x).collect();
+    let to_grid = |px: f64| (px + 0.5) / scale - 0.5;
+    let starts: Vec<f64> = raws.iter().map(|r| to_grid(r.x_px)).collect();
+    let n = w.len();
+    for (k, raw) in raws.iter_mut().enumerate() {
+        let me = starts[k];
+        let (mut a, mut b) = (f64::NEG_INFINITY, f64::INFINITY);
+        for (m, &o) in starts.iter().enumerate() {
+            if m == k {
+                continue;
+            }
+            let mid = 0.5 * (me + o);
+            if o < me || (o == me && m < k) {
+                a = a.max(mid);
+            } else {
+                b = b.min(mid);
+            }
+        }
+        let lo = if a.is_finite() {
+            (a.floor().max(-1.0) + 1.0) as usize
+        } else {
+            0
+        };
+        let hi = if b.is_finite() {
+            (b.ceil().max(0.0) as usize).min(n)
+        } else {
+            n
+        };
+        if lo >= hi {
+            continue;
+        }
+        if let Some(c) = windowed_centroid(&w, lo, hi, half_window_px / scale) {
+            raw.x_px = (c + 0.5) * scale - 0.5;
+        }
+    }
+    Ok(())
+}
+
 /// Rotates a patch's raw displacements from the local surface frame at chord
 /// position `x_mm` into the sensor frame (SPEC.md step 9).
 ///
@@ -302,6 +437,128 @@ mod tests {
             raw_quantities(&f, grid, true),
             Err(Error::NonFinite { .. })
         ));
+    }
+
+    /// A `(h, w)` flow along x whose every row is `f(column)`.
+    fn rows_of(h: usize, w: usize, f: impl Fn(f64) -> f64) -> Array2<f32> {
+        Array2::from_shape_fn((h, w), |(_, j)| f(j as f64) as f32)
+    }
+
+    fn raw_at(x_px: f64) -> RawContact {
+        RawContact {
+            x_px,
+            ..Default::default()
+        }
+    }
+
+    /// The slow, obvious version: full-range centroid of the squared column
+    /// sums, then a flat-window mean shift until it stops moving.
+    fn oracle(u: &Array2<f32>, half: f64) -> f64 {
+        let w: Vec<f64> = (0..u.ncols())
+            .map(|j| {
+                let s: f64 = (0..u.nrows()).map(|i| u[[i, j]] as f64).sum();
+                s * s
+            })
+            .collect();
+        let cen = |a: f64, b: f64| {
+            let (mut s, mut sx) = (0.0, 0.0);
+            for (j, &x) in w.iter().enumerate() {
+                if (j as f64) > a && (j as f64) < b {
+                    s += x;
+                    sx += x * j as f64;
+                }
+            }
+            sx / s
+        };
+        let mut c = cen(-1e300, 1e300);
+        for _ in 0..50 {
+            let n = cen(c - half, c + half);
+            if (n - c).abs() < 1e-6 {
+                return n;
+            }
+            c = n;
+        }
+        c
+    }
+
+    #[test]
+    fn tangential_and_normal_profiles_give_the_load_point() {
+        // Shear: an even bump; press: an odd profile; both about column 61.3.
+        let c = 61.3;
+        let even = rows_of(7, 160, |j| (-((j - c) / 9.0).powi(2)).exp());
+        let odd = rows_of(7, 160, |j| (j - c) / 9.0 * (-((j - c) / 9.0).powi(2)).exp());
+        for (name, u) in [("even", &even), ("odd", &odd)] {
+            let mut r = [raw_at(70.0)];
+            refine_contact_points(&mut r, u.view(), 1.0, 60.0).unwrap();
+            assert!((r[0].x_px - c).abs() < 1e-3, "{name}: {}", r[0].x_px);
+        }
+        // On a grid of 2 pixels per cell, cell 61.3 is pixel (61.3 + 0.5) * 2 - 0.5.
+        let mut r = [raw_at(100.0)];
+        refine_contact_points(&mut r, even.view(), 2.0, 120.0).unwrap();
+        assert!((r[0].x_px - 123.1).abs() < 2e-3, "{}", r[0].x_px);
+    }
+
+    #[test]
+    fn two_contacts_keep_to_their_own_halves() {
+        let g = |j: f64, c: f64| (-((j - c) / 6.0).powi(2)).exp();
+        let u = rows_of(4, 300, |j| g(j, 80.0) + 0.5 * g(j, 200.0));
+        let mut r = [raw_at(90.0), raw_at(195.0)];
+        refine_contact_points(&mut r, u.view(), 1.0, 400.0).unwrap();
+        assert!((r[0].x_px - 80.0).abs() < 1e-3, "{}", r[0].x_px);
+        assert!((r[1].x_px - 200.0).abs() < 1e-3, "{}", r[1].x_px);
+    }
+
+    #[test]
+    fn no_motion_keeps_the_contact_point_and_bad_parameters_are_errors() {
+        let u = Array2::<f32>::zeros((3, 50));
+        let mut r = [raw_at(12.5)];
+        refine_contact_points(&mut r, u.view(), 1.0, 10.0).unwrap();
+        assert_eq!(r[0].x_px, 12.5);
+        for (s, w) in [
+            (0.0, 10.0),
+            (1.0, 0.0),
+            (f64::NAN, 1.0),
+            (1.0, f64::INFINITY),
+        ] {
+            assert!(matches!(
+                refine_contact_points(&mut r, u.view(), s, w),
+                Err(Error::InvalidParameter { .. })
+            ));
+        }
+        // Nothing to refine: fine.
+        refine_contact_points(&mut [], u.view(), 1.0, 10.0).unwrap();
+    }
+
+    #[test]
+    fn shear_ratio_guards_a_zero_normal() {
+        let r = RawContact {
+            ds1: 3.0,
+            dn: 6.0,
+            ..Default::default()
+        };
+        assert_eq!(r.shear_ratio(), 0.5);
+        assert_eq!(RawContact::default().shear_ratio(), 0.0);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config {
+            cases: 48,
+            rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(7),
+            failure_persistence: None,
+            ..Default::default()
+        })]
+        #[test]
+        fn matches_the_oracle(
+            vals in proptest::collection::vec(-3.0f32..3.0, 3 * 40),
+            half in 2.0f64..50.0,
+        ) {
+            let u = Array2::from_shape_vec((3, 40), vals).unwrap();
+            let mut r = [raw_at(5.0)];
+            refine_contact_points(&mut r, u.view(), 1.0, half).unwrap();
+            let want = oracle(&u, half);
+            proptest::prop_assert!((r[0].x_px - want).abs() < 1e-6, "{} vs {}", r[0].x_px, want);
+        }
     }
 
     #[test]

@@ -99,6 +99,7 @@ fn protocol_samples(noise: f64, seed: u64) -> Vec<Sample> {
                             + 10.0 * diam * fz / 5.0
                             + 20.0 * n(&mut rng),
                         d_pf: 0.4 * diam + 0.8 * f + n(&mut rng),
+                        shear: 0.0,
                         x_mm,
                         y_mm: 0.0,
                         fx,
@@ -179,6 +180,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
             dy,
             dz,
             d_pf,
+            shear: 0.0,
             // Order 3 in x2d, order 1 in y2d.
             x_mm: 150.0 * t - 4.0 * t * t + 2.0 * t * t * t,
             y_mm: 0.25 * (y2d - 100.0),
@@ -199,7 +201,8 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
     };
     let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
     let rep = cal.report.as_ref().unwrap();
-    assert_eq!(rep.g1.orders, vec![3]);
+    // x2d order 3; the shear group (all zero here) takes its smallest order.
+    assert_eq!(rep.g1.orders, vec![3, 1]);
     assert_eq!(rep.g2.orders, vec![1]);
     assert_eq!(rep.gx.orders, vec![1, 1, 1]);
     assert_eq!(rep.gy.orders, vec![1, 1, 1]);
@@ -216,7 +219,9 @@ fn location_and_force_evaluate_the_maps() {
     let g = SensorGeometry::default();
     for s in samples.iter().step_by(97) {
         let [x, y, z] = cal.location(s.x2d, s.y2d).unwrap();
-        assert_eq!(x, cal.g1().evaluate(&[s.x2d]).unwrap());
+        assert_eq!(x, cal.g1().evaluate(&[s.x2d, 0.0]).unwrap());
+        let [xs, _, _] = cal.location_sheared(s.x2d, s.y2d, s.shear).unwrap();
+        assert_eq!(xs, cal.g1().evaluate(&[s.x2d, s.shear]).unwrap());
         assert_eq!(y, cal.g2().evaluate(&[s.y2d]).unwrap());
         let zz = (g.radius_mm * g.radius_mm - x * x).sqrt() - g.d_mm;
         assert!((z - zz).abs() < 1e-12);
@@ -684,4 +689,80 @@ fn minimum_detectable_force_from_detections() {
     assert!(min_detectable_force(&[], 1.0).is_err());
     assert!(min_detectable_force(&[(1.0, true)], 0.0).is_err());
     assert!(min_detectable_force(&[(f64::NAN, true)], 1.0).is_err());
+}
+
+/// `g1` takes the shear ratio: a location truth that depends on it linearly
+/// (the contact point estimate pulled sideways by shear, by an amount that
+/// varies along the arc) is recovered exactly, and the legacy `g1(x2d)`
+/// cannot do it.
+#[test]
+fn g1_corrects_a_shear_dependent_offset() {
+    let mut rng = Rng(11);
+    let mut samples = Vec::new();
+    for i in 0..400 {
+        let split = match i % 5 {
+            0 => Split::Val,
+            1 => Split::Test,
+            _ => Split::Train,
+        };
+        let x2d = rng.uniform(100.0, 1500.0);
+        let shear = rng.uniform(-2.0, 2.0);
+        let t = (x2d - 800.0) / 700.0;
+        samples.push(Sample {
+            split,
+            point: (i % 13) as u32 + 2,
+            x2d,
+            y2d: 100.0,
+            dx: rng.uniform(-80.0, 80.0),
+            dy: rng.uniform(-60.0, 60.0),
+            dz: rng.uniform(-400.0, 0.0),
+            d_pf: rng.uniform(1.0, 6.0),
+            shear,
+            x_mm: 150.0 * t - 4.0 * t * t + shear * (3.0 + 2.0 * t),
+            y_mm: 0.0,
+            fx: 0.0,
+            fy: 0.0,
+            fz: 0.0,
+        });
+    }
+    let cal = calibration::fit(&samples, &setup(), &FitOptions::default()).unwrap();
+    let rep = cal.report.as_ref().unwrap();
+    assert_eq!(rep.g1.orders, vec![2, 1]);
+    let t = rep.test.as_ref().unwrap().total;
+    assert!(t.x_mm < 1e-9, "{t:?}");
+    let legacy = FitOptions {
+        location_shear_order: 0,
+        ..FitOptions::default()
+    };
+    let cal0 = calibration::fit(&samples, &setup(), &legacy).unwrap();
+    assert_eq!(cal0.g1().variables(), ["x2d", "shear"]);
+    let t0 = cal0.report.as_ref().unwrap().test.as_ref().unwrap().total;
+    assert!(t0.x_mm > 1.0, "{t0:?}");
+    // A calibration file with a legacy one-variable g1 still loads and ignores shear.
+    let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25]).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&cal.to_json_string()).unwrap();
+    json["g1"] = serde_json::to_value(&g1).unwrap();
+    let old = Calibration::from_json_str(&json.to_string()).unwrap();
+    assert_eq!(old.location_sheared(800.0, 100.0, 5.0).unwrap()[0], 0.0);
+}
+
+/// The shipped calibration loads, records how it was fitted (accurate flow,
+/// the explicit thresholds, the contact window) and its test errors.
+#[test]
+fn the_shipped_fixture_loads_with_its_settings() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/calibration.json");
+    let cal = Calibration::load(&path).unwrap();
+    let p = cal.setup.pipeline.as_ref().unwrap();
+    assert_eq!(p.flow_preset, "accurate");
+    assert_eq!(p.contact_window_px, 400);
+    assert_eq!(cal.contact_window_px(), 400);
+    assert_eq!(cal.setup.thresholds.magnitude, 0.2);
+    assert_eq!(cal.setup.thresholds.sum, 600.0);
+    assert_eq!(cal.g1().variables(), ["x2d", "shear"]);
+    let t = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
+    // The figures docs/results/calibration.md reports for this file.
+    assert!(t.n > 400 && t.x_mm < 0.7 && t.fz < 0.25, "{t:?}");
+    // A central straight press lands near the centre line.
+    let [x, _, z] = cal.location_sheared(799.5, 100.0, 0.0).unwrap();
+    assert!(x.abs() < 3.0 && z > 0.0, "{x} {z}");
 }
