@@ -34,7 +34,7 @@ use std::time::Instant;
 use ndarray::{Array2, ArrayRef2};
 use rayon::prelude::*;
 
-use crate::calibration::Calibration;
+use crate::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use crate::contact::{
     Contact, PatchFields, PatchGrid, RawContact, raw_quantities, rotate_to_sensor,
 };
@@ -43,6 +43,7 @@ use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::hhd::{Decomposition, NaturalHhd};
 use crate::image::Roi;
+use crate::morphology::Shape;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -69,6 +70,40 @@ impl Default for ExtractorConfig {
             subpixel: true,
         }
     }
+}
+
+impl ExtractorConfig {
+    /// The settings a calibration was fitted with, so that a sensor measures
+    /// the raw quantities the same way: the thresholds of `setup.thresholds`
+    /// and, when recorded, the flow preset, margin and sub-pixel switch of
+    /// `setup.pipeline` (otherwise the defaults).
+    pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
+        let mut config = ExtractorConfig {
+            thresholds: thresholds_from_setup(&setup.thresholds)?,
+            ..ExtractorConfig::default()
+        };
+        if let Some(p) = &setup.pipeline {
+            config.flow = DisParams::preset(DisPreset::parse(&p.flow_preset)?);
+            config.margin_px = p.margin_px;
+            config.subpixel = p.subpixel;
+        }
+        Ok(config)
+    }
+}
+
+/// The segmentation thresholds recorded in a calibration, as
+/// [`Thresholds`] (rectangular kernels, as the presets). Errors if they are
+/// not valid thresholds.
+pub fn thresholds_from_setup(t: &SegmentationThresholds) -> Result<Thresholds> {
+    let out = Thresholds {
+        magnitude: t.magnitude as f32,
+        sum: t.sum as f32,
+        erode: t.erode as usize,
+        dilate: t.dilate as usize,
+        shape: Shape::Rect,
+    };
+    out.validate()?;
+    Ok(out)
 }
 
 /// One patch's working set: its planner, decomposition and result.
