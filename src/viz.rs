@@ -391,7 +391,7 @@ pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
         }
         let (x, y) = (r.x_px, r.y_px + row as f64);
         let [fx, fy, fz] = contact.force_n;
-        c.dot(x, y, 3.0 + 4.0 * fz.abs().min(10.0), Rgb::RED);
+        // The arrow first: the dot on top keeps the contact point visible.
         c.arrow(
             x,
             y,
@@ -399,6 +399,7 @@ pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
             y + ARROW_PX_PER_N * fy,
             Rgb::YELLOW,
         );
+        c.dot(x, y, 3.0 + 4.0 * fz.abs().min(10.0), Rgb::RED);
         c.dot(r.x_px, r.y_px + 2.0 * row as f64, 2.0, Rgb::RED);
     }
 
