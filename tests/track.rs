@@ -357,3 +357,73 @@ fn debug_panel_shows_the_fields_the_contacts_and_the_image() {
     // The gaps are grey.
     assert_eq!(p.get(10, h + 1), Some(Rgb(40, 40, 40)));
 }
+
+#[test]
+fn quiet_flow_is_a_tile_mean_not_one_pixel() {
+    use optical_tactile::flow::FlowField;
+    use optical_tactile::sensor::max_tile_mean;
+    let mut f = FlowField::zeros(40, 20);
+    // One noisy border pixel of 8 px: diluted over its 16x16 tile.
+    f.u[[0, 0]] = 8.0;
+    assert!((max_tile_mean(&f, 16) - 8.0 / 256.0).abs() < 1e-9);
+    assert_eq!(max_tile_mean(&f, 1), 8.0);
+    // A uniform drift is seen at its full size; the short last tiles count too.
+    f.u.fill(0.0);
+    f.v.fill(0.3);
+    assert!((max_tile_mean(&f, 16) - 0.3).abs() < 1e-6);
+    let mut g = FlowField::zeros(40, 20);
+    g.v[[19, 39]] = 1.0; // alone in a 8x4 corner tile
+    assert!((max_tile_mean(&g, 16) - 1.0 / 32.0).abs() < 1e-9);
+    // Against the obvious per-tile loop on a random-ish field.
+    let h = FlowField {
+        u: Array2::from_shape_fn((20, 40), |(y, x)| ((x * 7 + y * 13) % 11) as f32 * 0.1),
+        v: Array2::from_shape_fn((20, 40), |(y, x)| ((x * 3 + y * 5) % 7) as f32 * -0.1),
+    };
+    let mut want = 0.0f64;
+    for ty in [0usize, 16] {
+        for tx in [0usize, 16, 32] {
+            let t = h.u.slice(s![ty..(ty + 16).min(20), tx..(tx + 16).min(40)]);
+            let t2 = h.v.slice(s![ty..(ty + 16).min(20), tx..(tx + 16).min(40)]);
+            let m: f64 = t
+                .iter()
+                .zip(t2.iter())
+                .map(|(a, b)| a.hypot(*b) as f64)
+                .sum::<f64>()
+                / t.len() as f64;
+            want = want.max(m);
+        }
+    }
+    assert!((max_tile_mean(&h, 16) - want).abs() < 1e-9);
+    g.u[[3, 3]] = f32::NAN;
+    assert!(max_tile_mean(&g, 16).is_nan());
+}
+
+#[test]
+fn the_accurate_preset_re_references_at_rest_too() {
+    // Its rest flow has single border pixels at ~0.5 px: the tile mean
+    // keeps them from vetoing re-referencing.
+    let (reference, rest, _) = renders();
+    let config = SensorConfig {
+        crop: Some(CROP),
+        extractor: ExtractorConfig {
+            thresholds: Thresholds {
+                magnitude: 0.2,
+                sum: 600.0,
+                ..Thresholds::LOW
+            },
+            ..ExtractorConfig::default()
+        },
+        rereference: ReferencePolicy {
+            enabled: true,
+            quiet_s: 0.2,
+            max_flow_px: 0.5,
+        },
+        ..SensorConfig::default()
+    };
+    let mut s = TactileSensor::new(config, linear_calibration(CROP, None)).unwrap();
+    s.set_reference(&reference).unwrap();
+    for n in 1..=24 {
+        assert!(s.process(&rest[n % 3], n as f64 * 0.02).unwrap().is_empty());
+    }
+    assert!(s.reference_count() >= 2, "{}", s.reference_count());
+}
