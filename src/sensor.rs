@@ -34,7 +34,7 @@ use std::time::Instant;
 use ndarray::{Array2, ArrayRef2};
 use rayon::prelude::*;
 
-use crate::calibration::Calibration;
+use crate::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use crate::contact::{
     Contact, PatchFields, PatchGrid, RawContact, raw_quantities, rotate_to_sensor,
 };
@@ -43,6 +43,7 @@ use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::hhd::{Decomposition, NaturalHhd};
 use crate::image::Roi;
+use crate::morphology::Shape;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -69,6 +70,40 @@ impl Default for ExtractorConfig {
             subpixel: true,
         }
     }
+}
+
+impl ExtractorConfig {
+    /// The settings a calibration was fitted with, so that a sensor measures
+    /// the raw quantities the same way: the thresholds of `setup.thresholds`
+    /// and, when recorded, the flow preset, margin and sub-pixel switch of
+    /// `setup.pipeline` (otherwise the defaults).
+    pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
+        let mut config = ExtractorConfig {
+            thresholds: thresholds_from_setup(&setup.thresholds)?,
+            ..ExtractorConfig::default()
+        };
+        if let Some(p) = &setup.pipeline {
+            config.flow = DisParams::preset(DisPreset::parse(&p.flow_preset)?);
+            config.margin_px = p.margin_px;
+            config.subpixel = p.subpixel;
+        }
+        Ok(config)
+    }
+}
+
+/// The segmentation thresholds recorded in a calibration, as
+/// [`Thresholds`] (rectangular kernels, as the presets). Errors if they are
+/// not valid thresholds.
+pub fn thresholds_from_setup(t: &SegmentationThresholds) -> Result<Thresholds> {
+    let out = Thresholds {
+        magnitude: t.magnitude as f32,
+        sum: t.sum as f32,
+        erode: t.erode as usize,
+        dilate: t.dilate as usize,
+        shape: Shape::Rect,
+    };
+    out.validate()?;
+    Ok(out)
 }
 
 /// One patch's working set: its planner, decomposition and result.
@@ -281,6 +316,43 @@ fn measure(
     Ok(raw)
 }
 
+/// Side of the square tiles (full-resolution pixels) over which the flow
+/// magnitude is averaged before the re-referencing policy compares it with
+/// its limit.
+pub const QUIET_TILE_PX: usize = 16;
+
+/// The largest mean `|flow|` over `tile x tile` tiles of `flow` (the last
+/// row and column of tiles may be smaller).
+///
+/// Why tiles and not the largest pixel: at rest the flow's largest pixel sits
+/// on the image border, where DIS is least constrained, and reaches ~0.5-0.6
+/// px with the accurate preset on the simulator (the 99.9th percentile stays
+/// near 0.2-0.3 px): one noisy pixel would veto re-referencing forever.
+/// Averaging over a tile removes that, while a sub-threshold touch, which
+/// moves a whole area, still shows.
+pub fn max_tile_mean(flow: &FlowField, tile: usize) -> f64 {
+    let (w, h) = flow.size();
+    let tile = tile.max(1);
+    let mut best = 0.0f64;
+    for ty in (0..h).step_by(tile) {
+        for tx in (0..w).step_by(tile) {
+            let (ye, xe) = ((ty + tile).min(h), (tx + tile).min(w));
+            let mut sum = 0.0f64;
+            for y in ty..ye {
+                for x in tx..xe {
+                    sum += flow.u[[y, x]].hypot(flow.v[[y, x]]) as f64;
+                }
+            }
+            let mean = sum / ((ye - ty) * (xe - tx)) as f64;
+            if mean.is_nan() {
+                return f64::NAN;
+            }
+            best = best.max(mean);
+        }
+    }
+    best
+}
+
 /// Everything a [`TactileSensor`] needs besides its calibration.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SensorConfig {
@@ -401,13 +473,10 @@ impl TactileSensor {
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);
         let live = self.tracker.update(&self.detections, dt).len();
-        let (flow, _) = self.extractor.flow();
-        let max_flow = flow
-            .u
-            .iter()
-            .zip(flow.v.iter())
-            .fold(0.0f32, |m, (u, v)| m.max(u.hypot(*v)));
-        self.rereferenced = self.monitor.observe(t_s, live, max_flow as f64);
+        let (flow, scale) = self.extractor.flow();
+        let tile = (QUIET_TILE_PX / scale).max(1);
+        let quiet_flow = max_tile_mean(flow, tile);
+        self.rereferenced = self.monitor.observe(t_s, live, quiet_flow);
         if self.rereferenced {
             // Quiet for long enough: this frame becomes the reference.
             self.extractor.set_reference(&self.cropped)?;

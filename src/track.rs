@@ -349,7 +349,10 @@ pub struct ReferencePolicy {
     /// Seconds of continuous quiet (no contact, small flow) before re-referencing.
     pub quiet_s: f64,
     /// Largest flow magnitude (full-resolution px) that still counts as quiet:
-    /// drift is slow and small, a touch is not.
+    /// drift is slow and small, a touch is not. The sensor compares it with
+    /// the largest mean `|flow|` over 16x16-pixel tiles
+    /// ([`max_tile_mean`](crate::sensor::max_tile_mean)), not with the single
+    /// largest pixel, which at rest is border noise.
     pub max_flow_px: f64,
 }
 

@@ -284,6 +284,130 @@ impl Canvas {
     }
 }
 
+/// Pixels of arrow per newton of shear force in [`debug_panel`].
+pub const ARROW_PX_PER_N: f64 = 60.0;
+
+/// Gap between the four views of [`debug_panel`], pixels.
+const PANEL_GAP: usize = 4;
+
+/// The debug panel of the paper's GUI for the last frame `sensor` processed:
+/// four views of the cropped strip (each `w x h`, full resolution), stacked
+/// top to bottom with a 4-px gap:
+///
+/// 1. the optical flow in colour (hue = direction, saturation = magnitude
+///    relative to the frame's largest, at least 0.5 px) with the outlines of
+///    the segmentation mask in black;
+/// 2. the divergent (curl-free) field `d` of each patch as `|d|` (viridis,
+///    normalised per patch), with the patch box (green), the contact point
+///    (red dot; its radius grows by 4 px per newton of `|Fz|`), and the shear
+///    force `(Fx, Fy)` as an arrow ([`ARROW_PX_PER_N`] px per newton,
+///    yellow); only tracked, live contacts are marked;
+/// 3. the divergence potential `D` of each patch (viridis, per patch);
+/// 4. the cropped grayscale image.
+///
+/// Before any frame has been processed the fields are empty (black).
+pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
+    let img = sensor.cropped();
+    let (w, h) = (img.ncols(), img.nrows());
+    let row = (h + PANEL_GAP) as i64;
+    let mut c = Canvas::new(w, 4 * h + 3 * PANEL_GAP, Rgb::BLACK);
+    let ex = sensor.extractor();
+    let (flow, scale) = ex.flow();
+    let s = scale.max(1);
+    let sf = s as f64;
+    // Grey gaps between the views.
+    for k in 1..4 {
+        let y0 = k * (h + PANEL_GAP) - PANEL_GAP;
+        for y in y0..y0 + PANEL_GAP {
+            for x in 0..w {
+                c.set(x as i64, y as i64, Rgb(40, 40, 40));
+            }
+        }
+    }
+
+    // 1. Flow in colour, with the mask's contours.
+    if flow.size() != (0, 0) {
+        let maxm = flow
+            .u
+            .iter()
+            .zip(flow.v.iter())
+            .map(|(u, v)| u.hypot(*v))
+            .filter(|m| m.is_finite())
+            .fold(0.5f32, f32::max);
+        let rgb = crate::flow::color::flow_to_rgb(flow, Some(maxm));
+        let fw = flow.width();
+        for ((y, x), _) in flow.u.indexed_iter() {
+            let k = 3 * (y * fw + x);
+            let col = Rgb(rgb[k], rgb[k + 1], rgb[k + 2]);
+            for dy in 0..s {
+                for dx in 0..s {
+                    c.set((x * s + dx) as i64, (y * s + dy) as i64, col);
+                }
+            }
+        }
+        let mask = ex.segmenter().mask();
+        if mask.width() == flow.width() && mask.height() == flow.height() {
+            for contour in crate::contours::external_contours(mask) {
+                let pts: Vec<(f64, f64)> = contour
+                    .points
+                    .iter()
+                    .map(|&(x, y)| (x as f64 + 0.5, y as f64 + 0.5))
+                    .collect();
+                c.polygon(&pts, sf, Rgb::BLACK);
+            }
+        }
+    }
+
+    // 2. and 3. Per patch: |d| and D.
+    for (k, patch) in ex.patches().iter().enumerate() {
+        let Some(dec) = ex.decomposition(k) else {
+            continue;
+        };
+        let b = patch.bbox;
+        if dec.potential_d.dim() != (b.height, b.width) {
+            continue;
+        }
+        let mag = ndarray::Zip::from(&dec.d.u)
+            .and(&dec.d.v)
+            .map_collect(|u, v| u.hypot(*v));
+        let (x0, y0) = ((b.x * s) as i64, (b.y * s) as i64);
+        c.scalar(&mag, x0, row + y0, s);
+        c.scalar(&dec.potential_d, x0, 2 * row + y0, s);
+    }
+    for contact in sensor.contacts() {
+        if contact.missed > 0 {
+            continue;
+        }
+        let r = &contact.raw;
+        let bx = r.bbox;
+        for dy in [row, 2 * row] {
+            c.rect(
+                bx.x as i64,
+                dy + bx.y as i64,
+                bx.w as i64,
+                bx.h as i64,
+                Rgb::GREEN,
+            );
+        }
+        let (x, y) = (r.x_px, r.y_px + row as f64);
+        let [fx, fy, fz] = contact.force_n;
+        // The arrow first: the dot on top keeps the contact point visible.
+        c.arrow(
+            x,
+            y,
+            x + ARROW_PX_PER_N * fx,
+            y + ARROW_PX_PER_N * fy,
+            Rgb::YELLOW,
+        );
+        c.dot(x, y, 3.0 + 4.0 * fz.abs().min(10.0), Rgb::RED);
+        c.dot(r.x_px, r.y_px + 2.0 * row as f64, 2.0, Rgb::RED);
+    }
+
+    // 4. The cropped grayscale image.
+    c.gray(img, 0, 3 * row, 1);
+    c
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,122 @@
+//! Criterion bench of the whole `TactileSensor::process` call (crop, flow,
+//! segmentation, nHHD of every patch, calibration, tracking), on
+//!
+//! - a 1920x1080 simulated camera frame whose 1600x200 sensing strip is
+//!   cropped (the simulator's `--full-frame` layout), and
+//! - the 1600x200 strip alone,
+//!
+//! with the `fast` and `accurate` (default) DIS presets, on 2 threads, for a
+//! two-rod press (2.0 N and 1.5 N: two patches per frame) against a fixed
+//! reference. Frames per second = 1000 / (median ms per call).
+//!
+//! `cargo bench --bench sensor` (short measurement times; on a shared machine
+//! compare ratios within one run).
+
+use std::time::Duration;
+
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use ndarray::Array2;
+use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::image::Roi;
+use optical_tactile::poly::Polynomial;
+use optical_tactile::segment::Thresholds;
+use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
+use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+
+/// A linear calibration for the strip `crop` (x = (x_px - 799.5) / 5 mm,
+/// F = 1e-4 D): the maps' cost is what matters here, not their accuracy.
+fn calibration(crop: Roi) -> Calibration {
+    let g1 =
+        Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-799.5 / 5.0, 0.2]).expect("g1");
+    let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).expect("g2");
+    let vars = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+    let lin = |k: usize| {
+        let mut e = vec![0u32; 6];
+        e[k] = 1;
+        Polynomial::raw(&vars, vec![e], vec![1e-4]).expect("force map")
+    };
+    let setup = SensorSetup {
+        geometry: SensorGeometry::default(),
+        crop,
+        thresholds: SegmentationThresholds {
+            preset: "bench".into(),
+            magnitude: 0.5,
+            sum: 600.0,
+            erode: 5,
+            dilate: 15,
+        },
+        pipeline: None,
+    };
+    Calibration::new(setup, [g1, g2, lin(0), lin(1), lin(2)], None).expect("calibration")
+}
+
+/// Reference and pressed frame, and the strip's crop in them.
+fn frames(full_frame: bool) -> (Array2<f32>, Array2<f32>, Roi) {
+    let config = SimConfig {
+        full_frame,
+        ..SimConfig::default()
+    };
+    let crop = if full_frame {
+        let (x, y, w, h) = config.camera.crop();
+        Roi::new(x, y, w, h)
+    } else {
+        Roi::new(0, 0, config.camera.strip_width, config.camera.strip_height)
+    };
+    let mut sim = SyntheticSensor::new(config, 1).expect("simulator");
+    let (reference, _) = sim.render(&[]).expect("reference");
+    let press = [
+        Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
+        Contact::rod(20.0, [0.0, 0.0, -1.5], 5.0),
+    ];
+    let (pressed, _) = sim.render(&press).expect("press");
+    (reference, pressed, crop)
+}
+
+fn bench_process(c: &mut Criterion) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("thread pool");
+    let mut g = c.benchmark_group("sensor_process");
+    g.sample_size(20)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(3));
+    for full_frame in [true, false] {
+        let (reference, pressed, crop) = frames(full_frame);
+        let size = format!("{}x{}", reference.ncols(), reference.nrows());
+        for preset in [DisPreset::Fast, DisPreset::Accurate] {
+            let config = SensorConfig {
+                crop: Some(crop),
+                extractor: ExtractorConfig {
+                    flow: DisParams::preset(preset),
+                    thresholds: Thresholds {
+                        magnitude: 0.5,
+                        sum: 600.0,
+                        ..Thresholds::LOW
+                    },
+                    ..ExtractorConfig::default()
+                },
+                ..SensorConfig::default()
+            };
+            let mut sensor = TactileSensor::new(config, calibration(crop)).expect("sensor");
+            sensor.set_reference(&reference).expect("reference");
+            let n = sensor.process(&pressed, 0.02).expect("process").len();
+            assert!(n >= 1, "{size} {}: the press should be seen", preset.name());
+            let mut t = 0.02;
+            g.bench_function(BenchmarkId::new(preset.name(), &size), |b| {
+                pool.install(|| {
+                    b.iter(|| {
+                        t += 0.02;
+                        sensor.process(&pressed, t).expect("process").len()
+                    })
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_process);
+criterion_main!(benches);
