@@ -251,8 +251,14 @@ fn windowed_centroid(w: &[f64], lo: usize, hi: usize, half: f64) -> Option<f64> 
     let mut c = centroid(f64::NEG_INFINITY, f64::INFINITY)?;
     // A mean shift with a flat kernel converges in a few steps; a fixed cap
     // keeps the cost bounded when it oscillates between two nearby modes.
+    // The window stays symmetric about the estimate: where the region ends
+    // (an image edge, or halfway to a neighbouring contact) it shrinks on
+    // both sides, since cutting one side only would pull the centroid of a
+    // symmetric profile away from the cut.
+    let (first, last) = (lo as f64 - 0.5, hi as f64 - 0.5);
     for _ in 0..50 {
-        let next = match centroid(c - half, c + half) {
+        let h = half.min(c - first).min(last - c).max(1.0);
+        let next = match centroid(c - h, c + h) {
             Some(n) => n,
             None => break,
         };
@@ -471,14 +477,34 @@ mod tests {
             sx / s
         };
         let mut c = cen(-1e300, 1e300);
+        let last = w.len() as f64 - 0.5;
         for _ in 0..50 {
-            let n = cen(c - half, c + half);
+            // Symmetric about the estimate: shrunk where the image ends.
+            let h = half.min(c + 0.5).min(last - c).max(1.0);
+            let n = cen(c - h, c + h);
             if (n - c).abs() < 1e-6 {
                 return n;
             }
             c = n;
         }
         c
+    }
+
+    #[test]
+    fn a_neighbour_does_not_pull_a_symmetric_profile() {
+        // A wide profile at column 40 and a narrow neighbour at 60: the first
+        // contact's range is cut halfway, at 50, and its window (30) would
+        // reach past that cut on one side only. A one-sided cut put it at
+        // 39.42; the symmetric window keeps it at 40.
+        let u = Array2::from_shape_fn((1, 100), |(_, j)| {
+            let j = j as f32;
+            (-(j - 40.0).powi(2) / 128.0).exp() + (-(j - 60.0).powi(2) / 8.0).exp()
+        });
+        let mut r = [raw_at(41.0), raw_at(59.0)];
+        refine_contact_points(&mut r, u.view(), 1.0, 30.0).unwrap();
+        assert!((r[0].x_px - 40.0).abs() < 0.05, "{}", r[0].x_px);
+        // (The narrow one still feels the wide one's tail inside its own
+        // window: leakage, not truncation.)
     }
 
     #[test]

@@ -379,6 +379,8 @@ pub struct TactileSensor {
     tracker: Tracker,
     monitor: ReferenceMonitor,
     detections: Vec<Contact>,
+    /// The last frame's raw contacts, as the calibration measures them.
+    raws: Vec<RawContact>,
     last_t: Option<f64>,
     rereferenced: bool,
     references: u64,
@@ -399,6 +401,7 @@ impl TactileSensor {
             frame_size: None,
             cropped: Array2::zeros((0, 0)),
             detections: Vec::new(),
+            raws: Vec::new(),
             last_t: None,
             rereferenced: false,
             references: 0,
@@ -464,11 +467,20 @@ impl TactileSensor {
         let t = Instant::now();
         self.detections.clear();
         let geometry = self.calibration.setup.geometry;
-        for raw in self.extractor.raws() {
-            let mut raw = *raw;
-            let loc = self.calibration.location(raw.x_px, raw.y_px)?;
-            raw.d_sensor = rotate_to_sensor(&geometry, loc[0], &raw);
-            self.detections.push(self.calibration.contact(&raw)?);
+        // Measure the contact columns the way the calibration was fitted
+        // (shear-robust window, if it records one), then locate each contact
+        // and rotate its displacements into the sensor frame there.
+        self.raws.clear();
+        self.raws.extend_from_slice(self.extractor.raws());
+        let (flow, scale) = self.extractor.flow();
+        self.calibration
+            .refine_contacts(&mut self.raws, flow.u.view(), scale as f64)?;
+        for raw in &mut self.raws {
+            let loc = self
+                .calibration
+                .location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
+            raw.d_sensor = rotate_to_sensor(&geometry, loc[0], raw);
+            self.detections.push(self.calibration.contact(raw)?);
         }
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);

@@ -287,6 +287,7 @@ fn extractor_settings_come_from_the_calibration() {
             flow_preset: "fast".into(),
             margin_px: 16,
             subpixel: false,
+            contact_window_px: 400,
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();
