@@ -16,6 +16,10 @@
 //! cargo run --release --example sweep -- rest --rest 400
 //! cargo run --release --example sweep -- mdf --candidate 0.25,900,5,15
 //! ```
+//!
+//! With `SWEEP_DEBUG=1` in the environment, the missed presses (from 0.8 N)
+//! and every spacing case are printed to stderr with their patches and
+//! contour boxes (full-resolution px).
 
 use std::time::Instant;
 
@@ -431,14 +435,20 @@ fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
                     idx += 2;
                     for (k, ex) in extractors.iter_mut().enumerate() {
                         ex.set_reference(&r.frame)?;
-                        let raws = ex.extract(&o.frame)?;
+                        let raws = ex.extract(&o.frame)?.to_vec();
                         if debug {
                             let got: Vec<_> = raws
                                 .iter()
                                 .map(|r| (r.x_px.round(), r.bbox.x, r.bbox.x + r.bbox.w))
                                 .collect();
+                            let cores: Vec<_> = ex
+                                .segmenter()
+                                .contour_boxes()
+                                .iter()
+                                .map(|b| (b.x * 2, b.x_end() * 2))
+                                .collect();
                             eprintln!(
-                                "set {k} d {d} f {f} sp {sp} c {c}: rods {p1:.0} {p2:.0} got {got:?}"
+                                "set {k} d {d} f {f} sp {sp} c {c}: rods {p1:.0} {p2:.0} got {got:?} contours {cores:?}"
                             );
                         }
                         if raws.len() == 2 {
