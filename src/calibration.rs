@@ -1120,32 +1120,13 @@ pub struct ThresholdRow {
 /// The paper's Table I in markdown: one column per threshold preset; rows
 /// `F_min`, MAE of x (mm), Fx, Fy, Fz (N).
 pub fn table_i_markdown(rows: &[ThresholdRow]) -> String {
-    let mut s = String::from("| Variable |");
-    for r in rows {
-        let _ = write!(s, " {} |", r.preset);
-    }
-    s.push_str("\n|---|");
-    s.push_str(&"---|".repeat(rows.len()));
-    s.push('\n');
+    let mut s = table_header(rows.iter().map(|r| r.preset.as_str()));
     let _ = write!(s, "| F_min [N] |");
     for r in rows {
         let _ = write!(s, " {} |", r.min_force_n);
     }
     s.push('\n');
-    type Get = fn(&QuantityMae) -> f64;
-    let lines: [(&str, Get, usize); 4] = [
-        ("MAE x3D [mm]", |m| m.x_mm, 2),
-        ("MAE Fx [N]", |m| m.fx, 4),
-        ("MAE Fy [N]", |m| m.fy, 4),
-        ("MAE Fz [N]", |m| m.fz, 4),
-    ];
-    for (name, get, prec) in lines {
-        let _ = write!(s, "| {name} |");
-        for r in rows {
-            let _ = write!(s, " {:.*} |", prec, get(&r.mae));
-        }
-        s.push('\n');
-    }
+    mae_rows(&mut s, rows.iter().map(|r| &r.mae));
     s
 }
 
@@ -1154,13 +1135,33 @@ pub fn table_i_markdown(rows: &[ThresholdRow]) -> String {
 pub fn table_ii_markdown(t: &PointTable) -> String {
     let mut cols: Vec<(String, QuantityMae)> = vec![("Total".into(), t.total)];
     cols.extend(t.per_point.iter().map(|(p, m)| (format!("Point {p}"), *m)));
+    let mut s = table_header(cols.iter().map(|(name, _)| name.as_str()));
+    mae_rows(&mut s, cols.iter().map(|(_, m)| m));
+    let _ = write!(s, "| samples |");
+    for (_, m) in &cols {
+        let _ = write!(s, " {} |", m.n);
+    }
+    s.push('\n');
+    s
+}
+
+/// A markdown header row `| Variable | a | b | ... |` and its separator.
+fn table_header<'a>(columns: impl Iterator<Item = &'a str>) -> String {
     let mut s = String::from("| Variable |");
-    for (name, _) in &cols {
+    let mut n = 0;
+    for name in columns {
         let _ = write!(s, " {name} |");
+        n += 1;
     }
     s.push_str("\n|---|");
-    s.push_str(&"---|".repeat(cols.len()));
+    s.push_str(&"---|".repeat(n));
     s.push('\n');
+    s
+}
+
+/// The MAE rows of x (mm), Fx, Fy, Fz (N) shared by Tables I and II, one
+/// column per item of `columns`.
+fn mae_rows<'a>(s: &mut String, columns: impl Iterator<Item = &'a QuantityMae> + Clone) {
     type Get = fn(&QuantityMae) -> f64;
     let lines: [(&str, Get, usize); 4] = [
         ("MAE x3D [mm]", |m| m.x_mm, 2),
@@ -1170,17 +1171,11 @@ pub fn table_ii_markdown(t: &PointTable) -> String {
     ];
     for (name, get, prec) in lines {
         let _ = write!(s, "| {name} |");
-        for (_, m) in &cols {
+        for m in columns.clone() {
             let _ = write!(s, " {:.*} |", prec, get(m));
         }
         s.push('\n');
     }
-    let _ = write!(s, "| samples |");
-    for (_, m) in &cols {
-        let _ = write!(s, " {} |", m.n);
-    }
-    s.push('\n');
-    s
 }
 
 #[cfg(test)]
