@@ -1,13 +1,13 @@
 //! The whole pipeline on the bundled two-rod press sequence.
 
+mod common;
+use common::linear_calibration;
+
 use optical_tactile::Error;
-use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
 use optical_tactile::io::{FrameRecord, read_jsonl};
-use optical_tactile::poly::Polynomial;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
 
@@ -59,37 +59,12 @@ fn both_rods_are_found_where_they_press() {
     }
 }
 
-/// A hand-made calibration: x = (x_px - 799.5) / 5 mm, y = 0, F = 1e-4 * D.
-fn linear_calibration(crop: Roi) -> Calibration {
-    let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-799.5 / 5.0, 0.2]).unwrap();
-    let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
-    let vars = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
-    let lin = |k: usize| {
-        let mut e = vec![0u32; 6];
-        e[k] = 1;
-        Polynomial::raw(&vars, vec![e], vec![1e-4]).unwrap()
-    };
-    let setup = SensorSetup {
-        geometry: SensorGeometry::default(),
-        crop,
-        thresholds: SegmentationThresholds {
-            preset: "test".into(),
-            magnitude: 0.2,
-            sum: 600.0,
-            erode: 5,
-            dilate: 15,
-        },
-        pipeline: None,
-    };
-    Calibration::new(setup, [g1, g2, lin(0), lin(1), lin(2)], None).unwrap()
-}
-
 fn sensor() -> TactileSensor {
     let config = SensorConfig {
         extractor: sensitive(),
         ..SensorConfig::default()
     };
-    TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200))).unwrap()
+    TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200), None)).unwrap()
 }
 
 #[test]
@@ -145,7 +120,8 @@ fn bad_frames_are_errors_and_change_nothing() {
         extractor: sensitive(),
         ..SensorConfig::default()
     };
-    let mut s = TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200))).unwrap();
+    let mut s =
+        TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200), None)).unwrap();
     assert!(matches!(
         s.set_reference(&frames[0].image),
         Err(Error::CropOutside { .. })

@@ -3,47 +3,21 @@
 //! skipped, nothing already written lost), the debug panel, and the
 //! calibration-driven configuration.
 
+mod common;
+use common::linear_calibration;
+
 use ndarray::{Array2, s};
 use optical_tactile::Error;
-use optical_tactile::calibration::{
-    Calibration, PipelineSettings, SegmentationThresholds, SensorSetup,
-};
+use optical_tactile::calibration::{Calibration, PipelineSettings};
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
 use optical_tactile::io::{self, FrameRecord, JsonlWriter, read_jsonl};
-use optical_tactile::poly::Polynomial;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
 use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::track::ReferencePolicy;
 use optical_tactile::viz::{self, Rgb};
-
-/// A hand-made calibration: x = (x_px - 799.5) / 5 mm, y = 0, F = 1e-4 * D.
-fn linear_calibration(crop: Roi, pipeline: Option<PipelineSettings>) -> Calibration {
-    let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-799.5 / 5.0, 0.2]).unwrap();
-    let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
-    let vars = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
-    let lin = |k: usize| {
-        let mut e = vec![0u32; 6];
-        e[k] = 1;
-        Polynomial::raw(&vars, vec![e], vec![1e-4]).unwrap()
-    };
-    let setup = SensorSetup {
-        geometry: SensorGeometry::default(),
-        crop,
-        thresholds: SegmentationThresholds {
-            preset: "test".into(),
-            magnitude: 0.2,
-            sum: 600.0,
-            erode: 5,
-            dilate: 15,
-        },
-        pipeline,
-    };
-    Calibration::new(setup, [g1, g2, lin(0), lin(1), lin(2)], None).unwrap()
-}
 
 /// The fast preset (cheap enough for hundreds of frames in a test) with
 /// thresholds above its rest noise.
