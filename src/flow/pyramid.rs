@@ -396,6 +396,17 @@ pub fn sample_clamped(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
 mod tests {
     use super::*;
 
+    /// The oracle: the plain mean of the `f x f` box of output pixel `(x, y)`.
+    fn naive_box(src: &[f32], w: usize, f: usize, x: usize, y: usize) -> f64 {
+        let mut s = 0.0f64;
+        for yy in 0..f {
+            for xx in 0..f {
+                s += src[(y * f + yy) * w + x * f + xx] as f64;
+            }
+        }
+        s / (f * f) as f64
+    }
+
     #[test]
     fn area_average_matches_naive_boxes() {
         let (w, h) = (13, 9);
@@ -406,13 +417,7 @@ mod tests {
             downsample_area(&src, w, h, f, &mut dst).unwrap();
             for y in 0..dh {
                 for x in 0..dw {
-                    let mut s = 0.0f64;
-                    for yy in 0..f {
-                        for xx in 0..f {
-                            s += src[(y * f + yy) * w + x * f + xx] as f64;
-                        }
-                    }
-                    let want = s / (f * f) as f64;
+                    let want = naive_box(&src, w, f, x, y);
                     assert!((dst[y * dw + x] as f64 - want).abs() < 1e-3, "f={f}");
                 }
             }
@@ -433,13 +438,7 @@ mod tests {
             downsample_area(&src, w, h, f, &mut dst).unwrap();
             for y in 0..dh {
                 for x in 0..dw {
-                    let mut s = 0.0f64;
-                    for yy in 0..f {
-                        for xx in 0..f {
-                            s += src[(y * f + yy) * w + x * f + xx] as f64;
-                        }
-                    }
-                    let want = s / (f * f) as f64;
+                    let want = naive_box(&src, w, f, x, y);
                     let got = dst[y * dw + x] as f64;
                     assert!((got - want).abs() < 1e-4 * want.max(1.0), "f={f} {x},{y}");
                 }
