@@ -13,25 +13,8 @@ use optical_tactile::image::Roi;
 use optical_tactile::io::Split;
 use optical_tactile::poly::{CrossTerms, Polynomial};
 
-/// Deterministic generator (splitmix64).
-struct Rng(u64);
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
-    }
-    fn normal(&mut self) -> f64 {
-        let u1 = self.uniform(1e-12, 1.0);
-        let u2 = self.uniform(0.0, 1.0);
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-}
+/// The library's deterministic generator (SplitMix64), so tests need no extra dependency.
+use optical_tactile::sim::rng::SplitMix64 as Rng;
 
 fn setup() -> SensorSetup {
     SensorSetup {
@@ -64,7 +47,7 @@ fn small_options() -> FitOptions {
 /// between validation and test.
 fn protocol_samples(noise: f64, seed: u64) -> Vec<Sample> {
     let g = SensorGeometry::default();
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     let mut out = Vec::new();
     let tilts = [
         (0.0, 0.0),
@@ -155,7 +138,7 @@ fn fit_on_the_protocol_reaches_small_test_errors() {
 fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
     // Raw quantities random; truth an exact polynomial of them. The search
     // must find the true orders and reach ~zero test error.
-    let mut rng = Rng(77);
+    let mut rng = Rng::new(77);
     let mut samples = Vec::new();
     for i in 0..700 {
         let split = match i % 7 {
@@ -697,7 +680,7 @@ fn minimum_detectable_force_from_detections() {
 /// cannot do it.
 #[test]
 fn g1_corrects_a_shear_dependent_offset() {
-    let mut rng = Rng(11);
+    let mut rng = Rng::new(11);
     let mut samples = Vec::new();
     for i in 0..400 {
         let split = match i % 5 {
