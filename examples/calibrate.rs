@@ -2,7 +2,8 @@
 //!
 //! ```text
 //! cargo run --release --example calibrate -- DATASET_DIR [--thresholds low|mid|high|all]
-//!     [--thresholds-custom MAGNITUDE,SUM] [--contact-window PX] [--shear-order N]
+//!     [--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin]
+//!     [--shear-order N]
 //!     [--preset fast|accurate|...] [--crop x,y,w,h] [--predictions FILE] --out calibration.json
 //! ```
 //!
@@ -14,9 +15,12 @@
 //! one (the paper's flight setting) and the others are written beside it as
 //! `NAME.low.json` and `NAME.mid.json`. `--thresholds-custom M,S` fits with
 //! flow magnitude `M` px and patch sum `S` (full-resolution units) and the
-//! `low` kernels, labelled `custom`. `--contact-window PX` sets the half-width
-//! of the shear-robust contact column (default 400; 0 = argmin of D, the
-//! paper's), `--shear-order N` the largest order of the shear ratio in `g1`
+//! `low` kernels, labelled `custom`. `--contact-point` chooses how a contact's
+//! column is measured: `slope` (default, the steepest rise of the along-arc
+//! profile smoothed by a Gaussian of SIGMA px, default 8), `centroid` (the
+//! energy centroid in a window of half-width HALF px, default 400) or
+//! `argmin` (argmin of D, the paper's); `--contact-window PX` is the older
+//! spelling of `centroid:PX` (0 = argmin). `--shear-order N` the largest order of the shear ratio in `g1`
 //! (default 2; 0 = the paper's `g1(x2d)`). `y2d` stays out of the force maps
 //! unless `--force-y2d` is given (the rods span the width: it only carries noise).
 
@@ -27,6 +31,7 @@ use std::time::Instant;
 
 use optical_tactile::calibration::{self, FitOptions, ThresholdRow};
 use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
@@ -35,7 +40,7 @@ use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
 const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
-[--thresholds-custom MAGNITUDE,SUM] [--contact-window PX (default 400, 0 = argmin D)] [--shear-order N (default 2)] [--force-y2d] \
+[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-y2d] \
 [--preset ultrafast|fast|medium|accurate (default accurate)] [--crop x,y,w,h] [--predictions FILE]";
 
 struct Args {
@@ -43,12 +48,45 @@ struct Args {
     out: PathBuf,
     presets: Vec<&'static str>,
     custom: Option<(f32, f32)>,
-    contact_window_px: u32,
+    contact_point: ContactPointMethod,
     shear_order: u32,
     force_y2d: bool,
     flow: DisPreset,
     crop: Option<Roi>,
     predictions: Option<PathBuf>,
+}
+
+/// `slope[:SIGMA]`, `centroid[:HALF]` or `argmin`.
+fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
+    let (name, num) = match v.split_once(':') {
+        Some((n, x)) => (n, Some(x)),
+        None => (v, None),
+    };
+    let given = num.is_some();
+    let num = |default: f64| -> Result<f64, String> {
+        match num {
+            None => Ok(default),
+            Some(x) => x
+                .parse::<f64>()
+                .ok()
+                .filter(|x| *x > 0.0 && x.is_finite())
+                .ok_or(format!(
+                    "--contact-point: expected a positive number after `:`, got `{x}`"
+                )),
+        }
+    };
+    match name {
+        "slope" => Ok(ContactPointMethod::SlopePeak {
+            sigma_px: num(8.0)?,
+        }),
+        "centroid" => Ok(ContactPointMethod::EnergyCentroid {
+            half_window_px: num(400.0)?,
+        }),
+        "argmin" if !given => Ok(ContactPointMethod::PotentialMinimum),
+        _ => Err(format!(
+            "--contact-point: expected slope[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
+        )),
+    }
 }
 
 fn parse() -> Result<Option<Args>, String> {
@@ -59,7 +97,7 @@ fn parse() -> Result<Option<Args>, String> {
     let mut crop = None;
     let mut predictions = None;
     let mut custom = None;
-    let mut contact_window_px = optical_tactile::characterize::DEFAULT_CONTACT_WINDOW_PX;
+    let mut contact_point = ContactPointMethod::DEFAULT;
     let mut shear_order = FitOptions::default().location_shear_order;
     // The characterization rods span the skin's width, so y2d carries only
     // noise into the force maps (measured: Fx 0.082 -> 0.063 N, Fz 0.30 ->
@@ -105,10 +143,17 @@ fn parse() -> Result<Option<Args>, String> {
             "--force-y2d" => force_y2d = true,
             "--contact-window" => {
                 let v = val("--contact-window")?;
-                contact_window_px = v
+                let w: u32 = v
                     .parse()
                     .map_err(|_| format!("--contact-window: expected pixels >= 0, got `{v}`"))?;
+                contact_point = match w {
+                    0 => ContactPointMethod::PotentialMinimum,
+                    w => ContactPointMethod::EnergyCentroid {
+                        half_window_px: f64::from(w),
+                    },
+                };
             }
+            "--contact-point" => contact_point = parse_contact_point(&val("--contact-point")?)?,
             "--shear-order" => {
                 let v = val("--shear-order")?;
                 shear_order = v
@@ -130,7 +175,7 @@ fn parse() -> Result<Option<Args>, String> {
         out: out.ok_or(format!("--out is required\n{USAGE}"))?,
         presets,
         custom,
-        contact_window_px,
+        contact_point,
         shear_order,
         force_y2d,
         flow,
@@ -206,7 +251,7 @@ fn run() -> Result<(), String> {
             &args.dir,
             &rows,
             &config,
-            args.contact_window_px,
+            args.contact_point,
             args.crop,
             &progress,
         )
@@ -220,7 +265,7 @@ fn run() -> Result<(), String> {
         let fit = fit_dataset(
             &ex,
             &config,
-            args.contact_window_px,
+            args.contact_point,
             preset,
             crop,
             SensorGeometry::default(),

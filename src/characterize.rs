@@ -20,11 +20,12 @@ use crate::calibration::{
     self, Calibration, DetectionLimit, FitOptions, PipelineSettings, PointTable, Sample,
     SegmentationThresholds, SensorSetup,
 };
-use crate::contact::{RawContact, refine_contact_points, rotate_to_sensor};
+use crate::contact::{ContactLocator, ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
 use crate::image::Roi;
 use crate::io::{self, Split, TestRow};
+use crate::profile::{ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
 use crate::sensor::{ContactExtractor, ExtractorConfig};
 
 /// One test of the dataset and what the pipeline found in it.
@@ -36,6 +37,11 @@ pub struct Extraction {
     pub raw: Option<RawContact>,
     /// How many patches were found.
     pub patches: usize,
+    /// The frame's motion profiles along x and y
+    /// ([`crate::profile::column_profile_into`]; empty if nothing was detected).
+    pub profiles: [Vec<f64>; 2],
+    /// The flow grid's scale (full-resolution pixels per cell).
+    pub scale: f64,
 }
 
 /// Reads a dataset's `tests.csv` (errors name the file and line).
@@ -60,24 +66,23 @@ fn load(dir: &Path, rel: &str, crop: Option<Roi>) -> Result<Array2<f32>> {
     }
 }
 
-/// The default half-width of the contact-column window
-/// ([`refine_contact_points`]), full-resolution pixels: wide enough to hold a
-/// press's whole motion (about 60 mm of arc on the default strip), so that
-/// the centroid is not cut asymmetrically.
+/// The default half-width of the energy-centroid window
+/// ([`ContactPointMethod::EnergyCentroid`]), full-resolution pixels: wide
+/// enough to hold a press's whole motion (about 60 mm of arc on the default
+/// strip), so that the centroid is not cut asymmetrically.
 pub const DEFAULT_CONTACT_WINDOW_PX: u32 = 400;
 
 /// Runs the pipeline on every test of `rows` (images relative to `dir`),
-/// cropping each image to `crop` if given. With `contact_window_px > 0` the
-/// contact columns are replaced by the shear-robust estimate of
-/// [`refine_contact_points`] with that half-window (0 keeps the argmin of
-/// the divergence potential). `progress(done, total)` is called
+/// cropping each image to `crop` if given, and measures each contact's
+/// column by `contact_point` ([`ContactLocator`]).
+/// `progress(done, total)` is called
 /// from worker threads as tests finish. The first unreadable image stops the
 /// run with an error that names it.
 pub fn extract_dataset(
     dir: impl AsRef<Path>,
     rows: &[TestRow],
     config: &ExtractorConfig,
-    contact_window_px: u32,
+    contact_point: ContactPointMethod,
     crop: Option<Roi>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Vec<Extraction>> {
@@ -88,25 +93,31 @@ pub fn extract_dataset(
     let total = rows.len();
     rows.par_iter()
         .map_init(
-            || ContactExtractor::new(config.clone()).expect("configuration checked above"),
-            |ex, row| {
+            || {
+                (
+                    ContactExtractor::new(config.clone()).expect("configuration checked above"),
+                    ContactLocator::new(),
+                )
+            },
+            |(ex, locator), row| {
                 let reference = load(dir, &row.reference, crop)?;
                 let frame = load(dir, &row.frame, crop)?;
                 ex.set_reference(&reference)?;
                 let mut raws = ex.extract(&frame)?.to_vec();
-                if contact_window_px > 0 {
-                    let (flow, s) = ex.flow();
-                    refine_contact_points(
-                        &mut raws,
-                        flow.u.view(),
-                        s as f64,
-                        contact_window_px as f64,
-                    )?;
+                let (flow, s) = ex.flow();
+                let s = s as f64;
+                locator.refine(contact_point, &mut raws, flow.u.view(), s)?;
+                let mut profiles = [Vec::new(), Vec::new()];
+                if !raws.is_empty() {
+                    column_profile_into(flow.u.view(), s, &mut profiles[0]);
+                    column_profile_into(flow.v.view(), s, &mut profiles[1]);
                 }
                 let out = Extraction {
                     row: row.clone(),
                     raw: raws.first().copied(),
                     patches: raws.len(),
+                    profiles,
+                    scale: s,
                 };
                 progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
                 Ok(out)
@@ -150,7 +161,7 @@ fn samples(
         .map(|e| {
             e.raw
                 .map(|mut raw| {
-                    raw.d_sensor = rotate_to_sensor(geometry, x_of(&raw)?, &raw);
+                    raw.d_sensor = sensor_displacements(geometry, x_of(&raw)?, &raw);
                     Ok(Sample::from_test(&e.row, &raw))
                 })
                 .transpose()
@@ -168,7 +179,7 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
 pub fn fit_dataset(
     extractions: &[Extraction],
     config: &ExtractorConfig,
-    contact_window_px: u32,
+    contact_point: ContactPointMethod,
     thresholds_name: &str,
     crop: Roi,
     geometry: SensorGeometry,
@@ -190,20 +201,53 @@ pub fn fit_dataset(
             flow_preset: preset_name(config),
             margin_px: config.margin_px,
             subpixel: config.subpixel,
-            contact_window_px,
+            contact_window_px: match contact_point {
+                ContactPointMethod::EnergyCentroid { half_window_px } => {
+                    half_window_px.round() as u32
+                }
+                _ => 0,
+            },
+            contact_point: Some(contact_point),
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).
     let first = detected(&samples(extractions, &geometry, |_| Ok(0.0))?);
     let pass1 = calibration::fit(&first, &setup, options)?;
+    // The profile model (forces by matched kernels), fitted on the training
+    // split with the true forces in the local frame at the true location;
+    // then every detected test's local force is matched with it.
+    let mut extractions = std::borrow::Cow::Borrowed(extractions);
+    let profile = match options.profile {
+        None => None,
+        Some(p) => {
+            let model = fit_profile(&extractions, &geometry, &setup.crop, p)?;
+            let mut matcher = ForceMatcher::new();
+            let mut forces = Vec::new();
+            for e in extractions.to_mut().iter_mut() {
+                if let Some(raw) = e.raw.as_mut() {
+                    matcher.measure(
+                        &model,
+                        &[raw.x_px],
+                        &e.profiles[0],
+                        &e.profiles[1],
+                        e.scale,
+                        &mut forces,
+                    )?;
+                    raw.local_force = forces.first().copied();
+                }
+            }
+            Some(model)
+        }
+    };
     // Pass 2: rotate at the predicted location, fit everything.
-    let second = samples(extractions, &geometry, |r| {
+    let second = samples(&extractions, &geometry, |r| {
         Ok(pass1.location_sheared(r.x_px, r.y_px, r.shear_ratio())?[0])
     })?;
-    let cal = calibration::fit(&detected(&second), &setup, options)?;
+    let mut cal = calibration::fit(&detected(&second), &setup, options)?;
+    cal.profile = profile;
     let mut misses = [0usize; 3];
     let mut detections = Vec::with_capacity(extractions.len());
-    for e in extractions {
+    for e in extractions.iter() {
         if e.raw.is_none() {
             misses[split_index(e.row.split)] += 1;
         }
@@ -218,6 +262,40 @@ pub fn fit_dataset(
         min_force,
         test_table,
     })
+}
+
+/// Fits the profile model on the detected training tests.
+fn fit_profile(
+    extractions: &[Extraction],
+    geometry: &SensorGeometry,
+    crop: &Roi,
+    options: crate::calibration::ProfileFitOptions,
+) -> Result<ProfileModel> {
+    let samples: Vec<ProfileSample<'_>> = extractions
+        .iter()
+        .filter(|e| e.row.split == Split::Train)
+        .filter_map(|e| {
+            let raw = e.raw.as_ref()?;
+            let r = &e.row;
+            Some(ProfileSample {
+                column_px: raw.x_px,
+                profile_u: &e.profiles[0],
+                profile_v: &e.profiles[1],
+                scale: e.scale,
+                local_force: geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]),
+            })
+        })
+        .collect();
+    // The position polynomial's variable runs over -1..1 across the crop.
+    let half = 0.5 * crop.w as f64;
+    ProfileModel::fit(
+        &samples,
+        extractions.first().map_or(1.0, |e| e.scale),
+        options.half_width_px,
+        options.degree,
+        half - 0.5,
+        half.max(1.0),
+    )
 }
 
 /// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).

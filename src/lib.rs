@@ -38,6 +38,7 @@ pub mod image;
 pub mod io;
 pub mod morphology;
 pub mod poly;
+pub mod profile;
 pub mod segment;
 pub mod sensor;
 pub mod sim;

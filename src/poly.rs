@@ -100,6 +100,12 @@ pub enum CrossTerms {
     /// Only the per-group limits: the full tensor product of the groups'
     /// polynomial spaces (the largest basis, grows fastest).
     Full,
+    /// Terms within one group are limited by that group's order only; terms
+    /// mixing groups have a total degree of at most this number. For a map
+    /// that is mainly a function of one variable with small corrections in
+    /// another (`g1(x2d, shear)`: `x2d^5` but only `shear * x2d`), where
+    /// `MaxOfGroups` would add `shear * x2d^4` and overfit.
+    Mixed(u32),
 }
 
 /// Which terms a polynomial has: its variable groups and the cross-term rule.
@@ -175,7 +181,7 @@ impl PolySpec {
                 ),
             ));
         }
-        if let CrossTerms::Total(n) = self.cross
+        if let CrossTerms::Total(n) | CrossTerms::Mixed(n) = self.cross
             && n > MAX_ORDER
         {
             return Err(Error::param(
@@ -265,6 +271,7 @@ impl PolySpec {
             CrossTerms::MaxOfGroups => total <= involved().max().unwrap_or(0),
             CrossTerms::Total(n) => total <= n,
             CrossTerms::Full => true,
+            CrossTerms::Mixed(n) => group_deg.iter().filter(|&&d| d > 0).count() <= 1 || total <= n,
         }
     }
 
@@ -1467,6 +1474,7 @@ mod tests {
             CrossTerms::MaxOfGroups,
             CrossTerms::Total(2),
             CrossTerms::Full,
+            CrossTerms::Mixed(2),
         ] {
             let s = PolySpec {
                 cross,

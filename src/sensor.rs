@@ -36,7 +36,8 @@ use rayon::prelude::*;
 
 use crate::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use crate::contact::{
-    Contact, PatchFields, PatchGrid, RawContact, raw_quantities, rotate_to_sensor,
+    Contact, ContactLocator, PatchFields, PatchGrid, RawContact, raw_quantities,
+    sensor_displacements,
 };
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
@@ -44,6 +45,7 @@ use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::hhd::{Decomposition, NaturalHhd};
 use crate::image::Roi;
 use crate::morphology::Shape;
+use crate::profile::ForceMatcher;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -381,6 +383,8 @@ pub struct TactileSensor {
     detections: Vec<Contact>,
     /// The last frame's raw contacts, as the calibration measures them.
     raws: Vec<RawContact>,
+    locator: ContactLocator,
+    matcher: ForceMatcher,
     last_t: Option<f64>,
     rereferenced: bool,
     references: u64,
@@ -402,6 +406,8 @@ impl TactileSensor {
             cropped: Array2::zeros((0, 0)),
             detections: Vec::new(),
             raws: Vec::new(),
+            locator: ContactLocator::new(),
+            matcher: ForceMatcher::new(),
             last_t: None,
             rereferenced: false,
             references: 0,
@@ -473,13 +479,24 @@ impl TactileSensor {
         self.raws.clear();
         self.raws.extend_from_slice(self.extractor.raws());
         let (flow, scale) = self.extractor.flow();
-        self.calibration
-            .refine_contacts(&mut self.raws, flow.u.view(), scale as f64)?;
+        self.calibration.refine_contacts_with(
+            &mut self.locator,
+            &mut self.raws,
+            flow.u.view(),
+            scale as f64,
+        )?;
+        self.calibration.match_forces_with(
+            &mut self.matcher,
+            &mut self.raws,
+            flow.u.view(),
+            flow.v.view(),
+            scale as f64,
+        )?;
         for raw in &mut self.raws {
             let loc = self
                 .calibration
                 .location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
-            raw.d_sensor = rotate_to_sensor(&geometry, loc[0], raw);
+            raw.d_sensor = sensor_displacements(&geometry, loc[0], raw);
             self.detections.push(self.calibration.contact(raw)?);
         }
         let dt = self.last_t.map_or(0.0, |p| t_s - p);

@@ -5,9 +5,8 @@ use std::path::{Path, PathBuf};
 
 use optical_tactile::Error;
 use optical_tactile::calibration::FitOptions;
-use optical_tactile::characterize::{
-    DEFAULT_CONTACT_WINDOW_PX, extract_dataset, fit_dataset, read_dataset,
-};
+use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
 use optical_tactile::segment::Thresholds;
@@ -45,7 +44,7 @@ fn extraction_finds_every_fixture_press_near_its_truth() {
         &dir,
         &rows,
         &config(),
-        DEFAULT_CONTACT_WINDOW_PX,
+        ContactPointMethod::DEFAULT,
         None,
         &|_, _| {},
     )
@@ -89,7 +88,15 @@ fn a_missing_image_is_an_error_naming_the_file() {
             }
         }
     }
-    let err = extract_dataset(&d, &rows, &config(), 400, None, &|_, _| {}).unwrap_err();
+    let err = extract_dataset(
+        &d,
+        &rows,
+        &config(),
+        ContactPointMethod::DEFAULT,
+        None,
+        &|_, _| {},
+    )
+    .unwrap_err();
     let msg = err.to_string();
     assert!(msg.contains(&rows[0].frame), "{msg}");
     let _ = std::fs::remove_dir_all(&d);
@@ -120,11 +127,19 @@ fn a_malformed_tests_csv_is_an_error_naming_the_line() {
 fn too_few_rows_to_fit_is_a_clear_error() {
     let dir = fixture();
     let rows = read_dataset(&dir).unwrap();
-    let ex = extract_dataset(&dir, &rows, &config(), 400, None, &|_, _| {}).unwrap();
+    let ex = extract_dataset(
+        &dir,
+        &rows,
+        &config(),
+        ContactPointMethod::DEFAULT,
+        None,
+        &|_, _| {},
+    )
+    .unwrap();
     let err = fit_dataset(
         &ex,
         &config(),
-        400,
+        ContactPointMethod::DEFAULT,
         "custom",
         Roi::full(1600, 200),
         SensorGeometry::default(),

@@ -262,6 +262,7 @@ fn extractor_settings_come_from_the_calibration() {
             margin_px: 16,
             subpixel: false,
             contact_window_px: 400,
+            contact_point: None,
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();

@@ -1,0 +1,469 @@
+//! Forces from the along-arc motion profile, by matched kernels.
+//!
+//! The rods and perches this sensor is built for lie across the skin's
+//! width, so the flow summed over the strip's height, a profile along the
+//! arc, holds what the contacts did. Elastic motion is linear in the load:
+//! the profile of a frame is, to a good approximation, the sum over its
+//! contacts of each contact's local force components (tangential, across,
+//! normal) times a response kernel that depends on where along the arc the
+//! contact is. [`ProfileModel`] learns those kernels from a characterization
+//! dataset (one contact per test, true forces known); [`ForceMatcher`] then
+//! solves, per frame, for the force components of every contact at once by
+//! least squares, so that two close contacts share out their overlapping
+//! motion instead of each summing the other's.
+//!
+//! Why not the paper's sums of the patch's flow: a sum over a box mixes the
+//! normal and tangential responses, is cut by the box, and takes in a
+//! neighbour's motion; the central press of the normal load moves the
+//! markers along the arc little, so its sum is a weak, noisy observable.
+//! The matched kernel uses the whole shape of the motion, tails included.
+//!
+//! Profiles are in full-resolution units, whatever the flow's grid: cell `j`
+//! of a flow with `scale` pixels per cell lies at pixel `(j + 0.5) * scale -
+//! 0.5` and holds `scale` times the sum of its column (the flow integrated
+//! over the strip's height), so a model fitted at one flow scale applies at
+//! another.
+
+use ndarray::ArrayView2;
+use serde::{Deserialize, Serialize};
+
+use crate::contact::RawContact;
+use crate::error::{Error, Result};
+
+/// The profile of a flow component: per column, the sum over all rows times
+/// `scale` (the component integrated over the height, full-resolution
+/// units), into `out`.
+pub fn column_profile_into(component: ArrayView2<'_, f32>, scale: f64, out: &mut Vec<f64>) {
+    out.clear();
+    out.resize(component.ncols(), 0.0);
+    for row in component.rows() {
+        for (o, &x) in out.iter_mut().zip(row.iter()) {
+            *o += f64::from(x);
+        }
+    }
+    for o in out.iter_mut() {
+        *o *= scale;
+    }
+}
+
+/// One training contact for [`ProfileModel::fit`].
+#[derive(Clone, Copy, Debug)]
+pub struct ProfileSample<'a> {
+    /// The contact's measured column, full-resolution pixels.
+    pub column_px: f64,
+    /// Profile of the flow along x ([`column_profile_into`]).
+    pub profile_u: &'a [f64],
+    /// Profile of the flow along y.
+    pub profile_v: &'a [f64],
+    /// Flow grid scale of the profiles (full-resolution pixels per cell).
+    pub scale: f64,
+    /// True force in the local frame at the contact: tangential, across,
+    /// normal (outward; a press is negative), N.
+    pub local_force: [f64; 3],
+}
+
+/// Response kernels of the motion profile to a unit local force, as smooth
+/// functions of the contact's column (see the module docs).
+///
+/// The kernel of channel `c` (0: flow along x, 1: along y) and force
+/// component `k` (tangential, across, normal) at offset `t` pixels from a
+/// contact at column `x` is `sum_m kernels[c][k * (degree + 1) + m][i] *
+/// ((x - centre_px) / span_px)^m`, with `t = (i - half_width) * step_px`
+/// (linear between samples, zero beyond `half_width` samples).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProfileModel {
+    /// Spacing of the kernel samples, full-resolution pixels.
+    pub step_px: f64,
+    /// Samples on each side of the contact.
+    pub half_width: usize,
+    /// Column the position polynomial is centred on, pixels.
+    pub centre_px: f64,
+    /// Column span that the position polynomial's variable is divided by, pixels.
+    pub span_px: f64,
+    /// Degree of the position polynomial.
+    pub degree: usize,
+    /// Kernel samples: `kernels[channel][component * (degree + 1) + m]`.
+    pub kernels: Vec<Vec<Vec<f64>>>,
+}
+
+/// Force components per contact.
+const COMPONENTS: usize = 3;
+
+impl ProfileModel {
+    /// Fits the kernels to `samples` by least squares, sample offset by
+    /// sample offset (each offset's kernels are a small linear problem in
+    /// the samples' forces times the position polynomial).
+    ///
+    /// `half_width_px` is how far each side of a contact the kernels reach,
+    /// `step_px` their spacing, `degree` the position polynomial's degree,
+    /// `centre_px` and `span_px` its normalisation (the image's centre column
+    /// and half width, say). Errors on bad parameters, on too few samples,
+    /// or when the forces do not vary enough to tell the components apart.
+    pub fn fit(
+        samples: &[ProfileSample<'_>],
+        step_px: f64,
+        half_width_px: f64,
+        degree: usize,
+        centre_px: f64,
+        span_px: f64,
+    ) -> Result<Self> {
+        for (name, x) in [
+            ("step_px", step_px),
+            ("half_width_px", half_width_px),
+            ("span_px", span_px),
+        ] {
+            if !(x > 0.0 && x.is_finite()) {
+                return Err(Error::param(name, format!("must be > 0, got {x}")));
+            }
+        }
+        if !centre_px.is_finite() {
+            return Err(Error::param("centre_px", "must be finite"));
+        }
+        if degree > 6 {
+            return Err(Error::param("degree", format!("at most 6, got {degree}")));
+        }
+        let half_width = (half_width_px / step_px).round() as usize;
+        let unknowns = COMPONENTS * (degree + 1);
+        if samples.len() < 2 * unknowns {
+            return Err(calibration_error(format!(
+                "profile model: {} samples for {unknowns} unknowns per offset; need at least {}",
+                samples.len(),
+                2 * unknowns
+            )));
+        }
+        let mut model = ProfileModel {
+            step_px,
+            half_width,
+            centre_px,
+            span_px,
+            degree,
+            kernels: vec![vec![vec![0.0; 2 * half_width + 1]; unknowns]; 2],
+        };
+        let mut design = vec![0.0; unknowns];
+        let mut ata = vec![0.0; unknowns * unknowns];
+        let mut atb = vec![0.0; unknowns];
+        for ch in 0..2 {
+            for i in 0..=2 * half_width {
+                let t = (i as f64 - half_width as f64) * step_px;
+                ata.fill(0.0);
+                atb.fill(0.0);
+                let mut rows = 0usize;
+                for s in samples {
+                    let prof = if ch == 0 { s.profile_u } else { s.profile_v };
+                    let Some(y) = sample_profile(prof, s.scale, s.column_px + t) else {
+                        continue;
+                    };
+                    model.design_row(s.column_px, s.local_force, &mut design);
+                    accumulate(&mut ata, &mut atb, &design, y);
+                    rows += 1;
+                }
+                if rows < unknowns {
+                    // Too close to the image's ends for this offset: no
+                    // response known there, the kernel stays 0.
+                    continue;
+                }
+                let k = solve(&mut ata, &mut atb, unknowns).ok_or_else(|| {
+                    calibration_error(
+                        "profile model: the training forces do not separate the \
+                         tangential, across and normal responses (singular system)"
+                            .into(),
+                    )
+                })?;
+                for (u, &v) in k.iter().enumerate() {
+                    model.kernels[ch][u][i] = v;
+                }
+            }
+        }
+        model.validate()?;
+        Ok(model)
+    }
+
+    /// Checks the shapes and values of a loaded model.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(calibration_error(format!("profile model: {m}")));
+        if !(self.step_px > 0.0 && self.step_px.is_finite()) {
+            return bad(format!("step_px must be > 0, got {}", self.step_px));
+        }
+        if !(self.span_px > 0.0 && self.span_px.is_finite() && self.centre_px.is_finite()) {
+            return bad("centre_px and span_px must be finite, span_px > 0".into());
+        }
+        let n = 2 * self.half_width + 1;
+        let unknowns = COMPONENTS * (self.degree + 1);
+        if self.kernels.len() != 2
+            || self
+                .kernels
+                .iter()
+                .any(|c| c.len() != unknowns || c.iter().any(|k| k.len() != n))
+        {
+            return bad(format!(
+                "expected 2 channels of {unknowns} kernels of {n} samples (degree {}, half_width {})",
+                self.degree, self.half_width
+            ));
+        }
+        if self
+            .kernels
+            .iter()
+            .flatten()
+            .flatten()
+            .any(|x| !x.is_finite())
+        {
+            return bad("non-finite kernel sample".into());
+        }
+        Ok(())
+    }
+
+    /// The position polynomial's terms times a force: one design row.
+    fn design_row(&self, column_px: f64, force: [f64; 3], out: &mut [f64]) {
+        let z = (column_px - self.centre_px) / self.span_px;
+        let mut p = 1.0;
+        for m in 0..=self.degree {
+            for (k, f) in force.iter().enumerate() {
+                out[k * (self.degree + 1) + m] = f * p;
+            }
+            p *= z;
+        }
+    }
+
+    /// Kernels of channel `ch` for a contact at `column_px`, at offset `t_px`:
+    /// one value per force component.
+    fn kernel(&self, ch: usize, column_px: f64, t_px: f64) -> Option<[f64; 3]> {
+        let idx = t_px / self.step_px + self.half_width as f64;
+        let last = (2 * self.half_width) as f64;
+        if !(0.0..=last).contains(&idx) {
+            return None;
+        }
+        let i0 = (idx.floor() as usize).min(2 * self.half_width);
+        let i1 = (i0 + 1).min(2 * self.half_width);
+        let a = idx - i0 as f64;
+        let z = (column_px - self.centre_px) / self.span_px;
+        let mut out = [0.0; 3];
+        for (k, o) in out.iter_mut().enumerate() {
+            let mut p = 1.0;
+            for m in 0..=self.degree {
+                let kern = &self.kernels[ch][k * (self.degree + 1) + m];
+                *o += p * ((1.0 - a) * kern[i0] + a * kern[i1]);
+                p *= z;
+            }
+        }
+        Some(out)
+    }
+
+    /// How far each side of a contact the kernels reach, pixels.
+    pub fn reach_px(&self) -> f64 {
+        self.half_width as f64 * self.step_px
+    }
+}
+
+fn calibration_error(message: String) -> Error {
+    Error::Calibration {
+        path: None,
+        message,
+    }
+}
+
+/// The profile at full-resolution pixel `x_px`, linear between cells; `None`
+/// outside the profile.
+fn sample_profile(p: &[f64], scale: f64, x_px: f64) -> Option<f64> {
+    let c = (x_px + 0.5) / scale - 0.5;
+    if p.is_empty() || !(c >= 0.0 && c <= (p.len() - 1) as f64) {
+        return None;
+    }
+    let j = (c.floor() as usize).min(p.len() - 1);
+    let k = (j + 1).min(p.len() - 1);
+    let a = c - j as f64;
+    Some((1.0 - a) * p[j] + a * p[k])
+}
+
+/// `ata += r r^T`, `atb += r y` (row-major `ata`).
+fn accumulate(ata: &mut [f64], atb: &mut [f64], r: &[f64], y: f64) {
+    let n = r.len();
+    for i in 0..n {
+        if r[i] == 0.0 {
+            continue;
+        }
+        for j in 0..n {
+            ata[i * n + j] += r[i] * r[j];
+        }
+        atb[i] += r[i] * y;
+    }
+}
+
+/// Solves the symmetric system `ata x = atb` (row-major, `n` x `n`) in place
+/// by Gaussian elimination with partial pivoting; the solution is left in
+/// `atb`. `None` when singular (relative to the diagonal's scale).
+fn solve(ata: &mut [f64], atb: &mut [f64], n: usize) -> Option<Vec<f64>> {
+    solve_in_place(ata, atb, n)?;
+    Some(atb[..n].to_vec())
+}
+
+fn solve_in_place(a: &mut [f64], b: &mut [f64], n: usize) -> Option<()> {
+    let scale = (0..n).map(|i| a[i * n + i].abs()).fold(0.0, f64::max);
+    if !(scale > 0.0 && scale.is_finite()) {
+        return None;
+    }
+    for col in 0..n {
+        let piv =
+            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
+        if a[piv * n + col].abs() <= 1e-12 * scale {
+            return None;
+        }
+        if piv != col {
+            for j in 0..n {
+                a.swap(piv * n + j, col * n + j);
+            }
+            b.swap(piv, col);
+        }
+        let d = a[col * n + col];
+        for i in col + 1..n {
+            let f = a[i * n + col] / d;
+            if f == 0.0 {
+                continue;
+            }
+            for j in col..n {
+                a[i * n + j] -= f * a[col * n + j];
+            }
+            b[i] -= f * b[col];
+        }
+    }
+    for col in (0..n).rev() {
+        let mut s = b[col];
+        for j in col + 1..n {
+            s -= a[col * n + j] * b[j];
+        }
+        b[col] = s / a[col * n + col];
+    }
+    b[..n].iter().all(|x| x.is_finite()).then_some(())
+}
+
+/// Solves, per frame, for the local force components of every contact at
+/// once ([`ProfileModel`]); keeps its buffers from frame to frame.
+#[derive(Debug, Default, Clone)]
+pub struct ForceMatcher {
+    ata: Vec<f64>,
+    atb: Vec<f64>,
+    row: Vec<f64>,
+    profile_u: Vec<f64>,
+    profile_v: Vec<f64>,
+    forces: Vec<[f64; 3]>,
+    columns: Vec<f64>,
+}
+
+impl ForceMatcher {
+    /// An empty matcher (buffers grow on first use).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The local forces `[tangential, across, normal]` of contacts at
+    /// `columns_px` that best explain the profiles (grid of `scale`
+    /// full-resolution pixels per cell), into `out` (cleared first). Each
+    /// profile cell within a kernel's reach of some contact is one equation
+    /// per channel. Errors on mismatched profiles, a bad scale, or contacts
+    /// the profile cannot tell apart (e.g. two at the same column).
+    pub fn measure(
+        &mut self,
+        model: &ProfileModel,
+        columns_px: &[f64],
+        profile_u: &[f64],
+        profile_v: &[f64],
+        scale: f64,
+        out: &mut Vec<[f64; 3]>,
+    ) -> Result<()> {
+        out.clear();
+        if !(scale > 0.0 && scale.is_finite()) {
+            return Err(Error::param("scale", format!("must be > 0, got {scale}")));
+        }
+        if profile_u.len() != profile_v.len() {
+            return Err(Error::shape(
+                "profile v against u",
+                (profile_u.len(), 1),
+                (profile_v.len(), 1),
+            ));
+        }
+        if let Some(c) = columns_px.iter().find(|c| !c.is_finite()) {
+            return Err(Error::param("columns_px", format!("non-finite column {c}")));
+        }
+        let k = columns_px.len();
+        if k == 0 {
+            return Ok(());
+        }
+        let n = COMPONENTS * k;
+        self.ata.clear();
+        self.ata.resize(n * n, 0.0);
+        self.atb.clear();
+        self.atb.resize(n, 0.0);
+        self.row.clear();
+        self.row.resize(n, 0.0);
+        let reach = model.reach_px();
+        for (ch, prof) in [profile_u, profile_v].into_iter().enumerate() {
+            for (j, &y) in prof.iter().enumerate() {
+                let x = (j as f64 + 0.5) * scale - 0.5;
+                if !columns_px.iter().any(|c| (x - c).abs() <= reach) {
+                    continue;
+                }
+                for (m, &c) in columns_px.iter().enumerate() {
+                    let kv = model.kernel(ch, c, x - c).unwrap_or([0.0; 3]);
+                    self.row[COMPONENTS * m..COMPONENTS * (m + 1)].copy_from_slice(&kv);
+                }
+                if !y.is_finite() {
+                    return Err(Error::NonFinite {
+                        what: "motion profile".into(),
+                        row: ch,
+                        col: j,
+                    });
+                }
+                accumulate(&mut self.ata, &mut self.atb, &self.row, y);
+            }
+        }
+        solve_in_place(&mut self.ata, &mut self.atb, n).ok_or_else(|| Error::Numerical {
+            what: "profile force match".into(),
+            message: format!(
+                "the motion profile cannot tell these {k} contacts apart (columns {columns_px:?})"
+            ),
+        })?;
+        out.extend(
+            self.atb
+                .chunks_exact(COMPONENTS)
+                .map(|c| [c[0], c[1], c[2]]),
+        );
+        Ok(())
+    }
+
+    /// Sets every contact's [`RawContact::local_force`] from the frame's
+    /// flow (`u`, `v` on a grid of `scale` full-resolution pixels per cell),
+    /// all contacts solved at once at their current `x_px`.
+    pub fn measure_contacts(
+        &mut self,
+        model: &ProfileModel,
+        raws: &mut [RawContact],
+        u: ArrayView2<'_, f32>,
+        v: ArrayView2<'_, f32>,
+        scale: f64,
+    ) -> Result<()> {
+        if u.dim() != v.dim() {
+            return Err(Error::shape(
+                "flow v against u",
+                (u.ncols(), u.nrows()),
+                (v.ncols(), v.nrows()),
+            ));
+        }
+        column_profile_into(u, scale, &mut self.profile_u);
+        column_profile_into(v, scale, &mut self.profile_v);
+        let mut columns = std::mem::take(&mut self.columns);
+        let mut forces = std::mem::take(&mut self.forces);
+        let (pu, pv) = (
+            std::mem::take(&mut self.profile_u),
+            std::mem::take(&mut self.profile_v),
+        );
+        columns.clear();
+        columns.extend(raws.iter().map(|r| r.x_px));
+        let res = self.measure(model, &columns, &pu, &pv, scale, &mut forces);
+        if res.is_ok() {
+            for (r, f) in raws.iter_mut().zip(&forces) {
+                r.local_force = Some(*f);
+            }
+        }
+        (self.columns, self.forces, self.profile_u, self.profile_v) = (columns, forces, pu, pv);
+        res
+    }
+}

@@ -1,0 +1,292 @@
+//! The profile model of the forces: kernels fitted from synthetic samples
+//! with known responses, the joint force match against a plain
+//! least-squares oracle, and bad input.
+
+use nalgebra::{DMatrix, DVector};
+use optical_tactile::Error;
+use optical_tactile::profile::{ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
+use optical_tactile::sim::rng::SplitMix64;
+
+const N: usize = 400; // profile cells
+const SCALE: f64 = 2.0; // full-resolution pixels per cell
+const CENTRE: f64 = 399.5;
+const SPAN: f64 = 400.0;
+
+/// The true response of channel `ch` to force component `k` of a contact at
+/// column `c` (pixels), at offset `t` pixels: smooth shapes whose height
+/// changes with the column (degree 1 in the normalised column), below 1e-8
+/// beyond 200 px (the kernels' reach in these tests).
+fn response(ch: usize, k: usize, c: f64, t: f64) -> f64 {
+    let z = (c - CENTRE) / SPAN;
+    let w = 30.0 + 5.0 * k as f64 + 3.0 * ch as f64;
+    let g = (-(t / w).powi(2)).exp();
+    let shape = match k {
+        0 => g,                 // tangential: even bump
+        1 => g * (1.0 + t / w), // across: lopsided
+        _ => t / w * g,         // normal: odd, spreading
+    };
+    (1.0 + 0.3 * z) * shape * if ch == 0 { 1.0 } else { 0.2 + 0.1 * k as f64 }
+}
+
+/// The profiles (u, v) of contacts at `cols` with local forces `forces`.
+fn profiles(cols: &[f64], forces: &[[f64; 3]]) -> [Vec<f64>; 2] {
+    let mut out = [vec![0.0; N], vec![0.0; N]];
+    for (ch, prof) in out.iter_mut().enumerate() {
+        for (j, p) in prof.iter_mut().enumerate() {
+            let x = (j as f64 + 0.5) * SCALE - 0.5;
+            for (c, f) in cols.iter().zip(forces) {
+                for (k, fk) in f.iter().enumerate() {
+                    *p += fk * response(ch, k, *c, x - c);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A training contact: column, local force, profiles (u, v).
+type Training = (f64, [f64; 3], [Vec<f64>; 2]);
+
+/// The pixel of cell `j`'s centre.
+fn cell(j: usize) -> f64 {
+    (j as f64 + 0.5) * SCALE - 0.5
+}
+
+/// Training contacts on cell centres, so that the kernels are sampled
+/// exactly where the profiles are (no interpolation error).
+fn training_set(seed: u64) -> Vec<Training> {
+    let mut rng = SplitMix64::new(seed);
+    (0..120)
+        .map(|_| {
+            let c = cell(75 + (250.0 * rng.next_f64()) as usize);
+            let f = [
+                rng.next_f64() - 0.5,
+                0.2 * (rng.next_f64() - 0.5),
+                -0.5 - 2.5 * rng.next_f64(),
+            ];
+            let p = profiles(&[c], &[f]);
+            (c, f, p)
+        })
+        .collect()
+}
+
+fn fit(set: &[Training], degree: usize) -> ProfileModel {
+    let samples: Vec<ProfileSample<'_>> = set
+        .iter()
+        .map(|(c, f, p)| ProfileSample {
+            column_px: *c,
+            profile_u: &p[0],
+            profile_v: &p[1],
+            scale: SCALE,
+            local_force: *f,
+        })
+        .collect();
+    ProfileModel::fit(&samples, SCALE, 200.0, degree, CENTRE, SPAN).unwrap()
+}
+
+#[test]
+fn fitted_kernels_reproduce_the_true_responses() {
+    let model = fit(&training_set(1), 1);
+    assert_eq!(model.half_width, 100);
+    // A contact at an unseen column: the model's match of its own profile
+    // returns its forces, exactly on a cell centre, and between cells to
+    // within the linear interpolation of the kernels and profiles (cells of
+    // 2 px against responses some 30 px wide: about 1 % of the force).
+    let mut m = ForceMatcher::new();
+    let mut out = Vec::new();
+    for (c, f, tol) in [
+        (cell(166), [0.4, -0.05, -1.7], 1e-9),
+        (cell(306), [-0.2, 0.08, -0.6], 1e-9),
+        (333.3, [0.4, -0.05, -1.7], 0.01 * 1.7),
+        (612.9, [-0.2, 0.08, -0.6], 0.01 * 0.6),
+    ] {
+        let p = profiles(&[c], &[f]);
+        m.measure(&model, &[c], &p[0], &p[1], SCALE, &mut out)
+            .unwrap();
+        for k in 0..3 {
+            assert!((out[0][k] - f[k]).abs() < tol, "{c}: {:?} vs {f:?}", out[0]);
+        }
+    }
+}
+
+#[test]
+fn two_close_contacts_share_out_their_overlapping_motion() {
+    let model = fit(&training_set(2), 1);
+    let cols = [cell(190), cell(220)]; // 60 px apart: their kernels overlap
+    let forces = [[0.3, 0.0, -2.0], [-0.1, 0.05, -1.5]];
+    let p = profiles(&cols, &forces);
+    let mut out = Vec::new();
+    ForceMatcher::new()
+        .measure(&model, &cols, &p[0], &p[1], SCALE, &mut out)
+        .unwrap();
+    for (o, f) in out.iter().zip(&forces) {
+        for k in 0..3 {
+            assert!((o[k] - f[k]).abs() < 1e-9, "{out:?} vs {forces:?}");
+        }
+    }
+    // Each contact alone takes in its neighbour's motion: clearly worse.
+    let mut alone = Vec::new();
+    ForceMatcher::new()
+        .measure(&model, &cols[..1], &p[0], &p[1], SCALE, &mut alone)
+        .unwrap();
+    assert!((alone[0][2] - forces[0][2]).abs() > 0.05, "{alone:?}");
+}
+
+/// The slow, obvious twin of the matcher: build the whole design matrix
+/// (every cell within reach of a contact, both channels) and solve it by SVD.
+fn oracle(model: &ProfileModel, cols: &[f64], p: &[Vec<f64>; 2]) -> Vec<f64> {
+    let reach = model.half_width as f64 * model.step_px;
+    let mut rows = Vec::new();
+    let mut rhs = Vec::new();
+    for (ch, prof) in p.iter().enumerate() {
+        for (j, &y) in prof.iter().enumerate() {
+            let x = (j as f64 + 0.5) * SCALE - 0.5;
+            if !cols.iter().any(|c| (x - c).abs() <= reach) {
+                continue;
+            }
+            let mut r = Vec::new();
+            for &c in cols {
+                for k in 0..3 {
+                    r.push(kernel_value(model, ch, c, x - c, k));
+                }
+            }
+            rows.push(r);
+            rhs.push(y);
+        }
+    }
+    let a = DMatrix::from_fn(rows.len(), 3 * cols.len(), |i, j| rows[i][j]);
+    let b = DVector::from_vec(rhs);
+    a.svd(true, true)
+        .solve(&b, 1e-12)
+        .unwrap()
+        .as_slice()
+        .to_vec()
+}
+
+/// Kernel value straight from the stored samples (linear between them).
+fn kernel_value(model: &ProfileModel, ch: usize, c: f64, t: f64, k: usize) -> f64 {
+    let idx = t / model.step_px + model.half_width as f64;
+    if idx < 0.0 || idx > (2 * model.half_width) as f64 {
+        return 0.0;
+    }
+    let i0 = idx.floor() as usize;
+    let i1 = (i0 + 1).min(2 * model.half_width);
+    let a = idx - i0 as f64;
+    let z = (c - model.centre_px) / model.span_px;
+    (0..=model.degree)
+        .map(|m| {
+            let kern = &model.kernels[ch][k * (model.degree + 1) + m];
+            z.powi(m as i32) * ((1.0 - a) * kern[i0] + a * kern[i1])
+        })
+        .sum()
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: 24,
+        rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(11),
+        failure_persistence: None,
+        ..Default::default()
+    })]
+    #[test]
+    fn the_matcher_agrees_with_the_svd_oracle(
+        c1 in 100.0f64..700.0,
+        gap in 20.0f64..300.0,
+        noise in proptest::collection::vec(-1.0f64..1.0, 2 * N),
+    ) {
+        let model = fit(&training_set(3), 2);
+        let cols = [c1, (c1 + gap).min(790.0)];
+        let mut p = profiles(&cols, &[[0.2, 0.01, -1.0], [0.0, -0.02, -0.7]]);
+        for (i, e) in noise.iter().enumerate() {
+            p[i / N][i % N] += 0.05 * e;
+        }
+        let mut out = Vec::new();
+        ForceMatcher::new().measure(&model, &cols, &p[0], &p[1], SCALE, &mut out).unwrap();
+        let want = oracle(&model, &cols, &p);
+        for (g, w) in out.iter().flatten().zip(&want) {
+            proptest::prop_assert!((g - w).abs() < 1e-6 * (1.0 + w.abs()), "{out:?} vs {want:?}");
+        }
+    }
+}
+
+#[test]
+fn column_profiles_are_scaled_column_sums() {
+    let u = ndarray::Array2::from_shape_fn((3, 4), |(i, j)| (i * 4 + j) as f32);
+    let mut p = Vec::new();
+    column_profile_into(u.view(), 2.0, &mut p);
+    assert_eq!(p, vec![24.0, 30.0, 36.0, 42.0]);
+}
+
+#[test]
+fn bad_input_is_a_clear_error() {
+    let model = fit(&training_set(4), 1);
+    let p = profiles(&[400.0], &[[0.0, 0.0, -1.0]]);
+    let mut m = ForceMatcher::new();
+    let mut out = Vec::new();
+    // Mismatched profiles.
+    let e = m
+        .measure(&model, &[400.0], &p[0], &p[1][..10], SCALE, &mut out)
+        .unwrap_err();
+    assert!(matches!(e, Error::ShapeMismatch { .. }), "{e:?}");
+    // A NaN in the profile near the contact.
+    let mut bad = p[0].clone();
+    bad[200] = f64::NAN;
+    let e = m
+        .measure(&model, &[400.0], &bad, &p[1], SCALE, &mut out)
+        .unwrap_err();
+    assert!(matches!(e, Error::NonFinite { .. }), "{e:?}");
+    // Two contacts at the same column cannot be told apart.
+    let e = m
+        .measure(&model, &[400.0, 400.0], &p[0], &p[1], SCALE, &mut out)
+        .unwrap_err();
+    assert!(matches!(e, Error::Numerical { .. }), "{e:?}");
+    // Bad scale, non-finite column.
+    assert!(
+        m.measure(&model, &[400.0], &p[0], &p[1], 0.0, &mut out)
+            .is_err()
+    );
+    assert!(
+        m.measure(&model, &[f64::NAN], &p[0], &p[1], SCALE, &mut out)
+            .is_err()
+    );
+    // No contact: nothing to do.
+    m.measure(&model, &[], &p[0], &p[1], SCALE, &mut out)
+        .unwrap();
+    assert!(out.is_empty());
+    // Too few samples, forces that do not vary, bad parameters.
+    let set = training_set(5);
+    let few: Vec<ProfileSample<'_>> = set[..3]
+        .iter()
+        .map(|(c, f, p)| ProfileSample {
+            column_px: *c,
+            profile_u: &p[0],
+            profile_v: &p[1],
+            scale: SCALE,
+            local_force: *f,
+        })
+        .collect();
+    let e = ProfileModel::fit(&few, SCALE, 120.0, 1, CENTRE, SPAN).unwrap_err();
+    assert!(matches!(e, Error::Calibration { .. }), "{e:?}");
+    let same: Vec<ProfileSample<'_>> = set
+        .iter()
+        .map(|(c, _, p)| ProfileSample {
+            column_px: *c,
+            profile_u: &p[0],
+            profile_v: &p[1],
+            scale: SCALE,
+            local_force: [0.0, 0.0, -1.0],
+        })
+        .collect();
+    let e = ProfileModel::fit(&same, SCALE, 120.0, 1, CENTRE, SPAN).unwrap_err();
+    assert!(e.to_string().contains("singular"), "{e}");
+    assert!(ProfileModel::fit(&same, 0.0, 120.0, 1, CENTRE, SPAN).is_err());
+    assert!(ProfileModel::fit(&same, SCALE, 120.0, 9, CENTRE, SPAN).is_err());
+    // A malformed model (kernel of the wrong length) fails validation.
+    let mut broken = model.clone();
+    broken.kernels[1][2].pop();
+    assert!(broken.validate().is_err());
+    let mut nan = model;
+    nan.kernels[0][0][5] = f64::NAN;
+    assert!(nan.validate().is_err());
+}
