@@ -591,7 +591,20 @@ impl Plot {
         let ink = Rgb(40, 40, 40);
         let grid = Rgb(225, 225, 225);
         // Plot area, leaving room for the title, tick labels and axis labels.
-        let (left, right, top, bottom) = (64.0, width as f64 - 12.0, 24.0, height as f64 - 34.0);
+        // The legend goes right of the plot area, never over the data.
+        let legend_w = self
+            .series
+            .iter()
+            .filter(|s| !s.label.is_empty())
+            .map(|s| 8.0 * s.label.len() as f64 + 34.0)
+            .fold(0.0f64, f64::max)
+            .min(0.5 * width as f64);
+        let (left, right, top, bottom) = (
+            64.0,
+            width as f64 - 12.0 - legend_w,
+            24.0,
+            height as f64 - 34.0,
+        );
         let mut xr = self.x_range.unwrap_or_else(|| {
             data_range(
                 self.series
@@ -645,7 +658,7 @@ impl Plot {
             (ph + 1.0) as i64,
             ink,
         );
-        c.text(left as i64, 6, &self.title, 2, ink);
+        c.text(left as i64 + 8, 6, &self.title, 2, ink);
         let xl = 8 * self.x_label.len() as i64;
         c.text(
             (right as i64 - xl).max(0),
@@ -654,7 +667,7 @@ impl Plot {
             2,
             ink,
         );
-        c.text(4, height as i64 - 12, &self.y_label, 2, ink);
+        c.text(4, 6, &self.y_label, 2, ink);
         // Clip the data to the plot area by drawing on a sub-canvas.
         let mut area = Canvas::new(pw as usize + 1, ph as usize + 1, Rgb::WHITE);
         for &t in &xt {
@@ -704,12 +717,10 @@ impl Plot {
             (ph + 1.0) as i64,
             ink,
         );
-        // Legend, top-right inside the plot.
-        let mut ly = top as i64 + 6;
+        // Legend, right of the plot.
+        let mut ly = top as i64 + 2;
         for s in self.series.iter().filter(|s| !s.label.is_empty()) {
-            let w = 8 * s.label.len() as i64;
-            let lx = right as i64 - 8 - w;
-            c.rect(lx - 24, ly - 2, w + 28, 14, Rgb::WHITE);
+            let lx = right as i64 + 34;
             let (sx, sy) = ((lx - 14) as f64, (ly + 4) as f64);
             match s.style {
                 Style::Line => c.line(sx - 7.0, sy, sx + 7.0, sy, s.color),
