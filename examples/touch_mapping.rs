@@ -245,8 +245,21 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
                 style: Style::Cross(5.0),
             });
         }
+        // At least 0.2 m of z, so that the map is not a mm-scale scatter
+        // (the zooms below show the mm).
+        let zs = series.iter().flat_map(|s| s.points.iter().map(|p| p.1));
+        let (zlo, zhi) = zs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), z| {
+            (a.min(z), b.max(z))
+        });
+        let zmid = if zlo.is_finite() {
+            0.5 * (zlo + zhi)
+        } else {
+            0.0
+        };
+        let half = (0.5 * (zhi - zlo) + 0.02).max(0.1);
         let overview = Plot {
-            title: "TOUCH MAP, WORLD X-Z".into(),
+            title: "TOUCH MAP, WORLD X-Z (ZOOMS BELOW: CIRCLE = 2 MM TARGET)".into(),
+            y_range: Some((zmid - half, zmid + half)),
             x_label: "X M".into(),
             y_label: "Z M".into(),
             series,
@@ -301,7 +314,7 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
                 Plot {
                     title: name.clone(),
                     x_label: "DX MM".into(),
-                    y_label: "DZ".into(),
+                    y_label: "DZ MM".into(),
                     x_range: Some((-6.0, 6.0)),
                     y_range: Some((-6.0, 6.0)),
                     equal_aspect: true,
