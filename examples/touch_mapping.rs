@@ -47,7 +47,8 @@ use std::process::ExitCode;
 use demo_support::*;
 use optical_tactile::io;
 use optical_tactile::mapping::{
-    Mounting, RodsTruth, cluster, match_rods, poses_by_frame, read_rods_json, world_contacts,
+    MapOptions, Mounting, RodsTruth, TouchMap, map_touches, match_rods, poses_by_frame,
+    read_rods_json,
 };
 use optical_tactile::sim::scenario::{Mapping, Scenario};
 use optical_tactile::viz::{Plot, Rgb, Series, Style};
@@ -92,15 +93,19 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
     else {
         return Ok(true);
     };
-    let radius_m = a.extra_f64("--radius-mm", 50.0)? * 1e-3;
-    let min_force = a.extra_f64("--min-force", 0.5)?;
-    let gate_m = a.extra_f64("--gate-mm", 100.0)? * 1e-3;
-    let min_count = a.extra_f64("--min-count", 1.0)?;
+    let d = MapOptions::default();
+    let min_count = a.extra_f64("--min-count", d.min_count as f64)?;
     if !(min_count >= 1.0 && min_count.fract() == 0.0) {
         return Err(format!(
             "--min-count: expected a whole number >= 1, got {min_count}"
         ));
     }
+    let options = MapOptions {
+        radius_m: a.extra_f64("--radius-mm", d.radius_m * 1e3)? * 1e-3,
+        min_force_n: a.extra_f64("--min-force", d.min_force_n)?,
+        min_count: min_count as usize,
+    };
+    let gate_m = a.extra_f64("--gate-mm", 100.0)? * 1e-3;
     let (dir, _) = resolve_input(&a, "touch_mapping", &Scenario::Mapping(Mapping::default()))?;
     let poses_path = dir.join("poses.csv");
     if !poses_path.is_file() {
@@ -137,11 +142,10 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
     };
 
     let run = run_sensor(&dir, &a.calibration, a.crop)?;
-    let touches = world_contacts(&run.frames, &poses, &mounting, min_force, &poses_path)
-        .map_err(|e| e.to_string())?;
+    let TouchMap { touches, clusters } =
+        map_touches(&run.frames, &poses, &mounting, &options, &poses_path)
+            .map_err(|e| e.to_string())?;
     let points: Vec<[f64; 3]> = touches.iter().map(|t| t.position_m).collect();
-    let mut clusters = cluster(&points, radius_m).map_err(|e| e.to_string())?;
-    clusters.retain(|c| c.count as f64 >= min_count);
     let matches = truth
         .as_ref()
         .map(|t| match_rods(&clusters, &t.rods, gate_m))
