@@ -342,6 +342,7 @@ pub struct ForceMatcher {
     ata: Vec<f64>,
     atb: Vec<f64>,
     row: Vec<f64>,
+    ridge: Vec<f64>,
     profile_u: Vec<f64>,
     profile_v: Vec<f64>,
     forces: Vec<[f64; 3]>,
@@ -358,8 +359,10 @@ impl ForceMatcher {
     /// `columns_px` that best explain the profiles (grid of `scale`
     /// full-resolution pixels per cell), into `out` (cleared first). Each
     /// profile cell within a kernel's reach of some contact is one equation
-    /// per channel. Errors on mismatched profiles, a bad scale, or contacts
-    /// the profile cannot tell apart (e.g. two at the same column).
+    /// per channel. Contacts the profile cannot tell apart (two at one
+    /// column) share their force evenly. Errors on mismatched profiles, a
+    /// bad scale, a non-finite column or profile value, or a model with no
+    /// response at all near the contacts.
     pub fn measure(
         &mut self,
         model: &ProfileModel,
@@ -415,12 +418,27 @@ impl ForceMatcher {
                 accumulate(&mut self.ata, &mut self.atb, &self.row, y);
             }
         }
-        solve_in_place(&mut self.ata, &mut self.atb, n).ok_or_else(|| Error::Numerical {
-            what: "profile force match".into(),
-            message: format!(
-                "the motion profile cannot tell these {k} contacts apart (columns {columns_px:?})"
-            ),
-        })?;
+        // Contacts the profile cannot tell apart (two at one column, say)
+        // make the system singular. Rather than fail the frame, a small ridge
+        // then shares the force out evenly between them (the minimum-norm
+        // answer); the solution is otherwise untouched.
+        self.row.copy_from_slice(&self.atb);
+        let ridge_scale = (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max);
+        self.ridge.clear();
+        self.ridge.extend_from_slice(&self.ata);
+        if solve_in_place(&mut self.ata, &mut self.atb, n).is_none() {
+            self.ata.copy_from_slice(&self.ridge);
+            self.atb.copy_from_slice(&self.row);
+            for i in 0..n {
+                self.ata[i * n + i] += 1e-9 * ridge_scale;
+            }
+            solve_in_place(&mut self.ata, &mut self.atb, n).ok_or_else(|| Error::Numerical {
+                what: "profile force match".into(),
+                message: format!(
+                    "no motion near the contacts at columns {columns_px:?} (all-zero system)"
+                ),
+            })?;
+        }
         out.extend(
             self.atb
                 .chunks_exact(COMPONENTS)

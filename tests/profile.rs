@@ -236,9 +236,29 @@ fn bad_input_is_a_clear_error() {
         .measure(&model, &[400.0], &bad, &p[1], SCALE, &mut out)
         .unwrap_err();
     assert!(matches!(e, Error::NonFinite { .. }), "{e:?}");
-    // Two contacts at the same column cannot be told apart.
+    // Two contacts at the same column cannot be told apart: rather than
+    // failing the frame, they share the force evenly.
+    let mut one = Vec::new();
+    m.measure(&model, &[400.0], &p[0], &p[1], SCALE, &mut one)
+        .unwrap();
+    m.measure(&model, &[400.0, 400.0], &p[0], &p[1], SCALE, &mut out)
+        .unwrap();
+    for k in 0..3 {
+        assert!((out[0][k] - out[1][k]).abs() < 1e-6, "{out:?}");
+        assert!(
+            (out[0][k] + out[1][k] - one[0][k]).abs() < 1e-6,
+            "{out:?} vs {one:?}"
+        );
+    }
+    // A model with no response anywhere: a clear error.
+    let mut zero = model.clone();
+    zero.kernels
+        .iter_mut()
+        .flatten()
+        .flatten()
+        .for_each(|x| *x = 0.0);
     let e = m
-        .measure(&model, &[400.0, 400.0], &p[0], &p[1], SCALE, &mut out)
+        .measure(&zero, &[400.0], &p[0], &p[1], SCALE, &mut out)
         .unwrap_err();
     assert!(matches!(e, Error::Numerical { .. }), "{e:?}");
     // Bad scale, non-finite column.
