@@ -55,9 +55,9 @@ fn main() -> Result<()> {
         }
     }
     let d = Path::new(&dir);
-    let reference = read_gray(&d.join("ref.png"))?;
-    let current = read_gray(&d.join("cur.png"))?;
-    let truth = read_flo(&d.join("truth.flo"))?;
+    let reference = read_gray(d.join("ref.png"))?;
+    let current = read_gray(d.join("cur.png"))?;
+    let truth = read_flo(d.join("truth.flo"))?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()

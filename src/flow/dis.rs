@@ -52,7 +52,10 @@ pub enum DisPreset {
     /// iterations, no variational refinement.
     Ultrafast,
     /// OpenCV 5 `PRESET_FAST` (the paper's default): scale 2, 8/4 patches,
-    /// 16 descent iterations, 5 refinement iterations.
+    /// 16 descent iterations, 5 refinement iterations, but the refinement
+    /// only on the finest level (`refine_levels = Some(1)`: 17 % fewer
+    /// instructions at 1080p; AEPE within 0.002 px on 1080p marker pairs and
+    /// lower on strips). [`DisParams::opencv_semantics`] restores OpenCV's.
     Fast,
     /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent
     /// iterations, 5 refinement iterations.
@@ -66,7 +69,9 @@ pub enum DisPreset {
     /// towards whole-pixel shifts (the sub-pixel bias), the zero vector as
     /// an extra candidate (coarse levels of dense marker images are
     /// aliased), and one outer iteration of OpenCV's variational refinement
-    /// (needed under strong strain, where rigid patches fail). A second
+    /// (needed under strong strain, where rigid patches fail), on the finest
+    /// level only (on coarser ones it changed AEPE by at most 0.0002 px on
+    /// our synthetic pairs and cost ~10 % of the time). A second
     /// refinement iteration with a 1-px prefilter lowers the error under
     /// strong strain further but brings the sub-pixel bias back above
     /// 0.01 px (the refinement over-shoots sub-pixel shifts).
@@ -215,7 +220,12 @@ impl DisParams {
                 },
                 ..base
             },
-            DisPreset::Fast => base,
+            // OpenCV's values, except that only the finest level is refined
+            // (see `refine_levels`).
+            DisPreset::Fast => DisParams {
+                refine_levels: Some(1),
+                ..base
+            },
             DisPreset::Medium => DisParams {
                 finest_scale: 1,
                 patch_stride: 3,
@@ -238,12 +248,24 @@ impl DisParams {
             },
             DisPreset::Accurate => DisParams {
                 prefilter_sigma: 1.5,
+                refine_levels: Some(1),
                 refinement: RefineParams {
                     outer_iterations: 1,
                     ..RefineParams::opencv()
                 },
                 ..DisParams::preset(DisPreset::Balanced)
             },
+        }
+    }
+
+    /// The same parameters with OpenCV's iteration semantics: no early stop
+    /// of the descent and the refinement on every level. `Fast` and
+    /// `Ultrafast` are then exactly OpenCV 5's presets.
+    pub fn opencv_semantics(self) -> Self {
+        DisParams {
+            early_stop: 0.0,
+            refine_levels: None,
+            ..self
         }
     }
 
