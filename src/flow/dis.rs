@@ -847,6 +847,10 @@ struct LevelView<'a> {
     i1: &'a [f32],
     psz: usize,
     mean_norm: bool,
+    /// `(w - psz, h - psz)` as f32: the largest window corner (exclusive)
+    /// that keeps a `(psz+1)^2` window inside (no usize -> f32 conversions
+    /// per evaluation).
+    lim: [f32; 2],
 }
 
 impl LevelView<'_> {
@@ -864,10 +868,9 @@ impl LevelView<'_> {
         let (ax, ay) = (fxp - ixf, fyp - iyf);
         // Sample window (psz+1)^2 starting at (ix, iy): read in place when
         // inside, else copied with border replication (the rare slow path).
-        let inside = ixf >= 0.0
-            && iyf >= 0.0
-            && ixf + (psz as f32) < self.w as f32
-            && iyf + (psz as f32) < self.h as f32;
+        // `ixf < w - psz` is `ixf + psz < w` exactly: `ixf` is a whole
+        // number (exact in f32 below 2^24; beyond, both are false).
+        let inside = ixf >= 0.0 && iyf >= 0.0 && ixf < self.lim[0] && iyf < self.lim[1];
         let wts = [ax, ay];
         let (sd, mut sd2, mut bx, mut by) = if inside {
             // In range: both are non-negative and below the image size.
@@ -1103,6 +1106,7 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
         i1: &lvl.i1,
         psz: p.patch_size,
         mean_norm: p.mean_normalization,
+        lim: [(lvl.w - p.patch_size) as f32, (lvl.h - p.patch_size) as f32],
     };
     let (px, py, patches) = (&lvl.px, &lvl.py, &lvl.patches);
     lvl.sx
@@ -1261,7 +1265,9 @@ fn densify(lvl: &mut Level, psz: usize) {
                     let w_acc = &mut swr[x0..][..psz];
                     if inside {
                         let (ax, ay) = (fx - ixf, fy - iyf);
-                        let o = iyf as usize * w + ixf as usize;
+                        // In range (checked above): the i32 conversion is one
+                        // instruction, the saturating f32 -> usize one is not.
+                        let o = iyf as i32 as usize * w + ixf as i32 as usize;
                         let rows = [&i1[o..][..psz + 1], &i1[o + w..][..psz + 1]];
                         let acc = [u_acc, v_acc, w_acc];
                         if psz == 8 {
@@ -1395,6 +1401,7 @@ mod tests {
                     i1: &i1,
                     psz,
                     mean_norm,
+                    lim: [(w - psz) as f32, (h - psz) as f32],
                 };
                 // Inside, at sub-pixel offsets, and hanging over every edge.
                 for &(x0, y0, u, v) in &[
