@@ -212,21 +212,36 @@ pub fn gaussian_blur(
         }
     };
     // Horizontal pass: img -> tmp.
+    // Interior outputs tap by tap over contiguous slices (vectorises; each
+    // output still sums its taps in order from 0.0, so the result is the
+    // same as the per-output dot product), the reflected borders per output.
+    let r = rad as usize;
     tmp.par_chunks_mut(w).enumerate().for_each(|(y, trow)| {
         let row = &img[y * w..][..w];
-        for x in 0..w {
+        let border = |x: usize| -> f32 {
             let mut acc = 0.0f32;
-            if x as isize >= rad && (x as isize + rad) < w as isize {
-                let base = x - rad as usize;
-                for (t, kv) in k.iter().enumerate() {
-                    acc += kv * row[base + t];
-                }
-            } else {
-                for (t, kv) in k.iter().enumerate() {
-                    acc += kv * row[refl(x as isize + t as isize - rad, w)];
-                }
+            for (t, kv) in k.iter().enumerate() {
+                acc += kv * row[refl(x as isize + t as isize - rad, w)];
             }
-            trow[x] = acc;
+            acc
+        };
+        if w <= 2 * r {
+            for (x, o) in trow.iter_mut().enumerate() {
+                *o = border(x);
+            }
+            return;
+        }
+        let n = w - 2 * r;
+        let inner = &mut trow[r..][..n];
+        inner.fill(0.0);
+        for (t, &kv) in k.iter().enumerate() {
+            let src = &row[t..][..n];
+            for (o, &v) in inner.iter_mut().zip(src) {
+                *o += kv * v;
+            }
+        }
+        for x in (0..r).chain(w - r..w) {
+            trow[x] = border(x);
         }
     });
     // Vertical pass: tmp -> img.

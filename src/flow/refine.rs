@@ -616,39 +616,95 @@ fn split_derivatives(
             let up = i.saturating_sub(1) * w;
             let dn = (i + 1).min(h - 1) * w;
             let o = i * w;
-            for (c, dst) in [rrow, brow].into_iter().enumerate() {
-                let n = g.n(c, i);
-                let p = Grid::p(c, i);
-                let mut planes = dst.chunks_exact_mut(st).map(|q| &mut q[1..=n]);
-                let mut next = || planes.next().unwrap();
-                let [bx, by, bz, xx, xy, xz, yx, yy, yz] = std::array::from_fn(|_| next());
-                for k in 0..n {
-                    let j = 2 * k + p;
-                    let jl = j.saturating_sub(1);
-                    let jr = (j + 1).min(w - 1);
-                    let q = o + j;
-                    let wxx = s * (wx[o + jr] - wx[o + jl]);
-                    let wxy = s * (wx[dn + j] - wx[up + j]);
-                    let wyy = s * (wy[dn + j] - wy[up + j]);
-                    let ix = 0.5 * (r.gx[q] + wx[q]);
-                    let iy = 0.5 * (r.gy[q] + wy[q]);
-                    let iz = warped[q] - r.i0[q];
-                    let ixx = 0.5 * (r.gxx[q] + wxx);
-                    let ixy = 0.5 * (r.gxy[q] + wxy);
-                    let iyy = 0.5 * (r.gyy[q] + wyy);
-                    let ixz = wx[q] - r.gx[q];
-                    let iyz = wy[q] - r.gy[q];
-                    (bx[k], by[k], bz[k]) = (ix, iy, iz);
-                    (xx[k], xy[k], xz[k]) = (ixx, ixy, ixz);
-                    (yx[k], yy[k], yz[k]) = (ixy, iyy, iyz);
+            fn seg(a: &[f32], off: usize, n: usize) -> &[f32] {
+                &a[off..][..n]
+            }
+            let row = |a, off| seg(a, off, w);
+            let (wxr, wyr) = (row(wx, o), row(wy, o));
+            let (wxu, wxd, wyu, wyd) = (row(wx, up), row(wx, dn), row(wy, up), row(wy, dn));
+            let (gx, gy, gxx, gxy, gyy) = (
+                row(&r.gx, o),
+                row(&r.gy, o),
+                row(&r.gxx, o),
+                row(&r.gxy, o),
+                row(&r.gyy, o),
+            );
+            let (i0, wr) = (row(&r.i0, o), row(warped, o));
+            // The row in chunks of DERIV_CHUNK pixels (even, so a chunk's
+            // colours start at the row's parity): the nine quantities
+            // computed and normalised on contiguous stack arrays (loops that
+            // vectorise), then dealt out to the two colours. Same arithmetic
+            // per pixel as a per-pixel loop, so the same result.
+            let mut q = [[0.0f32; DERIV_CHUNK]; N_DERIV];
+            let mut j0 = 0;
+            while j0 < w {
+                let len = DERIV_CHUNK.min(w - j0);
+                let [bx, by, bz, xx, xy, xz, yx, yy, yz] = &mut q;
+                let sl = |a| seg(a, j0, len);
+                let (cgx, cgy, cwx, cwy) = (sl(gx), sl(gy), sl(wxr), sl(wyr));
+                let (cgxx, cgxy, cgyy) = (sl(gxx), sl(gxy), sl(gyy));
+                let (ci0, cwr) = (sl(i0), sl(wr));
+                let (cxu, cxd, cyu, cyd) = (sl(wxu), sl(wxd), sl(wyu), sl(wyd));
+                for t in 0..len {
+                    bx[t] = 0.5 * (cgx[t] + cwx[t]);
+                    by[t] = 0.5 * (cgy[t] + cwy[t]);
+                    bz[t] = cwr[t] - ci0[t];
+                    // wxx is filled below (it needs the row's neighbours).
+                    let wxy = s * (cxd[t] - cxu[t]);
+                    let wyy = s * (cyd[t] - cyu[t]);
+                    let ixy = 0.5 * (cgxy[t] + wxy);
+                    xy[t] = ixy;
+                    xz[t] = cwx[t] - cgx[t];
+                    yx[t] = ixy;
+                    yy[t] = 0.5 * (cgyy[t] + wyy);
+                    yz[t] = cwy[t] - cgy[t];
                 }
-                // The square roots and divisions in a contiguous loop that vectorises.
-                normalise([bx, by, bz], z2);
-                normalise([xx, xy, xz], z2);
-                normalise([yx, yy, yz], z2);
+                // I_xx: central difference of wx along the row, replicated at
+                // the ends (interior first, as contiguous slices).
+                let lo = usize::from(j0 == 0);
+                let hi = if j0 + len == w { len - 1 } else { len };
+                if hi > lo {
+                    let n = hi - lo;
+                    let right = &wxr[j0 + lo + 1..][..n];
+                    let left = &wxr[j0 + lo - 1..][..n];
+                    let (cg, out) = (&cgxx[lo..hi], &mut xx[lo..hi]);
+                    for t in 0..n {
+                        out[t] = 0.5 * (cg[t] + s * (right[t] - left[t]));
+                    }
+                }
+                for t in (0..lo).chain(hi..len) {
+                    let j = j0 + t;
+                    let (jl, jr) = (j.saturating_sub(1), (j + 1).min(w - 1));
+                    xx[t] = 0.5 * (cgxx[t] + s * (wxr[jr] - wxr[jl]));
+                }
+                {
+                    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = q.each_mut().map(|a| &mut a[..len]);
+                    normalise([bx, by, bz], z2);
+                    normalise([xx, xy, xz], z2);
+                    normalise([yx, yy, yz], z2);
+                }
+                for (c, dst) in [&mut *rrow, &mut *brow].into_iter().enumerate() {
+                    let p = Grid::p(c, i);
+                    if len <= p {
+                        continue;
+                    }
+                    // Pixels j0 + p, j0 + p + 2, ... are k = j0 / 2, j0 / 2 + 1, ...
+                    let cnt = (len - p).div_ceil(2);
+                    for (plane, src) in dst.chunks_exact_mut(st).zip(q.iter()) {
+                        let out = &mut plane[1 + j0 / 2..][..cnt];
+                        for (m, v) in out.iter_mut().enumerate() {
+                            *v = src[2 * m + p];
+                        }
+                    }
+                }
+                j0 += len;
             }
         });
 }
+
+/// Pixels per chunk of a row in [`split_derivatives`] (even; nine stack
+/// arrays of this many floats).
+const DERIV_CHUNK: usize = 256;
 
 /// Divides `(a, b, c)` by `sqrt(a^2 + b^2 + z2)` element-wise, in place.
 #[inline(never)]
