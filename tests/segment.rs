@@ -128,7 +128,16 @@ fn close_bumps_are_cut_between_them_and_merge_only_without_a_valley() {
     assert_eq!(p.len(), 2, "{p:?}");
     assert_eq!(p[0].bbox.x_end(), p[1].bbox.x);
     assert!(p[0].bbox.contains(110, 50) && p[1].bbox.contains(160, 50));
-    assert_eq!(p[0].core.union(&p[1].core), seg.contour_boxes()[0]);
+    // The pieces stay inside the contour's box (their outer sides trimmed
+    // around their own peak), with its full height.
+    let c = seg.contour_boxes()[0];
+    for q in &p {
+        assert_eq!((q.core.y, q.core.height), (c.y, c.height));
+        assert!(
+            q.core.x >= c.x && q.core.x_end() <= c.x_end(),
+            "{q:?} {c:?}"
+        );
+    }
     // Without the rule: one patch, as before the rule existed.
     let whole = segmenter(0, 1.0)
         .with_split(None)
@@ -161,8 +170,9 @@ fn close_bumps_are_cut_between_them_and_merge_only_without_a_valley() {
     // past the first bump's centre (its trailing lobe), not the middle of
     // the gap between the contours; each bump stays in its own patch.
     assert!(cut[0].bbox.contains(100, 50) && cut[1].bbox.contains(148, 50));
-    assert_eq!(cut[0].bbox.x, apart[0].bbox.x - gap);
-    assert_eq!(cut[1].bbox.x_end(), apart[1].bbox.x_end() + gap);
+    // Outer sides: within the grown boxes (trimmed around each peak).
+    assert!(cut[0].bbox.x >= apart[0].bbox.x - gap);
+    assert!(cut[1].bbox.x_end() <= apart[1].bbox.x_end() + gap);
     let total = cut[0].flow_sum + cut[1].flow_sum;
     let union = cut[0].bbox.union(&cut[1].bbox);
     let merged = segmenter(gap, 1.0)
@@ -171,8 +181,9 @@ fn close_bumps_are_cut_between_them_and_merge_only_without_a_valley() {
         .segment(&f)
         .unwrap();
     assert_eq!(merged.len(), 1);
-    assert_eq!(merged[0].bbox, union);
-    assert!((merged[0].flow_sum - total).abs() < 1e-6 * total);
+    assert_eq!(merged[0].bbox.union(&union), merged[0].bbox);
+    // Disjoint pieces inside the merged box: no flow counted twice.
+    assert!(total <= merged[0].flow_sum * (1.0 + 1e-9));
 
     // Two bumps so close that there is no valley (one wider bump): merged.
     let mut f = FlowField::zeros(300, 100);

@@ -310,11 +310,13 @@ fn two_presses_are_cut_at_the_valley_between_them() {
     // The default rule smooths over 21 px (twice): its resolution is about
     // twice that, so separations start at 40 px.
     assert_eq!(SplitRule::DEFAULT.smooth, 21);
+    // Margins of 24-40 px make the grown boxes overlap at every separation
+    // drawn (the masks are <= ~46 px wide), so the rule decides.
     let strategy = (
-        40.0f32..90.0,
+        40.0f32..80.0,
         0.0f32..1.0,
         2.0f32..5.0,
-        10usize..30,
+        24usize..40,
         any::<u64>(),
     );
     runner(40)
@@ -332,7 +334,14 @@ fn two_presses_are_cut_at_the_valley_between_them() {
             let mid = 0.5 * (c1 + c2);
             let cut = p[1].bbox.x as f32;
             prop_assert_eq!(p[0].bbox.x_end(), p[1].bbox.x, "the patches touch");
-            prop_assert!((cut - mid).abs() <= 3.0, "cut {} mid {}", cut, mid);
+            // Each press's outward core (|x - c| < sigma) is in its own
+            // patch; while the two convergence lobes (at c +- sqrt(3) sigma)
+            // overlap, the valley is single and the cut at the midpoint;
+            // farther apart the cut is at the deeper of the two lobes.
+            prop_assert!(cut >= c1 + 12.0 && cut <= c2 - 12.0, "cut {}", cut);
+            if sep <= 50.0 {
+                prop_assert!((cut - mid).abs() <= 3.0, "cut {} mid {}", cut, mid);
+            }
             prop_assert!(p[0].bbox.contains(c1 as usize, 50));
             prop_assert!(p[1].bbox.contains(c2 as usize, 50));
             // Without the rule the same scene is one merged patch.
