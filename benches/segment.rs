@@ -56,6 +56,11 @@ fn bench(c: &mut Criterion) {
         g.bench_function(BenchmarkId::new("segment_high", format!("{w}x{h}")), |b| {
             b.iter(|| seg.segment_into(black_box(&f), &mut out).unwrap())
         });
+        let mut whole = seg.clone().with_split(None).unwrap();
+        g.bench_function(
+            BenchmarkId::new("segment_high_nosplit", format!("{w}x{h}")),
+            |b| b.iter(|| whole.segment_into(black_box(&f), &mut out).unwrap()),
+        );
         // Stages.
         let st = *seg.scaled();
         let mut raw = Mask::default();
@@ -102,11 +107,11 @@ fn bench(c: &mut Criterion) {
     let mut out = Vec::new();
     seg.segment_into(&f, &mut out).unwrap();
     assert!(seg.split_count() >= 1, "the split scene must be cut");
-    g.bench_function(BenchmarkId::new("segment_high_split", "1920x1080"), |b| {
+    g.bench_function(BenchmarkId::new("flooded_split", "1920x1080"), |b| {
         b.iter(|| seg.segment_into(black_box(&f), &mut out).unwrap())
     });
     let mut whole = seg.clone().with_split(None).unwrap();
-    g.bench_function(BenchmarkId::new("segment_high_nosplit", "1920x1080"), |b| {
+    g.bench_function(BenchmarkId::new("flooded_nosplit", "1920x1080"), |b| {
         b.iter(|| whole.segment_into(black_box(&f), &mut out).unwrap())
     });
     g.finish();

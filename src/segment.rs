@@ -453,6 +453,10 @@ pub struct Segmenter {
     /// Smoothing radius of the split profile, flow pixels.
     split_radius: usize,
     profile: Vec<f64>,
+    mag_profile: Vec<f64>,
+    mag_prefix: Vec<f64>,
+    acc_u: Vec<f32>,
+    acc_m: Vec<f32>,
     smoothed: Vec<f64>,
     divergence: Vec<f64>,
     cuts: Vec<usize>,
@@ -479,6 +483,10 @@ impl Segmenter {
             split: Some(SplitRule::DEFAULT),
             split_radius: SplitRule::DEFAULT.radius(config.scale),
             profile: Vec::new(),
+            mag_profile: Vec::new(),
+            mag_prefix: Vec::new(),
+            acc_u: Vec::new(),
+            acc_m: Vec::new(),
             smoothed: Vec::new(),
             divergence: Vec::new(),
             cuts: Vec::new(),
@@ -663,20 +671,7 @@ impl Segmenter {
         rule: &SplitRule,
     ) {
         let n = if along_x { core.width } else { core.height };
-        self.profile.clear();
-        self.profile.resize(n, 0.0);
-        for y in core.y..core.y_end() {
-            if along_x {
-                let row = flow.u.row(y);
-                for (p, x) in self.profile.iter_mut().zip(core.x..core.x_end()) {
-                    *p += row[x] as f64;
-                }
-            } else {
-                let row = flow.v.row(y);
-                self.profile[y - core.y] =
-                    (core.x..core.x_end()).map(|x| row[x] as f64).sum::<f64>();
-            }
-        }
+        self.column_profiles(flow, core, along_x);
         divergence_profile(
             &self.profile,
             self.split_radius,
@@ -693,12 +688,21 @@ impl Segmenter {
         }
         // A piece too weak to be a contact on its own goes back to its
         // neighbour: drop the cut on its left (or its right for the first).
+        // Summed |flow| of a piece from the prefix sums of the |flow|
+        // profile (the same sum as `box_sum` over the piece).
+        self.mag_prefix.clear();
+        self.mag_prefix.push(0.0);
+        let mut acc = 0.0;
+        for &m in &self.mag_profile {
+            acc += m;
+            self.mag_prefix.push(acc);
+        }
         while !self.cuts.is_empty() {
-            let weak = (0..=self.cuts.len()).find(|&k| {
-                let mut piece = *core;
-                let start = if k == 0 { None } else { Some(self.cuts[k - 1]) };
-                set_range(&mut piece, along_x, start, self.cuts.get(k).copied());
-                box_sum(flow, &piece) < self.scaled.sum
+            let (cuts, prefix) = (&self.cuts, &self.mag_prefix);
+            let weak = (0..=cuts.len()).find(|&k| {
+                let lo = if k == 0 { origin } else { cuts[k - 1] };
+                let hi = cuts.get(k).copied().unwrap_or(origin + n);
+                prefix[hi - origin] - prefix[lo - origin] < self.scaled.sum
             });
             match weak {
                 Some(k) => {
@@ -707,6 +711,70 @@ impl Segmenter {
                 None => break,
             }
         }
+    }
+}
+
+impl Segmenter {
+    /// Into `profile` and `mag_profile`: for each column of `core` (rows
+    /// when `!along_x`), the sum of `u` (`v`) and of `|flow|` over the
+    /// box's rows (columns). Rows are added in f32 (vectorises), flushed to
+    /// f64 every 64 rows.
+    fn column_profiles(&mut self, flow: &FlowField, core: &BoundingBox, along_x: bool) {
+        let n = if along_x { core.width } else { core.height };
+        self.profile.clear();
+        self.profile.resize(n, 0.0);
+        self.mag_profile.clear();
+        self.mag_profile.resize(n, 0.0);
+        let (x0, x1) = (core.x, core.x_end());
+        if !along_x {
+            for y in core.y..core.y_end() {
+                let (ur, vr) = (flow.u.row(y), flow.v.row(y));
+                let (mut sv, mut sm) = (0.0f64, 0.0f64);
+                for x in x0..x1 {
+                    sv += vr[x] as f64;
+                    sm += (ur[x] as f64).hypot(vr[x] as f64);
+                }
+                self.profile[y - core.y] = sv;
+                self.mag_profile[y - core.y] = sm;
+            }
+            return;
+        }
+        self.acc_u.clear();
+        self.acc_u.resize(n, 0.0);
+        self.acc_m.clear();
+        self.acc_m.resize(n, 0.0);
+        let flush = |acc: &mut [f32], out: &mut [f64]| {
+            for (o, a) in out.iter_mut().zip(acc.iter_mut()) {
+                *o += *a as f64;
+                *a = 0.0;
+            }
+        };
+        for (i, y) in (core.y..core.y_end()).enumerate() {
+            let (ur, vr) = (flow.u.row(y), flow.v.row(y));
+            match (ur.as_slice(), vr.as_slice()) {
+                (Some(u), Some(v)) => {
+                    let (u, v) = (&u[x0..x1], &v[x0..x1]);
+                    for (a, &b) in self.acc_u.iter_mut().zip(u) {
+                        *a += b;
+                    }
+                    for ((a, &b), &c) in self.acc_m.iter_mut().zip(u).zip(v) {
+                        *a += (b * b + c * c).sqrt();
+                    }
+                }
+                _ => {
+                    for (k, x) in (x0..x1).enumerate() {
+                        self.acc_u[k] += ur[x];
+                        self.acc_m[k] += ur[x].hypot(vr[x]);
+                    }
+                }
+            }
+            if i % 64 == 63 {
+                flush(&mut self.acc_u, &mut self.profile);
+                flush(&mut self.acc_m, &mut self.mag_profile);
+            }
+        }
+        flush(&mut self.acc_u, &mut self.profile);
+        flush(&mut self.acc_m, &mut self.mag_profile);
     }
 }
 
