@@ -1,6 +1,7 @@
 //! The whole segmentation (threshold, erode, dilate, external contours, sums,
 //! margins) of a 1920x1080 flow and of a 480x270 native-level flow, one
-//! thread; and its stages at 1080p.
+//! thread; and its stages at 1080p; and a 1080p scene whose one region the
+//! split rule cuts in two, with and without the rule.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use optical_tactile::contours::ContourFinder;
@@ -55,6 +56,11 @@ fn bench(c: &mut Criterion) {
         g.bench_function(BenchmarkId::new("segment_high", format!("{w}x{h}")), |b| {
             b.iter(|| seg.segment_into(black_box(&f), &mut out).unwrap())
         });
+        let mut whole = seg.clone().with_split(None).unwrap();
+        g.bench_function(
+            BenchmarkId::new("segment_high_nosplit", format!("{w}x{h}")),
+            |b| b.iter(|| whole.segment_into(black_box(&f), &mut out).unwrap()),
+        );
         // Stages.
         let st = *seg.scaled();
         let mut raw = Mask::default();
@@ -78,6 +84,36 @@ fn bench(c: &mut Criterion) {
             b.iter(|| cf.external_boxes(black_box(&d), &mut boxes))
         });
     }
+    // Two presses 60 px apart on a strip-like 1920x1080 flow, inside one
+    // wide sheared region: one contour that the split rule cuts in two.
+    let mut f = flow(1920, 1080, 1.0);
+    for y in 0..1080 {
+        for x in 0..1920 {
+            let shear = 1.5 * (-((x as f32 - 960.0) / 600.0).powi(2)).exp();
+            let mut u = shear;
+            for c in [930.0f32, 990.0] {
+                let d = x as f32 - c;
+                u += 0.4 * d * (0.5 - d * d / (2.0 * 144.0)).exp() / 12.0 * 10.0;
+            }
+            f.u[[y, x]] += u;
+        }
+    }
+    let mut seg = Segmenter::new(SegmenterConfig {
+        thresholds: Thresholds::HIGH,
+        margin: 10,
+        scale: 1.0,
+    })
+    .unwrap();
+    let mut out = Vec::new();
+    seg.segment_into(&f, &mut out).unwrap();
+    assert!(seg.split_count() >= 1, "the split scene must be cut");
+    g.bench_function(BenchmarkId::new("flooded_split", "1920x1080"), |b| {
+        b.iter(|| seg.segment_into(black_box(&f), &mut out).unwrap())
+    });
+    let mut whole = seg.clone().with_split(None).unwrap();
+    g.bench_function(BenchmarkId::new("flooded_nosplit", "1920x1080"), |b| {
+        b.iter(|| whole.segment_into(black_box(&f), &mut out).unwrap())
+    });
     g.finish();
 }
 

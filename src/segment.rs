@@ -5,8 +5,9 @@
 //! specks smaller than the kernel) → dilate (restores the region, joins what
 //! erosion split) → **external** contours only → one bounding box per contour
 //! → discard boxes whose summed `|flow|` is below a second threshold → grow the
-//! boxes by a margin, clamp them to the image, merge the ones that overlap →
-//! [`ContactPatch`]es, each a box over the **unmodified** flow.
+//! boxes by a margin, clamp them to the image, group the ones that overlap →
+//! split each group that holds several contacts ([`SplitRule`], beyond the
+//! paper) → [`ContactPatch`]es, each a box over the **unmodified** flow.
 //!
 //! ## Units and scale
 //! [`Thresholds`] are stated for the **full-resolution** image (pixels of the
@@ -25,13 +26,26 @@
 //! ## Boxes that overlap, and the image border
 //! - A box grown by the margin is clamped to the image: a contact at the edge
 //!   yields a smaller patch, never an error.
-//! - Boxes that share at least one pixel after the margin are merged into
-//!   their union box, repeatedly until no two overlap: one patch per group.
-//!   The nHHD of a patch assumes one contact in it, and two overlapping boxes
-//!   would count the shared flow twice. Boxes that only touch stay apart.
+//! - Boxes that share at least one pixel after the margin are grouped
+//!   (repeatedly, until no two groups overlap); boxes that only touch stay
+//!   apart. A group's core is the union of its contour boxes, its box the
+//!   union of their grown boxes.
+//! - Each group is then cut by the [`SplitRule`] (on by default): where the
+//!   smoothed divergence along the image's longer side shows two contacts
+//!   with the skin squeezed between them, the group's box is cut across at
+//!   that valley. Pieces touch and never overlap, so no flow is counted
+//!   twice (the nHHD of a patch assumes one contact in it). The two outer
+//!   pieces are trimmed on their outer side to as far from their
+//!   divergence peak as their cut is, plus the margin, so that a contact
+//!   in a wide (sheared) region sits in the middle of its patch. This separates
+//!   both contours whose margins overlap and one contour (one mask region)
+//!   that holds two contacts. A group the rule does not cut is one patch,
+//!   as when boxes were simply merged ([`Segmenter::set_split`] with `None`
+//!   restores that behaviour).
 //! - The summed `|flow|` test is made on each contour's own box (before the
-//!   margin), as in the paper; a merged patch reports the sum over its final box.
-
+//!   margin), as in the paper, and again on each piece of a cut group (a
+//!   weaker piece is given back to its neighbour); a patch reports the sum
+//!   over its final box.
 //!
 //! ## Example
 //! ```
@@ -89,13 +103,12 @@ use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
 /// noise and flicker; the largest summed `|flow|` of any rest contour was
 /// 1390 (LOW's kernels), 960 (MID's and HIGH's), below every preset's `sum`.
 ///
-/// Two rods are not told apart as closely as the target (15 mm) with the
-/// extractor's 24 px margin: a pair of straight presses at the skin's centre
-/// is two patches from 20 mm (MID, 1.5 N) to 40 mm (LOW, 3 N), mostly
-/// because the margins merge two separate contours (without margin: 10-17.5
-/// mm under MID); off centre, where the skin's slope turns part of the load
-/// into shear, 3 N moves the whole strip above the magnitude threshold and
-/// both rods fall in one patch (see docs/results/segmentation.md).
+/// With the [`SplitRule`], two straight rods of equal force are two
+/// contacts, each within 3 mm of its rod, at every spacing from 35 mm down
+/// to 10-12.5 mm (LOW and MID at 1.5 and 3 N, HIGH at 3 N; 2, 5 and 10 mm
+/// rods; midpoints -60, 0 and 60 mm); before it, 20-40 mm at the centre
+/// only. HIGH at 1.5 N does not detect a centred pair at all below 20-30
+/// mm (see docs/results/segmentation.md).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Thresholds {
     /// Per-pixel `|flow|` above which a pixel belongs to the mask, in
@@ -438,6 +451,19 @@ pub struct Segmenter {
     /// Summed |flow| of every contour box of the last call (before the sum test).
     contour_sums: Vec<f64>,
     merged: Vec<(BoundingBox, BoundingBox)>,
+    split: Option<SplitRule>,
+    /// Smoothing radius of the split profile, flow pixels.
+    split_radius: usize,
+    profile: Vec<f64>,
+    mag_profile: Vec<f64>,
+    mag_prefix: Vec<f64>,
+    acc_u: Vec<f32>,
+    acc_m: Vec<f32>,
+    smoothed: Vec<f64>,
+    divergence: Vec<f64>,
+    cuts: Vec<usize>,
+    /// Number of cuts the split rule made in the last call.
+    split_count: usize,
 }
 
 impl Segmenter {
@@ -456,7 +482,48 @@ impl Segmenter {
             boxes: Vec::new(),
             contour_sums: Vec::new(),
             merged: Vec::new(),
+            split: Some(SplitRule::DEFAULT),
+            split_radius: SplitRule::DEFAULT.radius(config.scale),
+            profile: Vec::new(),
+            mag_profile: Vec::new(),
+            mag_prefix: Vec::new(),
+            acc_u: Vec::new(),
+            acc_m: Vec::new(),
+            smoothed: Vec::new(),
+            divergence: Vec::new(),
+            cuts: Vec::new(),
+            split_count: 0,
         })
+    }
+
+    /// Sets the rule that splits one group of contours holding several
+    /// contacts ([`SplitRule::DEFAULT`] after [`Segmenter::new`]); `None`
+    /// keeps every group whole (the behaviour before the rule existed).
+    /// Errors if the rule is invalid.
+    pub fn set_split(&mut self, split: Option<SplitRule>) -> Result<()> {
+        if let Some(rule) = &split {
+            rule.validate()?;
+            self.split_radius = rule.radius(self.config.scale);
+        }
+        self.split = split;
+        Ok(())
+    }
+
+    /// [`Segmenter::set_split`] by value, for building.
+    pub fn with_split(mut self, split: Option<SplitRule>) -> Result<Self> {
+        self.set_split(split)?;
+        Ok(self)
+    }
+
+    /// The split rule in use, if any.
+    pub fn split(&self) -> Option<&SplitRule> {
+        self.split.as_ref()
+    }
+
+    /// How many cuts the split rule made in the last call (0 when every
+    /// group stayed whole).
+    pub fn split_count(&self) -> usize {
+        self.split_count
     }
 
     /// The configuration.
@@ -534,17 +601,386 @@ impl Segmenter {
             }
         }
         self.merged.sort_by_key(|(b, _)| (b.y, b.x));
-        for &(bbox, core) in &self.merged {
-            out.push(ContactPatch {
-                bbox,
-                core,
-                flow_sum: box_sum(flow, &bbox),
-                area: self
-                    .mask
-                    .count_ones_in(bbox.x, bbox.y, bbox.x_end(), bbox.y_end()),
-            });
+        self.split_count = 0;
+        for gi in 0..self.merged.len() {
+            let (grown, core) = self.merged[gi];
+            self.cuts.clear();
+            // Along the image's longer side (see `SplitRule`).
+            let along_x = w >= h;
+            if let Some(rule) = self.split {
+                self.group_cuts(flow, &core, along_x, &rule);
+            }
+            self.split_count += self.cuts.len();
+            let (origin, core_end, grown_lo, grown_hi) = if along_x {
+                (core.x, core.x_end(), grown.x, grown.x_end())
+            } else {
+                (core.y, core.y_end(), grown.y, grown.y_end())
+            };
+            let nc = self.cuts.len();
+            for k in 0..=nc {
+                let (mut bbox, mut piece) = (grown, core);
+                let start = if k == 0 { None } else { Some(self.cuts[k - 1]) };
+                let end = self.cuts.get(k).copied();
+                set_range(&mut piece, along_x, start, end);
+                set_range(&mut bbox, along_x, start, end);
+                // The outer piece of a cut group is trimmed on its outer
+                // side to as far from its peak as the cut is (plus the
+                // margin): the contact sits in the middle of its patch, and
+                // the rest of a flooded (sheared) region, which would pull
+                // the nHHD potential's minimum to the patch's far end, is
+                // left out.
+                if nc > 0 && (k == 0 || k == nc) {
+                    let (lo, hi) = (start.unwrap_or(origin), end.unwrap_or(core_end));
+                    let peak = origin
+                        + (lo - origin..hi - origin)
+                            .max_by(|&a, &b| self.divergence[a].total_cmp(&self.divergence[b]))
+                            .unwrap_or(0);
+                    if k == 0 {
+                        let half = hi - peak;
+                        let new_lo = peak.saturating_sub(half).max(origin);
+                        set_range(&mut piece, along_x, Some(new_lo), end);
+                        let g = new_lo.saturating_sub(self.margin).max(grown_lo);
+                        set_range(&mut bbox, along_x, Some(g), end);
+                    } else {
+                        let new_hi = (peak + (peak - lo) + 1).min(core_end);
+                        set_range(&mut piece, along_x, start, Some(new_hi));
+                        let g = (new_hi + self.margin).min(grown_hi);
+                        set_range(&mut bbox, along_x, start, Some(g));
+                    }
+                }
+                out.push(ContactPatch {
+                    bbox,
+                    core: piece,
+                    flow_sum: box_sum(flow, &bbox),
+                    area: self
+                        .mask
+                        .count_ones_in(bbox.x, bbox.y, bbox.x_end(), bbox.y_end()),
+                });
+            }
         }
         Ok(())
+    }
+
+    /// The cuts (absolute flow coordinates along x, or y when `!along_x`) that
+    /// split the group whose contour boxes' union is `core`, into
+    /// `self.cuts`: the split rule on the divergence profile, then cuts
+    /// removed until every piece passes the sum threshold.
+    fn group_cuts(
+        &mut self,
+        flow: &FlowField,
+        core: &BoundingBox,
+        along_x: bool,
+        rule: &SplitRule,
+    ) {
+        let n = if along_x { core.width } else { core.height };
+        self.column_profiles(flow, core, along_x);
+        divergence_profile(
+            &self.profile,
+            self.split_radius,
+            &mut self.smoothed,
+            &mut self.divergence,
+        );
+        let origin = if along_x { core.x } else { core.y };
+        let len = if along_x { flow.width() } else { flow.height() };
+        let border = (rule.border as f64 / self.config.scale).round() as usize;
+        let valid = border.saturating_sub(origin)..(len.saturating_sub(border + origin)).min(n);
+        find_cuts(&self.divergence, rule, valid, &mut self.cuts);
+        for c in &mut self.cuts {
+            *c += origin;
+        }
+        // A piece too weak to be a contact on its own goes back to its
+        // neighbour: drop the cut on its left (or its right for the first).
+        // Summed |flow| of a piece from the prefix sums of the |flow|
+        // profile (the same sum as `box_sum` over the piece).
+        self.mag_prefix.clear();
+        self.mag_prefix.push(0.0);
+        let mut acc = 0.0;
+        for &m in &self.mag_profile {
+            acc += m;
+            self.mag_prefix.push(acc);
+        }
+        while !self.cuts.is_empty() {
+            let (cuts, prefix) = (&self.cuts, &self.mag_prefix);
+            let weak = (0..=cuts.len()).find(|&k| {
+                let lo = if k == 0 { origin } else { cuts[k - 1] };
+                let hi = cuts.get(k).copied().unwrap_or(origin + n);
+                prefix[hi - origin] - prefix[lo - origin] < self.scaled.sum
+            });
+            match weak {
+                Some(k) => {
+                    self.cuts.remove(k.saturating_sub(1));
+                }
+                None => break,
+            }
+        }
+    }
+}
+
+impl Segmenter {
+    /// Into `profile` and `mag_profile`: for each column of `core` (rows
+    /// when `!along_x`), the sum of `u` (`v`) and of `|flow|` over the
+    /// box's rows (columns). Rows are added in f32 (vectorises), flushed to
+    /// f64 every 64 rows.
+    fn column_profiles(&mut self, flow: &FlowField, core: &BoundingBox, along_x: bool) {
+        let n = if along_x { core.width } else { core.height };
+        self.profile.clear();
+        self.profile.resize(n, 0.0);
+        self.mag_profile.clear();
+        self.mag_profile.resize(n, 0.0);
+        let (x0, x1) = (core.x, core.x_end());
+        if !along_x {
+            for y in core.y..core.y_end() {
+                let (ur, vr) = (flow.u.row(y), flow.v.row(y));
+                let (mut sv, mut sm) = (0.0f64, 0.0f64);
+                for x in x0..x1 {
+                    sv += vr[x] as f64;
+                    sm += (ur[x] as f64).hypot(vr[x] as f64);
+                }
+                self.profile[y - core.y] = sv;
+                self.mag_profile[y - core.y] = sm;
+            }
+            return;
+        }
+        self.acc_u.clear();
+        self.acc_u.resize(n, 0.0);
+        self.acc_m.clear();
+        self.acc_m.resize(n, 0.0);
+        let flush = |acc: &mut [f32], out: &mut [f64]| {
+            for (o, a) in out.iter_mut().zip(acc.iter_mut()) {
+                *o += *a as f64;
+                *a = 0.0;
+            }
+        };
+        for (i, y) in (core.y..core.y_end()).enumerate() {
+            let (ur, vr) = (flow.u.row(y), flow.v.row(y));
+            match (ur.as_slice(), vr.as_slice()) {
+                (Some(u), Some(v)) => {
+                    let (u, v) = (&u[x0..x1], &v[x0..x1]);
+                    for (a, &b) in self.acc_u.iter_mut().zip(u) {
+                        *a += b;
+                    }
+                    for ((a, &b), &c) in self.acc_m.iter_mut().zip(u).zip(v) {
+                        *a += (b * b + c * c).sqrt();
+                    }
+                }
+                _ => {
+                    for (k, x) in (x0..x1).enumerate() {
+                        self.acc_u[k] += ur[x];
+                        self.acc_m[k] += ur[x].hypot(vr[x]);
+                    }
+                }
+            }
+            if i % 64 == 63 {
+                flush(&mut self.acc_u, &mut self.profile);
+                flush(&mut self.acc_m, &mut self.mag_profile);
+            }
+        }
+        flush(&mut self.acc_u, &mut self.profile);
+        flush(&mut self.acc_m, &mut self.mag_profile);
+    }
+}
+
+/// Restricts `b` along x (or y) to `[start, end)`, each bound kept when `None`.
+fn set_range(b: &mut BoundingBox, along_x: bool, start: Option<usize>, end: Option<usize>) {
+    let (lo, len) = if along_x {
+        (&mut b.x, &mut b.width)
+    } else {
+        (&mut b.y, &mut b.height)
+    };
+    let hi = end.unwrap_or(*lo + *len);
+    let lo2 = start.unwrap_or(*lo);
+    *lo = lo2;
+    *len = hi - lo2;
+}
+
+/// Rule that splits one group of contours (a connected mask region, or
+/// contours whose margins overlap) that holds several contacts.
+///
+/// Physics: a press pushes the skin **outward** from the contact (positive
+/// divergence of the marker flow, the nHHD potential's minimum), and the
+/// skin between two presses is squeezed from both sides (negative
+/// divergence). Shear adds a one-signed displacement whose divergence is
+/// positive on one flank and negative on the other, one lobe each. So the
+/// column (or row) sums of the displacement along x (or y), smoothed and differentiated, show one positive lobe per
+/// contact; the group is cut between two positive lobes of heights `p1` and
+/// `p2` (each at least `min_peak` times the group's highest) when the
+/// profile between them falls to `-depth * min(p1, p2)` or below, at that
+/// minimum (the point where the skin is squeezed most). A flat 10 mm punch
+/// that holds the skin under it still has a zero, not a negative,
+/// divergence between its two edges, so it stays one patch.
+///
+/// The profile runs along the image's longer side: x (column sums of `u`)
+/// when the flow is at least as wide as tall, else y (row sums of `v`). For
+/// a strip-shaped skin that is its length, along which contacts lie; across
+/// it the flow of a rod is mostly noise (and a yawed press adds a shear
+/// whose noise-sized structure there would split it).
+///
+/// Peaks closer than `border` to the image's ends are not contacts: the
+/// flow is least constrained there and a single press shows a spurious
+/// divergence peak at the strip's end (simulator, accurate DIS).
+///
+/// Limits: only contacts side by side along that direction are
+/// separated, and only if the weaker one's peak is at least `min_peak`
+/// times the stronger's (the simulator's strip and the paper's rods); a piece whose
+/// summed `|flow|` is below [`Thresholds::sum`] is given back to its
+/// neighbour.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SplitRule {
+    /// Width of the box filter applied twice to the profile before
+    /// differentiating, full-resolution pixels (scaled like the kernels).
+    pub smooth: usize,
+    /// Valley depth as a fraction of the lower of the two peaks (> 0).
+    pub depth: f32,
+    /// Smallest peak that may be a contact, as a fraction of the group's
+    /// highest peak, in [0, 1].
+    pub min_peak: f32,
+    /// Peaks closer than this to either end of the image (along the
+    /// profile) are ignored, full-resolution pixels (scaled like the
+    /// margin).
+    pub border: usize,
+}
+
+impl SplitRule {
+    /// The rule used by [`Segmenter::new`]: smoothing 21 px, depth 0.1,
+    /// min_peak 0.4, border 32 px. Chosen on the simulator
+    /// (`examples/split_check.rs`, seeds 1 and 2): 0 of 525 single presses
+    /// (7 positions, 5 tilts, 0.5-3 N, 2/5/10 mm rods) cut, for every
+    /// preset; 0 false contacts on 1500 rest pairs (see
+    /// docs/results/segmentation.md).
+    pub const DEFAULT: SplitRule = SplitRule {
+        smooth: 21,
+        depth: 0.1,
+        min_peak: 0.4,
+        border: 32,
+    };
+
+    /// Errors unless `smooth >= 1`, `depth` finite and > 0 and `min_peak`
+    /// in [0, 1].
+    pub fn validate(&self) -> Result<()> {
+        if self.smooth == 0 {
+            return Err(Error::param("split.smooth", "must be >= 1"));
+        }
+        if !(self.depth.is_finite() && self.depth > 0.0) {
+            return Err(Error::param(
+                "split.depth",
+                format!("must be finite and > 0, got {}", self.depth),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.min_peak) {
+            return Err(Error::param(
+                "split.min_peak",
+                format!("must be in [0, 1], got {}", self.min_peak),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Smoothing radius (half the odd filter width) in the pixels of a flow
+    /// at `scale`.
+    pub fn radius(&self, scale: f64) -> usize {
+        (odd(self.smooth, 1.0 / scale) - 1) / 2
+    }
+}
+
+/// The smoothed derivative of `profile`: `profile` box-filtered twice with
+/// width `2 radius + 1` (windows clipped at the ends, means over what is
+/// inside) into `smoothed`, then central differences (one-sided at the ends)
+/// into `divergence`. Both outputs have `profile`'s length.
+pub fn divergence_profile(
+    profile: &[f64],
+    radius: usize,
+    smoothed: &mut Vec<f64>,
+    divergence: &mut Vec<f64>,
+) {
+    let n = profile.len();
+    smoothed.clear();
+    smoothed.extend_from_slice(profile);
+    // `divergence` holds the prefix sums meanwhile (no allocation per call
+    // once the buffers have grown).
+    for _ in 0..2 {
+        let prefix = &mut *divergence;
+        prefix.clear();
+        prefix.push(0.0);
+        let mut acc = 0.0;
+        for &p in smoothed.iter() {
+            acc += p;
+            prefix.push(acc);
+        }
+        for (i, s) in smoothed.iter_mut().enumerate() {
+            let (a, b) = (i.saturating_sub(radius), (i + radius + 1).min(n));
+            *s = (prefix[b] - prefix[a]) / (b - a) as f64;
+        }
+    }
+    divergence.clear();
+    divergence.extend((0..n).map(|i| {
+        let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
+        if b > a {
+            (smoothed[b] - smoothed[a]) / (b - a) as f64
+        } else {
+            0.0
+        }
+    }));
+}
+
+/// The split rule on a divergence profile: the indices where it cuts, in
+/// increasing order, into `cuts` (cleared first). A cut at `c` separates
+/// `[.., c)` from `[c, ..)`; see [`SplitRule`].
+///
+/// Only peaks at indices in `peaks_in` count (the caller leaves out the
+/// image's ends, see [`SplitRule::border`]).
+pub fn find_cuts(
+    divergence: &[f64],
+    rule: &SplitRule,
+    peaks_in: std::ops::Range<usize>,
+    cuts: &mut Vec<usize>,
+) {
+    cuts.clear();
+    let top = divergence
+        .get(peaks_in.clone())
+        .unwrap_or(&[])
+        .iter()
+        .copied()
+        .fold(0.0f64, f64::max);
+    if top <= 0.0 {
+        return;
+    }
+    let level = rule.min_peak as f64 * top;
+    // Peaks: the maximum of each run of positive values, if high enough.
+    let mut group: Option<(f64, usize)> = None; // (highest peak of the group, last peak index)
+    let mut i = 0;
+    let n = divergence.len();
+    while i < n {
+        if divergence[i] <= 0.0 {
+            i += 1;
+            continue;
+        }
+        let (mut best, mut at) = (divergence[i], i);
+        while i < n && divergence[i] > 0.0 {
+            if divergence[i] > best {
+                (best, at) = (divergence[i], i);
+            }
+            i += 1;
+        }
+        if best < level || !peaks_in.contains(&at) {
+            continue;
+        }
+        group = Some(match group {
+            None => (best, at),
+            Some((g, last)) => {
+                let (mut v, mut v_at) = (f64::INFINITY, last);
+                for (k, &d) in divergence.iter().enumerate().take(at).skip(last + 1) {
+                    if d < v {
+                        (v, v_at) = (d, k);
+                    }
+                }
+                if v <= -(rule.depth as f64) * g.min(best) {
+                    cuts.push(v_at);
+                    (best, at)
+                } else {
+                    (g.max(best), at)
+                }
+            }
+        });
     }
 }
 

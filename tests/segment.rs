@@ -1,7 +1,8 @@
 //! The segmenter on synthetic flows: Gaussian bumps (shear) and radial
 //! presses, one patch per contact, weak bumps dropped by the sum threshold,
-//! close bumps merged, borders clamped, scales consistent; thresholds from
-//! rest recordings of synthetic noise.
+//! close bumps cut at the valley between them (merged without one), borders
+//! clamped, scales consistent; thresholds from rest recordings of synthetic
+//! noise.
 
 use optical_tactile::Error;
 use optical_tactile::contours::BoundingBox;
@@ -114,27 +115,83 @@ fn a_weak_bump_is_dropped_by_the_sum_threshold() {
 }
 
 #[test]
-fn close_bumps_merge_and_far_ones_do_not() {
-    // Overlapping masks: one contour.
+fn close_bumps_are_cut_between_them_and_merge_only_without_a_valley() {
+    // Overlapping masks (one contour), but two bumps with a valley of
+    // convergence between them: the split rule cuts the contour in two
+    // patches that touch and do not overlap.
     let mut f = FlowField::zeros(300, 100);
-    add_shear(&mut f, 1.0, 120.0, 50.0, 6.0, 10.0);
-    add_shear(&mut f, 1.0, 150.0, 50.0, 6.0, 10.0);
-    let p = segmenter(0, 1.0).segment(&f).unwrap();
-    assert_eq!(p.len(), 1);
-    assert!(contains(&p[0].bbox, 105.0, 40.0, 165.0, 60.0));
-    // Separate contours, whose boxes overlap once grown by the margin.
+    add_shear(&mut f, 1.0, 110.0, 50.0, 12.0, 10.0);
+    add_shear(&mut f, 1.0, 160.0, 50.0, 12.0, 10.0);
+    let mut seg = segmenter(0, 1.0);
+    let p = seg.segment(&f).unwrap();
+    assert_eq!(seg.contour_boxes().len(), 1, "one contour");
+    assert_eq!(p.len(), 2, "{p:?}");
+    assert_eq!(p[0].bbox.x_end(), p[1].bbox.x);
+    assert!(p[0].bbox.contains(110, 50) && p[1].bbox.contains(160, 50));
+    // The pieces stay inside the contour's box (their outer sides trimmed
+    // around their own peak), with its full height.
+    let c = seg.contour_boxes()[0];
+    for q in &p {
+        assert_eq!((q.core.y, q.core.height), (c.y, c.height));
+        assert!(
+            q.core.x >= c.x && q.core.x_end() <= c.x_end(),
+            "{q:?} {c:?}"
+        );
+    }
+    // Without the rule: one patch, as before the rule existed.
+    let whole = segmenter(0, 1.0)
+        .with_split(None)
+        .unwrap()
+        .segment(&f)
+        .unwrap();
+    assert_eq!(whole.len(), 1);
+    assert!(contains(&whole[0].bbox, 95.0, 40.0, 175.0, 60.0));
+
+    // Separate contours whose boxes overlap once grown by the margin: cut at
+    // the valley between them (not merged), so no flow is counted twice;
+    // each patch keeps the margin on its outer side.
     let mut f = FlowField::zeros(300, 100);
     add_shear(&mut f, 1.0, 100.0, 50.0, 6.0, 10.0);
     add_shear(&mut f, 1.0, 148.0, 50.0, 6.0, 10.0);
-    let mut seg = segmenter(0, 1.0);
-    let apart = seg.segment(&f).unwrap();
+    let apart = segmenter(0, 1.0).segment(&f).unwrap();
     assert_eq!(apart.len(), 2, "{apart:?}");
     let gap = apart[1].bbox.x - apart[0].bbox.x_end();
     assert!(gap > 0 && gap < 12, "gap {gap}");
-    let merged = segmenter(gap, 1.0).segment(&f).unwrap();
+    let mut seg = segmenter(gap, 1.0);
+    let cut = seg.segment(&f).unwrap();
+    assert_eq!(cut.len(), 2, "{cut:?}");
+    assert_eq!(seg.split_count(), 1);
+    assert_eq!(
+        cut[0].bbox.x_end(),
+        cut[1].bbox.x,
+        "touching, not overlapping"
+    );
+    // The cut is where the skin converges most: for shear bumps that is
+    // past the first bump's centre (its trailing lobe), not the middle of
+    // the gap between the contours; each bump stays in its own patch.
+    assert!(cut[0].bbox.contains(100, 50) && cut[1].bbox.contains(148, 50));
+    // Outer sides: within the grown boxes (trimmed around each peak).
+    assert!(cut[0].bbox.x >= apart[0].bbox.x - gap);
+    assert!(cut[1].bbox.x_end() <= apart[1].bbox.x_end() + gap);
+    let total = cut[0].flow_sum + cut[1].flow_sum;
+    let union = cut[0].bbox.union(&cut[1].bbox);
+    let merged = segmenter(gap, 1.0)
+        .with_split(None)
+        .unwrap()
+        .segment(&f)
+        .unwrap();
     assert_eq!(merged.len(), 1);
-    assert_eq!(merged[0].core, apart[0].bbox.union(&apart[1].bbox));
-    assert!((merged[0].flow_sum - apart[0].flow_sum - apart[1].flow_sum) > 0.0);
+    assert_eq!(merged[0].bbox.union(&union), merged[0].bbox);
+    // Disjoint pieces inside the merged box: no flow counted twice.
+    assert!(total <= merged[0].flow_sum * (1.0 + 1e-9));
+
+    // Two bumps so close that there is no valley (one wider bump): merged.
+    let mut f = FlowField::zeros(300, 100);
+    add_shear(&mut f, 1.0, 140.0, 50.0, 6.0, 10.0);
+    add_shear(&mut f, 1.0, 152.0, 50.0, 6.0, 10.0);
+    let mut seg = segmenter(10, 1.0);
+    assert_eq!(seg.segment(&f).unwrap().len(), 1);
+    assert_eq!(seg.split_count(), 0);
 }
 
 #[test]
