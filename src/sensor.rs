@@ -333,11 +333,67 @@ pub const QUIET_TILE_PX: usize = 16;
 /// Averaging over a tile removes that, while a sub-threshold touch, which
 /// moves a whole area, still shows.
 pub fn max_tile_mean(flow: &FlowField, tile: usize) -> f64 {
+    max_tile_mean_where(flow, tile, &[], 0)
+}
+
+/// Standard deviation of the reference (grey levels) below which a quiet
+/// tile is taken as untextured and left out of the re-referencing check
+/// ([`textured_tiles_into`]). Camera noise alone gives about 1-2 grey levels
+/// on the simulator's black strip ends; marker texture gives tens.
+pub const QUIET_MIN_TEXTURE: f32 = 4.0;
+
+/// Per `tile_px x tile_px` tile of `reference` (row-major, the last row and
+/// column of tiles possibly smaller), whether its standard deviation
+/// reaches `min_sd`, into `out`; returns the number of tiles per row.
+///
+/// Why: where the reference has no texture (the black ends of the strip,
+/// outside the skin) the optical flow is not measurable and DIS fills it
+/// with whatever its coarse levels guessed: between two renders of the
+/// unloaded skin the accurate preset put 0.7-0.95 px of mean flow in a
+/// corner tile, which vetoed re-referencing for good.
+pub fn textured_tiles_into(
+    reference: &ArrayRef2<f32>,
+    tile_px: usize,
+    min_sd: f32,
+    out: &mut Vec<bool>,
+) -> usize {
+    let (h, w) = reference.dim();
+    let tile = tile_px.max(1);
+    let tiles_x = w.div_ceil(tile);
+    out.clear();
+    for ty in (0..h).step_by(tile) {
+        for tx in (0..w).step_by(tile) {
+            let (ye, xe) = ((ty + tile).min(h), (tx + tile).min(w));
+            let (mut s, mut s2) = (0.0f64, 0.0f64);
+            for y in ty..ye {
+                for x in tx..xe {
+                    let v = f64::from(reference[[y, x]]);
+                    s += v;
+                    s2 += v * v;
+                }
+            }
+            let n = ((ye - ty) * (xe - tx)) as f64;
+            let var = (s2 / n - (s / n).powi(2)).max(0.0);
+            out.push(var.sqrt() >= f64::from(min_sd));
+        }
+    }
+    tiles_x
+}
+
+/// [`max_tile_mean`] over the tiles that `mask` (from
+/// [`textured_tiles_into`] with tiles of `tile * scale` full-resolution
+/// pixels, `tiles_x` per row) marks as textured; tiles outside the mask's
+/// range count as textured.
+pub fn max_tile_mean_where(flow: &FlowField, tile: usize, mask: &[bool], tiles_x: usize) -> f64 {
     let (w, h) = flow.size();
     let tile = tile.max(1);
     let mut best = 0.0f64;
     for ty in (0..h).step_by(tile) {
         for tx in (0..w).step_by(tile) {
+            let k = (ty / tile) * tiles_x + tx / tile;
+            if tx / tile < tiles_x && !mask.get(k).copied().unwrap_or(true) {
+                continue;
+            }
             let (ye, xe) = ((ty + tile).min(h), (tx + tile).min(w));
             let mut sum = 0.0f64;
             for y in ty..ye {
@@ -385,6 +441,9 @@ pub struct TactileSensor {
     raws: Vec<RawContact>,
     locator: ContactLocator,
     matcher: ForceMatcher,
+    /// Per quiet tile of the reference: textured (re-referencing check).
+    textured: Vec<bool>,
+    textured_x: usize,
     last_t: Option<f64>,
     rereferenced: bool,
     references: u64,
@@ -408,6 +467,8 @@ impl TactileSensor {
             raws: Vec::new(),
             locator: ContactLocator::new(),
             matcher: ForceMatcher::new(),
+            textured: Vec::new(),
+            textured_x: 0,
             last_t: None,
             rereferenced: false,
             references: 0,
@@ -444,6 +505,7 @@ impl TactileSensor {
     pub fn set_reference(&mut self, frame: &ArrayRef2<f32>) -> Result<()> {
         self.crop_into_buffer(frame)?;
         self.extractor.set_reference(&self.cropped)?;
+        self.update_texture();
         self.frame_size = Some((frame.ncols(), frame.nrows()));
         self.tracker.reset();
         self.monitor.reset();
@@ -504,11 +566,12 @@ impl TactileSensor {
         let live = self.tracker.update(&self.detections, dt).len();
         let (flow, scale) = self.extractor.flow();
         let tile = (QUIET_TILE_PX / scale).max(1);
-        let quiet_flow = max_tile_mean(flow, tile);
+        let quiet_flow = max_tile_mean_where(flow, tile, &self.textured, self.textured_x);
         self.rereferenced = self.monitor.observe(t_s, live, quiet_flow);
         if self.rereferenced {
             // Quiet for long enough: this frame becomes the reference.
             self.extractor.set_reference(&self.cropped)?;
+            self.update_texture();
             self.references += 1;
         }
         let mut timings = *self.extractor.timings();
@@ -517,6 +580,18 @@ impl TactileSensor {
         timings.total_ms = ms(t0);
         self.timings = timings;
         Ok(self.contacts())
+    }
+
+    /// Which quiet tiles of the new reference have texture (see
+    /// [`textured_tiles_into`]).
+    fn update_texture(&mut self) {
+        let tile_px = (QUIET_TILE_PX / self.extractor.scale()).max(1) * self.extractor.scale();
+        self.textured_x = textured_tiles_into(
+            &self.cropped,
+            tile_px,
+            QUIET_MIN_TEXTURE,
+            &mut self.textured,
+        );
     }
 
     /// The tracked contacts of the last frame.

@@ -127,3 +127,41 @@ fn bad_frames_are_errors_and_change_nothing() {
         Err(Error::CropOutside { .. })
     ));
 }
+
+/// The re-referencing check leaves out tiles where the reference has no
+/// texture (the flow is not measurable there).
+#[test]
+fn the_quiet_check_skips_untextured_tiles() {
+    use optical_tactile::FlowField;
+    use optical_tactile::sensor::{max_tile_mean, max_tile_mean_where, textured_tiles_into};
+    // 40 x 20 reference: a flat left part (x < 16), a checkerboard elsewhere.
+    let reference = ndarray::Array2::from_shape_fn((20, 40), |(y, x)| {
+        if x < 16 {
+            10.0
+        } else if (x + y) % 2 == 0 {
+            200.0
+        } else {
+            0.0
+        }
+    });
+    let mut mask = Vec::new();
+    let tiles_x = textured_tiles_into(&reference, 8, 4.0, &mut mask);
+    // Tiles of 8 px: 5 per row (the last one 8 wide), 3 rows (the last 4 high).
+    assert_eq!((tiles_x, mask.len()), (5, 15));
+    for (k, &t) in mask.iter().enumerate() {
+        assert_eq!(t, k % 5 >= 2, "tile {k}");
+    }
+    // Flow on a grid of 2 px per cell (20 x 10), tiles of 4 cells: 1.5 px in
+    // the flat part, 0.2 px elsewhere.
+    let mut flow = FlowField::zeros(20, 10);
+    flow.u
+        .indexed_iter_mut()
+        .for_each(|((_, x), u)| *u = if x < 8 { 1.5 } else { 0.2 });
+    assert!((max_tile_mean(&flow, 4) - 1.5).abs() < 1e-6);
+    assert!((max_tile_mean_where(&flow, 4, &mask, tiles_x) - 0.2).abs() < 1e-6);
+    // No mask: every tile counts.
+    assert_eq!(
+        max_tile_mean_where(&flow, 4, &[], 0),
+        max_tile_mean(&flow, 4)
+    );
+}
