@@ -36,6 +36,7 @@ pub mod geometry;
 pub mod hhd;
 pub mod image;
 pub mod io;
+pub mod mapping;
 pub mod morphology;
 pub mod poly;
 pub mod segment;

@@ -237,7 +237,8 @@ impl Canvas {
 
     /// A filled disc of radius `r` centred at `(x, y)`.
     pub fn dot(&mut self, x: f64, y: f64, r: f64, c: Rgb) {
-        if !(x.is_finite() && y.is_finite() && (0.0..=1e4).contains(&r)) {
+        // Far-off centres would overflow the pixel arithmetic: clip them early.
+        if !(x.abs() < 1e7 && y.abs() < 1e7 && (0.0..=1e4).contains(&r)) {
             return;
         }
         let ri = r.ceil() as i64;
@@ -408,9 +409,426 @@ pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
     c
 }
 
+/// A 3x5 bitmap glyph: five rows of three bits (bit 2 = left column).
+fn glyph(ch: char) -> [u8; 5] {
+    match ch.to_ascii_uppercase() {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '-' => [0, 0, 7, 0, 0],
+        '+' => [0, 2, 7, 2, 0],
+        '.' => [0, 0, 0, 0, 2],
+        ',' => [0, 0, 0, 2, 4],
+        ':' => [0, 2, 0, 2, 0],
+        '=' => [0, 7, 0, 7, 0],
+        '/' => [1, 1, 2, 4, 4],
+        '(' => [2, 4, 4, 4, 2],
+        ')' => [2, 1, 1, 1, 2],
+        '_' => [0, 0, 0, 0, 7],
+        '|' => [2, 2, 2, 2, 2],
+        'A' => [2, 5, 7, 5, 5],
+        'B' => [6, 5, 6, 5, 6],
+        'C' => [3, 4, 4, 4, 3],
+        'D' => [6, 5, 5, 5, 6],
+        'E' => [7, 4, 6, 4, 7],
+        'F' => [7, 4, 6, 4, 4],
+        'G' => [3, 4, 5, 5, 3],
+        'H' => [5, 5, 7, 5, 5],
+        'I' => [7, 2, 2, 2, 7],
+        'J' => [1, 1, 1, 5, 2],
+        'K' => [5, 5, 6, 5, 5],
+        'L' => [4, 4, 4, 4, 7],
+        'M' => [5, 7, 7, 5, 5],
+        'N' => [6, 5, 5, 5, 5],
+        'O' => [2, 5, 5, 5, 2],
+        'P' => [6, 5, 6, 4, 4],
+        'Q' => [2, 5, 5, 6, 3],
+        'R' => [6, 5, 6, 5, 5],
+        'S' => [3, 4, 2, 1, 6],
+        'T' => [7, 2, 2, 2, 2],
+        'U' => [5, 5, 5, 5, 7],
+        'V' => [5, 5, 5, 5, 2],
+        'W' => [5, 5, 7, 7, 5],
+        'X' => [5, 5, 2, 5, 5],
+        'Y' => [5, 5, 2, 2, 2],
+        'Z' => [7, 1, 2, 4, 7],
+        _ => [0; 5], // space and anything unknown
+    }
+}
+
+impl Canvas {
+    /// Writes `text` with a 3x5 pixel font (upper case, digits, `- + . , : =
+    /// / ( ) _ |`; other characters are blank), each font pixel a
+    /// `scale x scale` block, top-left at `(x, y)`. Returns the width drawn.
+    pub fn text(&mut self, x: i64, y: i64, text: &str, scale: usize, c: Rgb) -> i64 {
+        let s = scale.max(1) as i64;
+        let mut cx = x;
+        for ch in text.chars() {
+            for (row, bits) in glyph(ch).iter().enumerate() {
+                for col in 0..3 {
+                    if bits & (4 >> col) != 0 {
+                        for dy in 0..s {
+                            for dx in 0..s {
+                                self.set(cx + col * s + dx, y + row as i64 * s + dy, c);
+                            }
+                        }
+                    }
+                }
+            }
+            cx += 4 * s;
+        }
+        cx - x
+    }
+}
+
+/// How a [`Series`] is drawn.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Style {
+    /// Straight segments between consecutive points.
+    Line,
+    /// A dashed line (for truth next to measurements).
+    Dashed,
+    /// A filled dot of this radius (pixels) at every point.
+    Dots(f64),
+    /// A cross of this half-size (pixels) at every point.
+    Cross(f64),
+    /// A circle outline of this radius in **data units** of x (e.g. a
+    /// cluster's spread), at least 3 px.
+    Circle(f64),
+}
+
+/// One data series of a [`Plot`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// Legend text.
+    pub label: String,
+    /// `(x, y)` in data units; non-finite points are skipped.
+    pub points: Vec<(f64, f64)>,
+    /// Colour.
+    pub color: Rgb,
+    /// How it is drawn.
+    pub style: Style,
+}
+
+/// A 2D plot with axes, tick labels and a legend: line plots over time and
+/// maps alike. Ranges default to the data's (padded by 5%); `equal_aspect`
+/// gives x and y the same scale (for maps).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Plot {
+    /// Title, above the plot.
+    pub title: String,
+    /// x axis label.
+    pub x_label: String,
+    /// y axis label.
+    pub y_label: String,
+    /// Fixed x range, or `None` for the data's.
+    pub x_range: Option<(f64, f64)>,
+    /// Fixed y range, or `None` for the data's.
+    pub y_range: Option<(f64, f64)>,
+    /// Same scale on both axes.
+    pub equal_aspect: bool,
+    /// The data.
+    pub series: Vec<Series>,
+}
+
+/// Tick values at a "nice" step (1, 2 or 5 x 10^k), the smallest such step
+/// that gives at most 8 ticks over `lo..=hi`.
+pub fn nice_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if !(lo.is_finite() && hi.is_finite()) || hi <= lo {
+        return Vec::new();
+    }
+    let span = hi - lo;
+    let mag = 10f64.powf((span / 8.0).log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| span / s <= 8.0)
+        .unwrap_or(10.0 * mag);
+    let k0 = (lo / step).ceil() as i64;
+    let k1 = (hi / step + 1e-9).floor() as i64;
+    // k * step, not a running sum, so that errors do not pile up.
+    (k0..=k1).map(|k| k as f64 * step).collect()
+}
+
+fn tick_label(v: f64, step: f64) -> String {
+    let decimals = if step >= 1.0 {
+        0
+    } else {
+        (-step.log10().floor()) as usize
+    };
+    format!("{v:.decimals$}")
+}
+
+fn data_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = vals
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = if hi > lo {
+        0.05 * (hi - lo)
+    } else {
+        0.5_f64.max(0.05 * lo.abs())
+    };
+    (lo - pad, hi + pad)
+}
+
+impl Plot {
+    /// Draws the plot on a white `width x height` canvas (at least 120 x 80).
+    pub fn render(&self, width: usize, height: usize) -> Canvas {
+        let (width, height) = (width.max(120), height.max(80));
+        let mut c = Canvas::new(width, height, Rgb::WHITE);
+        let ink = Rgb(40, 40, 40);
+        let grid = Rgb(225, 225, 225);
+        // Plot area, leaving room for the title, tick labels and axis labels.
+        // The legend goes right of the plot area, never over the data.
+        let legend_w = self
+            .series
+            .iter()
+            .filter(|s| !s.label.is_empty())
+            .map(|s| 8.0 * s.label.len() as f64 + 34.0)
+            .fold(0.0f64, f64::max)
+            .min(0.5 * width as f64);
+        let (left, right, top, bottom) = (
+            64.0,
+            width as f64 - 12.0 - legend_w,
+            24.0,
+            height as f64 - 34.0,
+        );
+        let mut xr = self.x_range.unwrap_or_else(|| {
+            data_range(
+                self.series
+                    .iter()
+                    .flat_map(|s| s.points.iter().map(|p| p.0)),
+            )
+        });
+        let mut yr = self.y_range.unwrap_or_else(|| {
+            data_range(
+                self.series
+                    .iter()
+                    .flat_map(|s| s.points.iter().map(|p| p.1)),
+            )
+        });
+        if !(xr.1 > xr.0) {
+            xr = (xr.0 - 0.5, xr.0 + 0.5);
+        }
+        if !(yr.1 > yr.0) {
+            yr = (yr.0 - 0.5, yr.0 + 0.5);
+        }
+        let (pw, ph) = (right - left, bottom - top);
+        if self.equal_aspect {
+            // Widen the range that is too small for the common scale.
+            let s = ((xr.1 - xr.0) / pw).max((yr.1 - yr.0) / ph);
+            let (cx, cy) = (0.5 * (xr.0 + xr.1), 0.5 * (yr.0 + yr.1));
+            xr = (cx - 0.5 * s * pw, cx + 0.5 * s * pw);
+            yr = (cy - 0.5 * s * ph, cy + 0.5 * s * ph);
+        }
+        let px = |x: f64| left + (x - xr.0) / (xr.1 - xr.0) * pw;
+        let py = |y: f64| bottom - (y - yr.0) / (yr.1 - yr.0) * ph;
+        let xt = nice_ticks(xr.0, xr.1);
+        let yt = nice_ticks(yr.0, yr.1);
+        let xstep = if xt.len() > 1 { xt[1] - xt[0] } else { 1.0 };
+        let ystep = if yt.len() > 1 { yt[1] - yt[0] } else { 1.0 };
+        for &t in &xt {
+            c.line(px(t), top, px(t), bottom, grid);
+            let l = tick_label(t, xstep);
+            let w = 8.0 * l.len() as f64;
+            c.text((px(t) - 0.5 * w) as i64, bottom as i64 + 5, &l, 2, ink);
+        }
+        for &t in &yt {
+            c.line(left, py(t), right, py(t), grid);
+            let l = tick_label(t, ystep);
+            let w = 8 * l.len() as i64;
+            c.text(left as i64 - 4 - w, py(t) as i64 - 5, &l, 2, ink);
+        }
+        c.rect(
+            left as i64,
+            top as i64,
+            (pw + 1.0) as i64,
+            (ph + 1.0) as i64,
+            ink,
+        );
+        c.text(left as i64 + 8, 6, &self.title, 2, ink);
+        let xl = 8 * self.x_label.len() as i64;
+        c.text(
+            (right as i64 - xl).max(0),
+            height as i64 - 12,
+            &self.x_label,
+            2,
+            ink,
+        );
+        c.text(4, 6, &self.y_label, 2, ink);
+        // Clip the data to the plot area by drawing on a sub-canvas.
+        let mut area = Canvas::new(pw as usize + 1, ph as usize + 1, Rgb::WHITE);
+        for &t in &xt {
+            area.line(px(t) - left, 0.0, px(t) - left, ph, grid);
+        }
+        for &t in &yt {
+            area.line(0.0, py(t) - top, pw, py(t) - top, grid);
+        }
+        for s in &self.series {
+            let pts: Vec<(f64, f64)> = s
+                .points
+                .iter()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .map(|&(x, y)| (px(x) - left, py(y) - top))
+                .collect();
+            match s.style {
+                Style::Line | Style::Dashed => {
+                    for (k, w) in pts.windows(2).enumerate() {
+                        if s.style == Style::Line {
+                            area.line(w[0].0, w[0].1, w[1].0, w[1].1, s.color);
+                            area.line(w[0].0, w[0].1 + 1.0, w[1].0, w[1].1 + 1.0, s.color);
+                        } else {
+                            dashed(&mut area, w[0], w[1], s.color, k);
+                        }
+                    }
+                }
+                Style::Dots(r) => pts.iter().for_each(|p| area.dot(p.0, p.1, r, s.color)),
+                Style::Cross(h) => {
+                    for p in &pts {
+                        area.line(p.0 - h, p.1 - h, p.0 + h, p.1 + h, s.color);
+                        area.line(p.0 - h, p.1 + h, p.0 + h, p.1 - h, s.color);
+                    }
+                }
+                Style::Circle(r) => {
+                    let rpx = (r / (xr.1 - xr.0) * pw).max(3.0);
+                    for p in &pts {
+                        circle(&mut area, p.0, p.1, rpx, s.color);
+                    }
+                }
+            }
+        }
+        c.blit(&area, left as i64, top as i64);
+        c.rect(
+            left as i64,
+            top as i64,
+            (pw + 1.0) as i64,
+            (ph + 1.0) as i64,
+            ink,
+        );
+        // Legend, right of the plot.
+        let mut ly = top as i64 + 2;
+        for s in self.series.iter().filter(|s| !s.label.is_empty()) {
+            let lx = right as i64 + 34;
+            let (sx, sy) = ((lx - 14) as f64, (ly + 4) as f64);
+            match s.style {
+                Style::Line => c.line(sx - 7.0, sy, sx + 7.0, sy, s.color),
+                Style::Dashed => dashed(&mut c, (sx - 7.0, sy), (sx + 7.0, sy), s.color, 0),
+                Style::Dots(_) => c.dot(sx, sy, 3.0, s.color),
+                Style::Cross(_) => {
+                    c.line(sx - 4.0, sy - 4.0, sx + 4.0, sy + 4.0, s.color);
+                    c.line(sx - 4.0, sy + 4.0, sx + 4.0, sy - 4.0, s.color);
+                }
+                Style::Circle(_) => circle(&mut c, sx, sy, 4.0, s.color),
+            }
+            c.text(lx, ly, &s.label, 2, s.color);
+            ly += 16;
+        }
+        c
+    }
+}
+
+/// A dashed segment (6 px on, 4 off; `phase` shifts the pattern so that
+/// consecutive segments do not all start "on").
+fn dashed(c: &mut Canvas, a: (f64, f64), b: (f64, f64), color: Rgb, phase: usize) {
+    let len = (b.0 - a.0).hypot(b.1 - a.1);
+    if !(len.is_finite() && len < 1e6) {
+        return;
+    }
+    let n = len.ceil() as usize;
+    for i in 0..=n {
+        if (i + 3 * phase) % 10 < 6 {
+            let t = if n == 0 { 0.0 } else { i as f64 / n as f64 };
+            let (x, y) = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
+            c.set(x.round() as i64, y.round() as i64, color);
+            c.set(x.round() as i64, y.round() as i64 + 1, color);
+        }
+    }
+}
+
+/// A circle outline of radius `r` pixels.
+fn circle(c: &mut Canvas, x: f64, y: f64, r: f64, color: Rgb) {
+    if !(x.is_finite() && y.is_finite() && r.is_finite() && r < 1e4) {
+        return;
+    }
+    let n = ((2.0 * std::f64::consts::PI * r).ceil() as usize).max(8);
+    for k in 0..n {
+        let a = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+        c.set(
+            (x + r * a.cos()).round() as i64,
+            (y + r * a.sin()).round() as i64,
+            color,
+        );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn text_draws_digits_and_skips_unknown() {
+        let mut c = Canvas::new(20, 8, Rgb::BLACK);
+        let w = c.text(0, 0, "1~", 1, Rgb::WHITE);
+        assert_eq!(w, 8);
+        // '1': column 1 set in every row, row 4 full.
+        assert!((0..5).all(|y| c.get(1, y) == Some(Rgb::WHITE)));
+        assert_eq!(c.get(0, 0), Some(Rgb::BLACK));
+        assert_eq!(c.get(0, 4), Some(Rgb::WHITE));
+        assert!((4..8).all(|x| (0..5).all(|y| c.get(x, y) == Some(Rgb::BLACK))));
+    }
+
+    #[test]
+    fn nice_ticks_cover_the_range() {
+        let t = nice_ticks(0.0, 1.0);
+        assert_eq!(t.len(), 6);
+        assert!(
+            t.iter()
+                .zip([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
+                .all(|(a, b)| (a - b).abs() < 1e-12)
+        );
+        let t = nice_ticks(-95.0, 42.0);
+        assert_eq!(t, vec![-80.0, -60.0, -40.0, -20.0, 0.0, 20.0, 40.0]);
+        assert!(nice_ticks(1.0, 1.0).is_empty() && nice_ticks(f64::NAN, 1.0).is_empty());
+    }
+
+    #[test]
+    fn plot_puts_points_where_the_axes_say() {
+        let plot = Plot {
+            x_range: Some((0.0, 10.0)),
+            y_range: Some((0.0, 10.0)),
+            series: vec![Series {
+                label: String::new(),
+                points: vec![(5.0, 5.0), (f64::NAN, 1.0), (1e300, 2.0)],
+                color: Rgb::RED,
+                style: Style::Dots(2.0),
+            }],
+            ..Plot::default()
+        };
+        let c = plot.render(300, 200);
+        // Plot area: x 64..288, y 24..166; (5, 5) is at its centre.
+        let (cx, cy) = ((64.0 + 288.0) / 2.0, (24.0 + 166.0) / 2.0);
+        assert_eq!(c.get(cx as usize, cy as usize), Some(Rgb::RED));
+        let reds = c
+            .as_bytes()
+            .chunks(3)
+            .filter(|p| p == &[230, 40, 40])
+            .count();
+        assert!(reds <= 13, "only the one finite, in-range dot: {reds}");
+        // Empty plots and tiny sizes do not panic.
+        let _ = Plot::default().render(0, 0);
+    }
 
     #[test]
     fn lines_hit_both_ends_and_are_clipped() {

@@ -1,0 +1,381 @@
+//! What the three demo examples (`multi_contact`, `perch_selection`,
+//! `touch_mapping`) share: the command line, running the sensor over a
+//! sequence, reading truth, writing JSON and plots. Included with `#[path]`
+//! by each example and by `tests/demos.rs`, so each uses only part of it.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use optical_tactile::calibration::Calibration;
+use optical_tactile::capture::{FrameSource, SequenceSource};
+use optical_tactile::image::Roi;
+use optical_tactile::io::{self, FrameRecord};
+use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
+use optical_tactile::sim::scenario::{self, Common, Scenario};
+use optical_tactile::viz::{Canvas, Plot, Rgb, Series, Style};
+use serde::Serialize;
+
+/// The options every demo takes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoArgs {
+    /// A recorded sequence (DATASET.md formats).
+    pub input: Option<PathBuf>,
+    /// Simulate the demo's scenario into this folder first.
+    pub simulate: Option<PathBuf>,
+    /// The calibration file.
+    pub calibration: PathBuf,
+    /// Crop of the frames (default: the calibration's).
+    pub crop: Option<Roi>,
+    /// Ground truth file.
+    pub truth: Option<PathBuf>,
+    /// Write the result as JSON here.
+    pub json: Option<PathBuf>,
+    /// Write the picture here.
+    pub png: Option<PathBuf>,
+    /// Simulator seed.
+    pub seed: u64,
+    /// Demo-specific `--key value` options, in order.
+    pub extra: Vec<(String, String)>,
+}
+
+impl DemoArgs {
+    /// A demo-specific numeric option, or `default`.
+    pub fn extra_f64(&self, key: &str, default: f64) -> Result<f64, String> {
+        match self.extra.iter().rev().find(|(k, _)| k == key) {
+            None => Ok(default),
+            Some((_, v)) => v
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| format!("{key}: expected a number, got `{v}`")),
+        }
+    }
+
+    /// A demo-specific text option.
+    pub fn extra_str(&self, key: &str) -> Option<&str> {
+        self.extra
+            .iter()
+            .rev()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
+/// The common part of every demo's usage line.
+pub const COMMON_USAGE: &str = "[SEQ_DIR | --simulate DIR] [--calibration FILE (default fixtures/calibration.json)] \
+[--crop x,y,w,h] [--truth FILE] [--json FILE] [--png FILE] [--seed N (simulation, default 1)]";
+
+/// Parses `args` (without the program name). `extra_keys` are the demo's
+/// own `--key value` options. `Ok(None)` after `--help`.
+pub fn parse_args(
+    args: &[String],
+    usage: &str,
+    extra_keys: &[&str],
+) -> Result<Option<DemoArgs>, String> {
+    let mut a = DemoArgs {
+        input: None,
+        simulate: None,
+        calibration: PathBuf::from("fixtures/calibration.json"),
+        crop: None,
+        truth: None,
+        json: None,
+        png: None,
+        seed: 1,
+        extra: Vec::new(),
+    };
+    let mut it = args.iter();
+    while let Some(arg) = it.next() {
+        let mut val = |name: &str| {
+            it.next()
+                .cloned()
+                .ok_or(format!("{name} needs a value\n{usage}"))
+        };
+        match arg.as_str() {
+            "-h" | "--help" => {
+                println!("{usage}");
+                return Ok(None);
+            }
+            "--simulate" => a.simulate = Some(PathBuf::from(val("--simulate")?)),
+            "--calibration" => a.calibration = PathBuf::from(val("--calibration")?),
+            "--crop" => a.crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
+            "--truth" => a.truth = Some(PathBuf::from(val("--truth")?)),
+            "--json" => a.json = Some(PathBuf::from(val("--json")?)),
+            "--png" => a.png = Some(PathBuf::from(val("--png")?)),
+            "--seed" => {
+                let v = val("--seed")?;
+                a.seed = v
+                    .parse()
+                    .map_err(|_| format!("--seed: expected a whole number, got `{v}`"))?;
+            }
+            k if extra_keys.contains(&k) => {
+                let v = val(k)?;
+                a.extra.push((k.to_string(), v));
+            }
+            _ if arg.starts_with("--") => return Err(format!("unknown option {arg}\n{usage}")),
+            _ if a.input.is_none() => a.input = Some(PathBuf::from(arg)),
+            _ => return Err(format!("unexpected argument `{arg}`\n{usage}")),
+        }
+    }
+    if a.input.is_some() && a.simulate.is_some() {
+        return Err(format!(
+            "give either a sequence folder or --simulate DIR, not both\n{usage}"
+        ));
+    }
+    Ok(Some(a))
+}
+
+/// The sequence to run: the given folder, or a scenario simulated into
+/// `--simulate DIR` (default: a folder under the system's temp dir named
+/// after the demo). Returns the folder and whether it was simulated.
+pub fn resolve_input(
+    a: &DemoArgs,
+    demo: &str,
+    scenario: &Scenario,
+) -> Result<(PathBuf, bool), String> {
+    if let Some(dir) = &a.input {
+        if !dir.is_dir() {
+            return Err(format!(
+                "sequence folder {} not found (or not a folder)",
+                dir.display()
+            ));
+        }
+        return Ok((dir.clone(), false));
+    }
+    let dir = a
+        .simulate
+        .clone()
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("optical-tactile-{demo}")));
+    simulate(scenario, &dir, a.seed)?;
+    Ok((dir, true))
+}
+
+/// Simulates `scenario` into `dir` (no true flow: not needed, and large).
+pub fn simulate(scenario: &Scenario, dir: &Path, seed: u64) -> Result<(), String> {
+    let mut common = Common::new(dir);
+    common.seed = seed;
+    common.flow = false;
+    eprintln!("simulating into {} (seed {seed}) ...", dir.display());
+    let s = scenario::run(scenario, &common).map_err(|e| format!("simulation failed: {e}"))?;
+    eprintln!("  {} frames", s.frames);
+    Ok(())
+}
+
+/// Loads the calibration with a clear message when it is missing.
+pub fn load_calibration(path: &Path) -> Result<Calibration, String> {
+    if !path.is_file() {
+        return Err(format!(
+            "calibration file {} not found: pass --calibration FILE (fit one with the \
+             `calibrate` example)",
+            path.display()
+        ));
+    }
+    Calibration::load(path).map_err(|e| format!("cannot load calibration {}: {e}", path.display()))
+}
+
+/// The contacts of every frame of a sequence.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorRun {
+    /// One record per frame, in order, the reference (first readable frame)
+    /// included with no contacts. Only live contacts are kept: a contact the
+    /// tracker holds through a missed detection repeats an old measurement.
+    pub frames: Vec<FrameRecord>,
+    /// Frames that could not be read or processed (named on stderr).
+    pub skipped: usize,
+}
+
+/// Runs the tactile sensor over the sequence in `dir` with the calibration
+/// (its recorded pipeline settings and thresholds) and an optional crop.
+pub fn run_sensor(dir: &Path, calibration: &Path, crop: Option<Roi>) -> Result<SensorRun, String> {
+    let cal = load_calibration(calibration)?;
+    let extractor = ExtractorConfig::from_setup(&cal.setup).map_err(|e| e.to_string())?;
+    let config = SensorConfig {
+        crop,
+        extractor,
+        ..SensorConfig::default()
+    };
+    let mut seq = SequenceSource::open(dir)
+        .map_err(|e| format!("cannot open sequence {}: {e}", dir.display()))?;
+    if seq.len() < 2 {
+        return Err(format!(
+            "sequence {} has {} frame(s): need a reference and at least one more",
+            dir.display(),
+            seq.len()
+        ));
+    }
+    let mut sensor = TactileSensor::new(config, cal).map_err(|e| e.to_string())?;
+    let mut out = SensorRun {
+        frames: Vec::new(),
+        skipped: 0,
+    };
+    let mut have_reference = false;
+    while let Some(frame) = seq.next_frame() {
+        let frame = match frame {
+            Ok(f) => f,
+            Err(e) => {
+                eprintln!("skipping unreadable frame: {e}");
+                out.skipped += 1;
+                continue;
+            }
+        };
+        if !have_reference {
+            sensor
+                .set_reference(&frame.image)
+                .map_err(|e| format!("frame {}: cannot be the reference: {e}", frame.name))?;
+            have_reference = true;
+            out.frames.push(FrameRecord {
+                frame: frame.name,
+                t_s: frame.t_s,
+                contacts: vec![],
+                latency_ms: None,
+            });
+            continue;
+        }
+        match sensor.process(&frame.image, frame.t_s) {
+            Ok(cs) => out.frames.push(FrameRecord {
+                frame: frame.name,
+                t_s: frame.t_s,
+                contacts: cs
+                    .iter()
+                    .filter(|c| c.missed == 0)
+                    .map(|c| c.to_record())
+                    .collect(),
+                latency_ms: None,
+            }),
+            Err(e) => {
+                eprintln!("skipping frame {}: {e}", frame.name);
+                out.skipped += 1;
+            }
+        }
+    }
+    if !have_reference {
+        return Err(format!("no readable frame in {}", dir.display()));
+    }
+    Ok(out)
+}
+
+/// Reads a `truth.jsonl` with a clear message.
+pub fn read_truth(path: &Path) -> Result<Vec<FrameRecord>, String> {
+    if !path.is_file() {
+        return Err(format!("truth file {} not found", path.display()));
+    }
+    io::read_jsonl(path).map_err(|e| format!("cannot read truth: {e}"))
+}
+
+/// Writes `v` as pretty JSON.
+pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), String> {
+    let s = serde_json::to_string_pretty(v).map_err(|e| e.to_string())?;
+    std::fs::write(path, s + "\n").map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+/// Colours for contacts 0, 1, 2, ...
+pub const PALETTE: [Rgb; 6] = [
+    Rgb(30, 100, 220),
+    Rgb(220, 70, 30),
+    Rgb(40, 160, 60),
+    Rgb(150, 60, 190),
+    Rgb(200, 150, 0),
+    Rgb(0, 160, 170),
+];
+
+/// A measured series (dots) and, when given, its truth (dashed line).
+pub fn measured_and_truth(
+    label: &str,
+    color: Rgb,
+    measured: Vec<(f64, f64)>,
+    truth: Option<Vec<(f64, f64)>>,
+) -> Vec<Series> {
+    let mut v = vec![Series {
+        label: label.to_string(),
+        points: measured,
+        color,
+        style: Style::Dots(3.0),
+    }];
+    if let Some(t) = truth {
+        v.push(Series {
+            label: format!("{label} TRUE"),
+            points: t,
+            color,
+            style: Style::Dashed,
+        });
+    }
+    v
+}
+
+/// Stacks canvases top to bottom (white background, 6 px gaps).
+pub fn stack(panels: &[Canvas]) -> Canvas {
+    let w = panels.iter().map(|c| c.width()).max().unwrap_or(1);
+    let h = panels.iter().map(|c| c.height() + 6).sum::<usize>().max(1);
+    let mut out = Canvas::new(w, h, Rgb::WHITE);
+    let mut y = 0;
+    for p in panels {
+        out.blit(p, 0, y as i64);
+        y += p.height() + 6;
+    }
+    out
+}
+
+/// Places canvases left to right (white background, 6 px gaps).
+pub fn row(panels: &[Canvas]) -> Canvas {
+    let h = panels.iter().map(|c| c.height()).max().unwrap_or(1);
+    let w = panels.iter().map(|c| c.width() + 6).sum::<usize>().max(1);
+    let mut out = Canvas::new(w, h, Rgb::WHITE);
+    let mut x = 0;
+    for p in panels {
+        out.blit(p, x as i64, 0);
+        x += p.width() + 6;
+    }
+    out
+}
+
+/// A plot over time with the given series.
+pub fn time_plot(title: &str, y_label: &str, series: Vec<Series>) -> Plot {
+    Plot {
+        title: title.to_string(),
+        x_label: "T S".into(),
+        y_label: y_label.to_string(),
+        series,
+        ..Plot::default()
+    }
+}
+
+/// The force magnitude of a record, N.
+pub fn force_magnitude(c: &io::ContactRecord) -> f64 {
+    (c.fx_n * c.fx_n + c.fy_n * c.fy_n + c.fz_n * c.fz_n).sqrt()
+}
+
+/// Mean of a slice (NaN when empty).
+pub fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// The values of every tracked contact over time: `(id, [(t_s, value)])`,
+/// ids in order of first appearance.
+pub fn id_series(
+    frames: &[FrameRecord],
+    value: impl Fn(&io::ContactRecord) -> f64,
+) -> Vec<(u64, Vec<(f64, f64)>)> {
+    let mut out: Vec<(u64, Vec<(f64, f64)>)> = Vec::new();
+    for f in frames {
+        for c in &f.contacts {
+            let Some(id) = c.id else { continue };
+            let p = (f.t_s, value(c));
+            match out.iter_mut().find(|(i, _)| *i == id) {
+                Some((_, v)) => v.push(p),
+                None => out.push((id, vec![p])),
+            }
+        }
+    }
+    out
+}
+
+/// The values of the `j`-th true contact of every truth frame over time.
+pub fn truth_series(
+    truth: &[FrameRecord],
+    j: usize,
+    value: impl Fn(&io::ContactRecord) -> f64,
+) -> Vec<(f64, f64)> {
+    truth
+        .iter()
+        .filter_map(|f| f.contacts.get(j).map(|c| (f.t_s, value(c))))
+        .collect()
+}
