@@ -284,3 +284,38 @@ fn bad_input_is_a_parameter_error() {
         pair_told_apart(&s, &mut ex, 5.0, 1.0, 20.0, 0.0, 0.0, 0, false).unwrap_err()
     ));
 }
+
+#[test]
+fn touch_mapping_finds_each_rod_within_a_few_mm() {
+    use optical_tactile::calibration::Calibration;
+    use optical_tactile::sim::experiments::{MappingOptions, mapping_run};
+    use optical_tactile::sim::scenario::Mapping;
+    let cal = Calibration::load(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/fixtures/calibration.json"
+    ))
+    .unwrap();
+    let dir = std::env::temp_dir().join(format!("ot-experiments-mapping-{}", std::process::id()));
+    let o = MappingOptions {
+        scenario: Mapping {
+            rods_x_m: vec![0.4, 0.9],
+            touches: 2,
+            ..Mapping::default()
+        },
+        ..MappingOptions::default()
+    };
+    let run = mapping_run(&cal, 3, &dir, &o).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    // Two rods, two clusters, nothing else: a contact held by the tracker
+    // after the body lifted off (this frame's pose, an old estimate) would
+    // land 5 cm above a rod or beside it and make a false cluster.
+    assert_eq!(run.clusters.len(), 2, "{run:?}");
+    assert_eq!(run.false_clusters, 0);
+    assert!(run.contacts >= 4, "{run:?}");
+    let worst = run.worst_m().expect("both rods found");
+    assert!(worst < 0.005, "{run:?}");
+    assert!(run.mean_m() <= worst);
+    for c in &run.clusters {
+        assert!(c.spread_m < 0.005 && c.count >= 2, "{c:?}");
+    }
+}

@@ -1,6 +1,6 @@
-//! Segmentation experiments on the simulator (issues 5 and 8): false contacts
-//! on rest frames, the minimum detectable force, and the two-contact spacing
-//! sweep. Shared by `examples/sweep.rs` (exploring thresholds) and
+//! Experiments on the simulator (issues 5 and 8): false contacts on rest
+//! frames, the minimum detectable force, the two-contact spacing sweep, and
+//! the touch-mapping error. Shared by `examples/sweep.rs` (exploring thresholds) and
 //! `examples/experiments.rs` (the paper's sensor-performance section).
 //!
 //! Frames are rendered with [`SyntheticSensor::render_indexed`] (no PNGs) and
@@ -17,17 +17,26 @@
 //! - [`spacing_sweep`]: two straight rods of equal force at decreasing
 //!   spacing; told apart = exactly two contacts, each within a tolerance of
 //!   its rod ([`pair_told_apart`]).
+//! - [`mapping_run`]: the touch-mapping demo end to end: the `mapping`
+//!   scenario, a [`TactileSensor`] over its frames, contacts into the world
+//!   frame, clusters, and their error against the true rods
+//!   ([`crate::mapping`]).
+
+use std::path::Path;
 
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::scenario::tilted_force;
+use super::scenario::{self, Common, Mapping, Scenario, tilted_force};
 use super::sensor::{Contact, SyntheticSensor};
+use crate::calibration::Calibration;
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
+use crate::io::{self, FrameRecord};
+use crate::mapping::{cluster, match_rods, poses_by_frame, read_rods_json, world_contacts};
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
-use crate::sensor::{ContactExtractor, ExtractorConfig};
+use crate::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
 
 /// The characterization protocol's indenter diameters, mm.
 pub const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
@@ -681,5 +690,163 @@ pub fn spacing_sweep(
         sets: o.sets.clone(),
         plan: plan.clone(),
         apart,
+    })
+}
+
+/// Options of the touch-mapping experiment ([`mapping_run`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MappingOptions {
+    /// The simulated sequence (rods, touches, force).
+    pub scenario: Mapping,
+    /// Contacts with a smaller force magnitude are left out, N.
+    pub min_force_n: f64,
+    /// Single-linkage clustering radius, m.
+    pub radius_m: f64,
+    /// A cluster farther than this from every rod is a false obstacle, m.
+    pub gate_m: f64,
+}
+
+impl Default for MappingOptions {
+    /// The scenario's defaults (5 rods 0.45-0.6 m apart, 2 touches each, 1.5
+    /// N), contacts from 0.5 N, clustering radius 0.1 m, gate 0.2 m.
+    fn default() -> Self {
+        MappingOptions {
+            scenario: Mapping::default(),
+            min_force_n: 0.5,
+            radius_m: 0.1,
+            gate_m: 0.2,
+        }
+    }
+}
+
+/// One obstacle estimate, world frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ClusterSummary {
+    /// Mean position of the touches, m.
+    pub x_m: f64,
+    /// Mean position of the touches, m.
+    pub y_m: f64,
+    /// Mean position of the touches, m.
+    pub z_m: f64,
+    /// Number of contacts (one per frame they were seen in).
+    pub count: usize,
+    /// RMS distance of the contacts from the mean, m.
+    pub spread_m: f64,
+}
+
+/// The result of one touch-mapping run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MappingRun {
+    /// The simulator seed.
+    pub seed: u64,
+    /// World contacts that entered the clustering.
+    pub contacts: usize,
+    /// The obstacle estimates.
+    pub clusters: Vec<ClusterSummary>,
+    /// Per true rod, the distance of its matched cluster from the rod's line,
+    /// m (`None`: no cluster within the gate).
+    pub errors_m: Vec<Option<f64>>,
+    /// Clusters matched to no rod.
+    pub false_clusters: usize,
+}
+
+impl MappingRun {
+    /// The largest error over the rods, `None` if a rod was missed.
+    pub fn worst_m(&self) -> Option<f64> {
+        self.errors_m
+            .iter()
+            .try_fold(0.0f64, |m, e| e.map(|e| m.max(e)))
+    }
+
+    /// The mean error over the rods that were found (`NaN` if none).
+    pub fn mean_m(&self) -> f64 {
+        let found: Vec<f64> = self.errors_m.iter().flatten().copied().collect();
+        found.iter().sum::<f64>() / found.len() as f64
+    }
+}
+
+/// Simulates the `mapping` scenario with `seed` into `dir` (PNGs, `poses.csv`,
+/// `rods.json`, `truth.jsonl`), runs a [`TactileSensor`] with `calibration` over the frames
+/// (frame 0 is the reference; its crop, thresholds and flow preset come from
+/// the calibration; the contacts detected in each frame are written to
+/// `dir/contacts.jsonl`), puts every contact into the world frame with the pose
+/// of its frame, clusters them, and matches the clusters with the true rods.
+pub fn mapping_run(
+    calibration: &Calibration,
+    seed: u64,
+    dir: &Path,
+    o: &MappingOptions,
+) -> Result<MappingRun> {
+    let mut common = Common::new(dir);
+    common.seed = seed;
+    common.flow = false;
+    scenario::run(&Scenario::Mapping(o.scenario.clone()), &common)?;
+    let poses_path = dir.join("poses.csv");
+    let poses = poses_by_frame(&io::read_poses_csv(&poses_path)?, &poses_path)?;
+    let truth = read_rods_json(dir.join("rods.json"))?;
+    let config = SensorConfig {
+        extractor: ExtractorConfig::from_setup(&calibration.setup)?,
+        ..SensorConfig::default()
+    };
+    let mut sensor = TactileSensor::new(config, calibration.clone())?;
+    let mut records = Vec::new();
+    for (k, path) in io::list_frames(dir)?.iter().enumerate() {
+        let img = io::read_gray(path)?;
+        if k == 0 {
+            sensor.set_reference(&img)?;
+            continue;
+        }
+        let t_s = k as f64 / common.fps;
+        let contacts = sensor.process(&img, t_s)?;
+        records.push(FrameRecord {
+            frame: path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            t_s,
+            // Only contacts detected in this frame: a held one (`missed > 0`,
+            // the tracker's hysteresis) repeats an earlier frame's estimate,
+            // and this frame's pose (the body already lifted or moved on)
+            // would put it in the wrong place.
+            contacts: contacts
+                .iter()
+                .filter(|c| c.missed == 0)
+                .map(|c| c.to_record())
+                .collect(),
+            latency_ms: None,
+        });
+    }
+    // What the sensor saw, for inspection beside the scenario's truth.jsonl.
+    let mut w = io::JsonlWriter::create(dir.join("contacts.jsonl"))?;
+    for r in &records {
+        w.write(r)?;
+    }
+    drop(w);
+    let world = world_contacts(
+        &records,
+        &poses,
+        &truth.mounting,
+        o.min_force_n,
+        &poses_path,
+    )?;
+    let points: Vec<[f64; 3]> = world.iter().map(|w| w.position_m).collect();
+    let clusters = cluster(&points, o.radius_m)?;
+    let matches = match_rods(&clusters, &truth.rods, o.gate_m)?;
+    let matched = matches.iter().filter(|m| m.cluster.is_some()).count();
+    Ok(MappingRun {
+        seed,
+        contacts: points.len(),
+        clusters: clusters
+            .iter()
+            .map(|c| ClusterSummary {
+                x_m: c.position_m[0],
+                y_m: c.position_m[1],
+                z_m: c.position_m[2],
+                count: c.count,
+                spread_m: c.spread_m,
+            })
+            .collect(),
+        errors_m: matches.iter().map(|m| m.error_m).collect(),
+        false_clusters: clusters.len() - matched,
     })
 }
