@@ -567,34 +567,49 @@ fn print_summary(
             met(h.is_some_and(|f| (1.0..1.5).contains(&f)))
         );
     }
-    // Per indenter, the best preset at every force and midpoint.
-    let best: Vec<(Option<f64>, String)> = (0..INDENTERS_MM.len())
-        .map(|ii| {
-            (0..sp.sets.len())
-                .map(|k| (sp.min_spacing(k, ii, None, None), sp.sets[k].name.clone()))
-                .min_by(|a, b| {
-                    a.0.unwrap_or(f64::INFINITY)
-                        .total_cmp(&b.0.unwrap_or(f64::INFINITY))
-                })
-                .unwrap_or((None, String::new()))
+    // Per indenter, the best preset at every force and midpoint, and (if the
+    // plan has it) at the skin's centre only.
+    let centre = sp.plan.centres_mm.iter().position(|&c| c == 0.0);
+    let best = |ii: usize, c: Option<usize>| -> (Option<f64>, String) {
+        let all: Vec<Option<f64>> = (0..sp.sets.len())
+            .map(|k| sp.min_spacing(k, ii, None, c))
+            .collect();
+        let b = all.iter().copied().flatten().min_by(f64::total_cmp);
+        let names: Vec<&str> = (0..sp.sets.len())
+            .filter(|&k| b.is_some() && all[k] == b)
+            .map(|k| sp.sets[k].name.as_str())
+            .collect();
+        (
+            b,
+            if b.is_some() {
+                names.join(", ")
+            } else {
+                "every preset".into()
+            },
+        )
+    };
+    let over = |s: Option<f64>| {
+        s.map_or(format!("> {} mm", sp.plan.spacings_mm[0]), |s| {
+            format!("{s} mm")
         })
-        .collect();
+    };
+    let mut cells = Vec::new();
+    let mut ok = true;
+    for (ii, d) in INDENTERS_MM.iter().enumerate() {
+        let (b, who) = best(ii, None);
+        ok &= b.is_some_and(|s| s <= bar::TARGET_SPACING);
+        let mut cell = format!("{d} mm: {} ({who})", over(b));
+        if let Some(c) = centre.filter(|_| sp.plan.centres_mm.len() > 1) {
+            let (bc, whoc) = best(ii, Some(c));
+            cell += &format!(", at the centre only {} ({whoc})", over(bc));
+        }
+        cells.push(cell);
+    }
     println!(
-        "| two contacts told apart at (best preset) | 20 / 40 / 40 mm | 30-40 mm | <= 15 mm | {} | {} |",
-        INDENTERS_MM
-            .iter()
-            .zip(&best)
-            .map(|(d, (s, name))| format!(
-                "{d} mm: {} ({name})",
-                s.map_or(format!("> {} mm", sp.plan.spacings_mm[0]), |s| format!(
-                    "{s} mm"
-                ))
-            ))
-            .collect::<Vec<_>>()
-            .join("; "),
-        met(best
-            .iter()
-            .all(|(s, _)| s.is_some_and(|s| s <= bar::TARGET_SPACING)))
+        "| two contacts told apart at (best preset, every midpoint {:?} mm) | 20 / 40 / 40 mm | 30-40 mm | <= 15 mm | {} | {} |",
+        sp.plan.centres_mm,
+        cells.join("; "),
+        met(ok)
     );
     let (mean, worst) = mapping_summary(mapping);
     println!(
