@@ -96,6 +96,10 @@ struct Output {
     truth_frames: Option<usize>,
 }
 
+/// The index of the true contact a measurement was matched to, and its
+/// absolute errors in x, Fx, Fy, Fz.
+type MatchedErrors = (usize, [f64; 4]);
+
 /// Pairs every measured contact with a true one (nearest in x within the
 /// gate) and summarises per tracked id.
 fn analyse(frames: &[FrameRecord], truth: Option<&[FrameRecord]>, gate_mm: f64) -> Output {
@@ -106,7 +110,7 @@ fn analyse(frames: &[FrameRecord], truth: Option<&[FrameRecord]>, gate_mm: f64) 
         .collect();
     let mut out_frames = Vec::new();
     // Per id: (truth index, errors x, fx, fy, fz) and frame count.
-    let mut per_id: BTreeMap<u64, (usize, Vec<(usize, [f64; 4])>)> = BTreeMap::new();
+    let mut per_id: BTreeMap<u64, (usize, Vec<MatchedErrors>)> = BTreeMap::new();
     let (mut all_detected, mut truth_frames) = (0usize, 0usize);
     for f in frames {
         let t = by_name.get(f.frame.as_str()).map(|t| &t.contacts[..]);
@@ -244,10 +248,11 @@ fn picture(out: &Output, truth: Option<&[FrameRecord]>) -> optical_tactile::viz:
     stack(&[x, fz, sh])
 }
 
-fn run() -> Result<bool, String> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+/// Runs the demo on the command-line arguments `args` (without the program
+/// name); `Ok(false)` if some frame had to be skipped.
+pub fn run_with(args: &[String]) -> Result<bool, String> {
     let usage = usage();
-    let Some(a) = parse_args(&args, &usage, &["--gate-mm"])? else {
+    let Some(a) = parse_args(args, &usage, &["--gate-mm"])? else {
         return Ok(true);
     };
     let gate = a.extra_f64("--gate-mm", 15.0)?;
@@ -321,7 +326,8 @@ fn run() -> Result<bool, String> {
 }
 
 fn main() -> ExitCode {
-    match run() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match run_with(&args) {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(2),
         Err(e) => {

@@ -4,7 +4,8 @@
 //!   `poses.csv` row) and [`Mounting`] (the sensor frame in the body frame)
 //!   take a contact from the sensor frame (mm) to the world frame (m):
 //!   [`sensor_to_world`], or every contact of a sequence at once with
-//!   [`world_contacts`].
+//!   [`world_contacts`]; [`map_touches`] does that and the clustering in one
+//!   call, with the `touch_mapping` example's defaults ([`MapOptions`]).
 //! - [`cluster`] groups repeated touches of the same obstacle: single-linkage
 //!   clustering with a distance threshold (two points are in the same cluster
 //!   when a chain of points, each within `radius_m` of the next, joins them).
@@ -354,6 +355,65 @@ fn summarize(points: &[[f64; 3]], members: Vec<usize>) -> Cluster {
         spread_m: (ss / count as f64).sqrt(),
         members,
     }
+}
+
+/// Options of [`map_touches`]. The defaults are those of the
+/// `touch_mapping` example.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapOptions {
+    /// Single-linkage radius, m (default 0.05: touches of one rod fall within
+    /// a few mm; rods are tens of cm apart).
+    pub radius_m: f64,
+    /// Contacts lighter than this are left out, N (default 0.5: drops faint
+    /// ghost patches that can appear beside a real press).
+    pub min_force_n: f64,
+    /// Clusters with fewer touches are dropped (default 1: none).
+    pub min_count: usize,
+}
+
+impl Default for MapOptions {
+    fn default() -> Self {
+        MapOptions {
+            radius_m: 0.05,
+            min_force_n: 0.5,
+            min_count: 1,
+        }
+    }
+}
+
+/// The result of [`map_touches`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TouchMap {
+    /// Every kept contact in the world frame, in sequence order.
+    pub touches: Vec<WorldContact>,
+    /// The obstacle estimates; `members` index `touches`.
+    pub clusters: Vec<Cluster>,
+}
+
+/// The whole mapping step: [`world_contacts`] then [`cluster`], dropping
+/// clusters of fewer than `options.min_count` touches. Errors as those
+/// functions do, and on options out of range.
+pub fn map_touches(
+    frames: &[FrameRecord],
+    poses: &HashMap<String, Pose>,
+    mounting: &Mounting,
+    options: &MapOptions,
+    poses_path: &Path,
+) -> Result<TouchMap> {
+    if !(options.min_force_n.is_finite() && options.min_force_n >= 0.0) {
+        return Err(Error::param(
+            "min_force_n",
+            format!("must be finite and >= 0, got {}", options.min_force_n),
+        ));
+    }
+    if options.min_count == 0 {
+        return Err(Error::param("min_count", "must be >= 1"));
+    }
+    let touches = world_contacts(frames, poses, mounting, options.min_force_n, poses_path)?;
+    let points: Vec<[f64; 3]> = touches.iter().map(|t| t.position_m).collect();
+    let mut clusters = cluster(&points, options.radius_m)?;
+    clusters.retain(|c| c.count >= options.min_count);
+    Ok(TouchMap { touches, clusters })
 }
 
 /// A true obstacle: a straight rod, as a line through `point_m` along

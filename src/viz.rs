@@ -566,6 +566,16 @@ fn tick_label(v: f64, step: f64) -> String {
     format!("{v:.decimals$}")
 }
 
+/// `r` if it is a finite, non-empty range; a unit range around a lone
+/// finite value; otherwise `0..1`.
+fn usable_range(r: (f64, f64)) -> (f64, f64) {
+    match (r.0.is_finite(), r.1.is_finite()) {
+        (true, true) if r.1 > r.0 => r,
+        (true, true) => (r.0 - 0.5, r.0 + 0.5),
+        _ => (0.0, 1.0),
+    }
+}
+
 fn data_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = vals
         .filter(|v| v.is_finite())
@@ -619,12 +629,8 @@ impl Plot {
                     .flat_map(|s| s.points.iter().map(|p| p.1)),
             )
         });
-        if !(xr.1 > xr.0) {
-            xr = (xr.0 - 0.5, xr.0 + 0.5);
-        }
-        if !(yr.1 > yr.0) {
-            yr = (yr.0 - 0.5, yr.0 + 0.5);
-        }
+        xr = usable_range(xr);
+        yr = usable_range(yr);
         let (pw, ph) = (right - left, bottom - top);
         if self.equal_aspect {
             // Widen the range that is too small for the common scale.

@@ -7,8 +7,8 @@ use std::path::Path;
 use optical_tactile::Error;
 use optical_tactile::io::{ContactRecord, FrameRecord, PoseRow};
 use optical_tactile::mapping::{
-    Cluster, Mounting, PerchReading, Pose, Rod, cluster, match_rods, poses_by_frame, rank_perches,
-    read_rods_json, sensor_to_world, world_contacts,
+    Cluster, MapOptions, Mounting, PerchReading, Pose, Rod, cluster, map_touches, match_rods,
+    poses_by_frame, rank_perches, read_rods_json, sensor_to_world, world_contacts,
 };
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
@@ -448,4 +448,62 @@ fn perch_ranking() {
         }])
         .is_err()
     );
+}
+
+#[test]
+fn map_touches_filters_and_clusters() {
+    let path = Path::new("poses.csv");
+    let rows = [
+        pose_row("a.png", 0.0, [1.0, 0.0, 0.0, 0.0]),
+        pose_row("b.png", 0.001, [1.0, 0.0, 0.0, 0.0]),
+        pose_row("c.png", 1.0, [1.0, 0.0, 0.0, 0.0]),
+    ];
+    let poses = poses_by_frame(&rows, path).unwrap();
+    // Two touches 1 mm apart, one far away, one too light.
+    let frames = [
+        rec("a.png", &[(0.0, -1.0)]),
+        rec("b.png", &[(0.0, -1.0), (60.0, -0.2)]),
+        rec("c.png", &[(0.0, -1.0)]),
+    ];
+    let m = Mounting::default();
+    let opts = MapOptions::default();
+    let map = map_touches(&frames, &poses, &m, &opts, path).unwrap();
+    assert_eq!(map.touches.len(), 3);
+    assert_eq!(members(&map.clusters), vec![vec![0, 1], vec![2]]);
+    let two = MapOptions {
+        min_count: 2,
+        ..opts
+    };
+    let map = map_touches(&frames, &poses, &m, &two, path).unwrap();
+    assert_eq!(members(&map.clusters), vec![vec![0, 1]]);
+    let all = MapOptions {
+        min_force_n: 0.0,
+        ..opts
+    };
+    assert_eq!(
+        map_touches(&frames, &poses, &m, &all, path)
+            .unwrap()
+            .touches
+            .len(),
+        4
+    );
+    for bad in [
+        MapOptions {
+            min_count: 0,
+            ..opts
+        },
+        MapOptions {
+            min_force_n: f64::NAN,
+            ..opts
+        },
+        MapOptions {
+            radius_m: 0.0,
+            ..opts
+        },
+    ] {
+        assert!(matches!(
+            map_touches(&frames, &poses, &m, &bad, path),
+            Err(Error::InvalidParameter { .. })
+        ));
+    }
 }

@@ -132,6 +132,10 @@ pub fn resolve_input(
     demo: &str,
     scenario: &Scenario,
 ) -> Result<(PathBuf, bool), String> {
+    // Check the calibration before any long work (simulation, reading).
+    if !a.calibration.is_file() {
+        load_calibration(&a.calibration)?;
+    }
     if let Some(dir) = &a.input {
         if !dir.is_dir() {
             return Err(format!(

@@ -1,0 +1,365 @@
+//! The mapping-by-touch demo: touch, move, touch again; every contact is
+//! taken into the world frame with the body pose of its frame, and repeated
+//! touches are clustered into obstacle estimates.
+//!
+//! ```text
+//! cargo run --release --example touch_mapping -- [SEQ_DIR | --simulate DIR]
+//!     [--calibration FILE] [--crop x,y,w,h] [--truth rods.json]
+//!     [--json FILE] [--png FILE] [--seed N] [--radius-mm R (default 50)]
+//!     [--min-force F (default 0.5)] [--gate-mm G (default 100)]
+//!     [--mounting default|identity] [--min-count N (default 1)]
+//! ```
+//!
+//! The sequence needs `poses.csv` (DATASET.md) with a row for every frame
+//! that has contacts. The sensor mounting defaults to the simulator's (skin
+//! facing down under the body: sensor x = body x, y = -y, z = -z); a truth
+//! file's `sensor_in_body_rotation` / `sensor_in_body_offset_m` replace it,
+//! and `--mounting identity` makes the sensor frame the body frame.
+//! Contacts lighter than `--min-force` N are left out: with the shipped
+//! calibration a faint ghost patch (~0.25 N) sometimes appears ~35 mm beside a
+//! real 1 N touch and would pull its cluster (the paper's drone filtered with
+//! thresholds above 1 N for the same reason). Touches are clustered
+//! by single linkage with `--radius-mm` (see `optical_tactile::mapping`);
+//! clusters of fewer than `--min-count` touches are dropped (a real obstacle
+//! is pressed over several frames; a ghost patch seldom is).
+//!
+//! With a truth file (the simulator's `rods.json`: rods along world y;
+//! default: the one beside the frames, if any) each rod is matched to a
+//! cluster (closest first, within `--gate-mm`) and the error per rod is the
+//! distance from the cluster's centre to the rod's top line (the line the
+//! skin touches).
+//!
+//! Prints the clusters and the errors as markdown; `--json` writes exactly
+//! `{"clusters": [{"x_m", "y_m", "z_m", "count", "spread_m"}]}` (world
+//! frame); `--png` draws the world x-z map (touches, clusters, true rods) and
+//! a zoom around each rod in mm.
+//!
+//! With no sequence (or `--simulate DIR`) it first simulates the simulator's
+//! `mapping` scenario: five 10 mm rods at world x = 0.4, 0.9, 1.35, 1.9,
+//! 2.5 m with tops at 1.0 m, touched twice each at random places on the skin
+//! with a 1.5 N press in three steps.
+
+#[path = "demo_support/mod.rs"]
+mod demo_support;
+
+use std::process::ExitCode;
+
+use demo_support::*;
+use optical_tactile::io;
+use optical_tactile::mapping::{
+    MapOptions, Mounting, RodsTruth, TouchMap, map_touches, match_rods, poses_by_frame,
+    read_rods_json,
+};
+use optical_tactile::sim::scenario::{Mapping, Scenario};
+use optical_tactile::viz::{Plot, Rgb, Series, Style};
+use serde::Serialize;
+
+fn usage() -> String {
+    format!(
+        "usage: touch_mapping {COMMON_USAGE} [--radius-mm R (default 50)] [--min-force F (default 0.5)] \
+         [--gate-mm G (default 100)] [--mounting default|identity] [--min-count N (default 1)]"
+    )
+}
+
+#[derive(Serialize)]
+struct ClusterOut {
+    x_m: f64,
+    y_m: f64,
+    z_m: f64,
+    count: usize,
+    spread_m: f64,
+}
+
+#[derive(Serialize)]
+struct Output {
+    clusters: Vec<ClusterOut>,
+}
+
+/// Runs the demo on the command-line arguments `args` (without the program
+/// name); `Ok(false)` if some frame had to be skipped.
+pub fn run_with(args: &[String]) -> Result<bool, String> {
+    let usage = usage();
+    let Some(a) = parse_args(
+        args,
+        &usage,
+        &[
+            "--radius-mm",
+            "--min-force",
+            "--gate-mm",
+            "--mounting",
+            "--min-count",
+        ],
+    )?
+    else {
+        return Ok(true);
+    };
+    let d = MapOptions::default();
+    let min_count = a.extra_f64("--min-count", d.min_count as f64)?;
+    if !(min_count >= 1.0 && min_count.fract() == 0.0) {
+        return Err(format!(
+            "--min-count: expected a whole number >= 1, got {min_count}"
+        ));
+    }
+    let options = MapOptions {
+        radius_m: a.extra_f64("--radius-mm", d.radius_m * 1e3)? * 1e-3,
+        min_force_n: a.extra_f64("--min-force", d.min_force_n)?,
+        min_count: min_count as usize,
+    };
+    let gate_m = a.extra_f64("--gate-mm", 100.0)? * 1e-3;
+    let (dir, _) = resolve_input(&a, "touch_mapping", &Scenario::Mapping(Mapping::default()))?;
+    let poses_path = dir.join("poses.csv");
+    if !poses_path.is_file() {
+        return Err(format!(
+            "no poses.csv in {}: mapping needs the body pose of every frame with contacts \
+             (DATASET.md: frame,t_s,x_m,y_m,z_m,qw,qx,qy,qz)",
+            dir.display()
+        ));
+    }
+    let rows = io::read_poses_csv(&poses_path).map_err(|e| format!("cannot read poses: {e}"))?;
+    let poses = poses_by_frame(&rows, &poses_path).map_err(|e| e.to_string())?;
+    let truth_path = a.truth.clone().or_else(|| {
+        let p = dir.join("rods.json");
+        p.is_file().then_some(p)
+    });
+    let truth: Option<RodsTruth> = truth_path
+        .as_deref()
+        .map(|p| {
+            if !p.is_file() {
+                return Err(format!("truth file {} not found", p.display()));
+            }
+            read_rods_json(p).map_err(|e| format!("cannot read truth: {e}"))
+        })
+        .transpose()?;
+    let mounting = match a.extra_str("--mounting") {
+        None => truth.as_ref().map(|t| t.mounting).unwrap_or_default(),
+        Some("default") => Mounting::default(),
+        Some("identity") => Mounting::identity(),
+        Some(m) => {
+            return Err(format!(
+                "--mounting: expected default or identity, got `{m}`"
+            ));
+        }
+    };
+
+    let run = run_sensor(&dir, &a.calibration, a.crop)?;
+    let TouchMap { touches, clusters } =
+        map_touches(&run.frames, &poses, &mounting, &options, &poses_path)
+            .map_err(|e| e.to_string())?;
+    let points: Vec<[f64; 3]> = touches.iter().map(|t| t.position_m).collect();
+    let matches = truth
+        .as_ref()
+        .map(|t| match_rods(&clusters, &t.rods, gate_m))
+        .transpose()
+        .map_err(|e| e.to_string())?;
+
+    println!(
+        "## touch_mapping: {} ({} contacts in {} frames, {} clusters)\n",
+        dir.display(),
+        touches.len(),
+        run.frames.len(),
+        clusters.len()
+    );
+    println!("| cluster | x_m | y_m | z_m | count | spread_mm | rod | error_mm |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (k, c) in clusters.iter().enumerate() {
+        let m = matches
+            .as_ref()
+            .and_then(|m| m.iter().find(|r| r.cluster == Some(k)));
+        println!(
+            "| {} | {:.4} | {:.4} | {:.4} | {} | {:.2} | {} | {} |",
+            k + 1,
+            c.position_m[0],
+            c.position_m[1],
+            c.position_m[2],
+            c.count,
+            c.spread_m * 1e3,
+            m.map(|r| (r.rod + 1).to_string()).unwrap_or("-".into()),
+            m.and_then(|r| r.error_m)
+                .map(|e| format!("{:.2}", e * 1e3))
+                .unwrap_or("-".into())
+        );
+    }
+    if let (Some(t), Some(m)) = (&truth, &matches) {
+        println!("\n| rod | x_m | top_m | cluster | dx_mm | dz_mm | error_mm |");
+        println!("|---|---|---|---|---|---|---|");
+        let mut errs = Vec::new();
+        for r in m {
+            let rod = &t.rods[r.rod];
+            let (c, dx, dz, e) = match r.cluster {
+                Some(k) => {
+                    let p = clusters[k].position_m;
+                    errs.push(r.error_m.expect("matched"));
+                    (
+                        (k + 1).to_string(),
+                        format!("{:+.2}", (p[0] - rod.point_m[0]) * 1e3),
+                        format!("{:+.2}", (p[2] - rod.point_m[2]) * 1e3),
+                        format!("{:.2}", r.error_m.expect("matched") * 1e3),
+                    )
+                }
+                None => ("missed".into(), "-".into(), "-".into(), "-".into()),
+            };
+            println!(
+                "| {} | {:.4} | {:.4} | {c} | {dx} | {dz} | {e} |",
+                r.rod + 1,
+                rod.point_m[0],
+                rod.point_m[2]
+            );
+        }
+        let missed = m.iter().filter(|r| r.cluster.is_none()).count();
+        let false_clusters = clusters.len() - errs.len();
+        if errs.is_empty() {
+            println!("\nno rod found ({missed} missed, {false_clusters} false clusters)");
+        } else {
+            println!(
+                "\nerror per rod: mean {:.2} mm, worst {:.2} mm over {} rods; {missed} missed, \
+                 {false_clusters} false clusters (target: worst <= 2 mm; paper < 40 mm)",
+                mean(&errs) * 1e3,
+                errs.iter().fold(0.0f64, |a, &b| a.max(b)) * 1e3,
+                errs.len()
+            );
+        }
+    }
+
+    if let Some(p) = &a.png {
+        let grey = Rgb(150, 150, 150);
+        let mut series = vec![Series {
+            label: "TOUCHES".into(),
+            points: points.iter().map(|p| (p[0], p[2])).collect(),
+            color: grey,
+            style: Style::Dots(2.0),
+        }];
+        series.push(Series {
+            label: "CLUSTERS".into(),
+            points: clusters
+                .iter()
+                .map(|c| (c.position_m[0], c.position_m[2]))
+                .collect(),
+            color: PALETTE[0],
+            style: Style::Circle(0.0),
+        });
+        if let Some(t) = &truth {
+            series.push(Series {
+                label: "TRUE RODS".into(),
+                points: t
+                    .rods
+                    .iter()
+                    .map(|r| (r.point_m[0], r.point_m[2]))
+                    .collect(),
+                color: PALETTE[1],
+                style: Style::Cross(5.0),
+            });
+        }
+        // At least 0.2 m of z, so that the map is not a mm-scale scatter
+        // (the zooms below show the mm).
+        let zs = series.iter().flat_map(|s| s.points.iter().map(|p| p.1));
+        let (zlo, zhi) = zs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), z| {
+            (a.min(z), b.max(z))
+        });
+        let zmid = if zlo.is_finite() {
+            0.5 * (zlo + zhi)
+        } else {
+            0.0
+        };
+        let half = (0.5 * (zhi - zlo) + 0.02).max(0.1);
+        let overview = Plot {
+            title: "TOUCH MAP, WORLD X-Z (ZOOMS BELOW: CIRCLE = 2 MM TARGET)".into(),
+            y_range: Some((zmid - half, zmid + half)),
+            x_label: "X M".into(),
+            y_label: "Z M".into(),
+            series,
+            ..Plot::default()
+        }
+        .render(1100, 260);
+        let mut panels = vec![overview];
+        // A zoom around each rod (or each cluster without truth), in mm.
+        let centres: Vec<(String, [f64; 3])> = match &truth {
+            Some(t) => t
+                .rods
+                .iter()
+                .enumerate()
+                .map(|(k, r)| (format!("ROD {}", k + 1), r.point_m))
+                .collect(),
+            None => clusters
+                .iter()
+                .enumerate()
+                .map(|(k, c)| (format!("CLUSTER {}", k + 1), c.position_m))
+                .collect(),
+        };
+        let zooms: Vec<_> = centres
+            .iter()
+            .take(6)
+            .map(|(name, c)| {
+                let rel = |p: [f64; 3]| ((p[0] - c[0]) * 1e3, (p[2] - c[2]) * 1e3);
+                let near = |p: &[f64; 3]| (p[0] - c[0]).abs() < 0.02 && (p[2] - c[2]).abs() < 0.02;
+                let mut s = vec![Series {
+                    label: String::new(),
+                    points: points.iter().filter(|p| near(p)).map(|&p| rel(p)).collect(),
+                    color: grey,
+                    style: Style::Dots(3.0),
+                }];
+                s.push(Series {
+                    label: String::new(),
+                    points: clusters
+                        .iter()
+                        .filter(|k| near(&k.position_m))
+                        .map(|k| rel(k.position_m))
+                        .collect(),
+                    color: PALETTE[0],
+                    style: Style::Cross(6.0),
+                });
+                if truth.is_some() {
+                    s.push(Series {
+                        label: String::new(),
+                        points: vec![(0.0, 0.0)],
+                        color: PALETTE[1],
+                        style: Style::Circle(2.0),
+                    });
+                }
+                Plot {
+                    title: name.clone(),
+                    x_label: "DX MM".into(),
+                    y_label: "DZ MM".into(),
+                    x_range: Some((-6.0, 6.0)),
+                    y_range: Some((-6.0, 6.0)),
+                    equal_aspect: true,
+                    series: s,
+                }
+                .render(214, 214)
+            })
+            .collect();
+        if !zooms.is_empty() {
+            panels.push(row(&zooms));
+        }
+        stack(&panels).save_png(p).map_err(|e| e.to_string())?;
+        eprintln!("wrote {}", p.display());
+    }
+    if let Some(p) = &a.json {
+        let out = Output {
+            clusters: clusters
+                .iter()
+                .map(|c| ClusterOut {
+                    x_m: c.position_m[0],
+                    y_m: c.position_m[1],
+                    z_m: c.position_m[2],
+                    count: c.count,
+                    spread_m: c.spread_m,
+                })
+                .collect(),
+        };
+        write_json(p, &out)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(run.skipped == 0)
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match run_with(&args) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(2),
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
