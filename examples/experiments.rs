@@ -630,16 +630,17 @@ fn print_mapping(runs: &[MappingRun], o: &MappingOptions) {
     println!(
         "The simulator's `mapping` scenario (rods along world y at x = {:?} m, {} touches per rod at \
          random places on the skin, up to {} N, {} mm rods), one seed per run; the `high` calibration \
-         fitted above in a `TactileSensor` (frame 0 as reference); contacts from {} N into the world \
-         frame with each frame's pose (`mapping::world_contacts`), single-linkage clusters of radius \
-         {} m (`mapping::cluster`), matched one to one with the true rods within {} m \
+         fitted above in a `TactileSensor` (frame 0 as reference); the contacts detected in each \
+         frame (not those the tracker holds), from {} N, into the world frame with the frame's pose, \
+         single-linkage clusters of radius {} m (`mapping::map_touches`, the `touch_mapping` \
+         example's defaults), matched one to one with the true rods within {} m \
          (`mapping::match_rods`). Error = distance of a cluster's centre from its rod's line.\n",
         o.scenario.rods_x_m,
         o.scenario.touches,
         o.scenario.force_n,
         o.scenario.indenter_mm,
-        o.min_force_n,
-        o.radius_m,
+        o.map.min_force_n,
+        o.map.radius_m,
         o.gate_m
     );
     print!("| seed | contacts | clusters | false clusters |");

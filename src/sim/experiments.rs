@@ -19,8 +19,8 @@
 //!   its rod ([`pair_told_apart`]).
 //! - [`mapping_run`]: the touch-mapping demo end to end: the `mapping`
 //!   scenario, a [`TactileSensor`] over its frames, contacts into the world
-//!   frame, clusters, and their error against the true rods
-//!   ([`crate::mapping`]).
+//!   frame and clusters ([`crate::mapping::map_touches`], as the
+//!   `touch_mapping` example), and their error against the true rods.
 
 use std::path::Path;
 
@@ -34,7 +34,7 @@ use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::io::{self, FrameRecord};
-use crate::mapping::{cluster, match_rods, poses_by_frame, read_rods_json, world_contacts};
+use crate::mapping::{MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json};
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
 
@@ -698,22 +698,20 @@ pub fn spacing_sweep(
 pub struct MappingOptions {
     /// The simulated sequence (rods, touches, force).
     pub scenario: Mapping,
-    /// Contacts with a smaller force magnitude are left out, N.
-    pub min_force_n: f64,
-    /// Single-linkage clustering radius, m.
-    pub radius_m: f64,
+    /// Contacts into the world frame and clusters ([`map_touches`]).
+    pub map: MapOptions,
     /// A cluster farther than this from every rod is a false obstacle, m.
     pub gate_m: f64,
 }
 
 impl Default for MappingOptions {
     /// The scenario's defaults (5 rods 0.45-0.6 m apart, 2 touches each, 1.5
-    /// N), contacts from 0.5 N, clustering radius 0.1 m, gate 0.2 m.
+    /// N), the `touch_mapping` example's [`MapOptions`] (contacts from 0.5 N,
+    /// clustering radius 0.05 m), gate 0.2 m.
     fn default() -> Self {
         MappingOptions {
             scenario: Mapping::default(),
-            min_force_n: 0.5,
-            radius_m: 0.1,
+            map: MapOptions::default(),
             gate_m: 0.2,
         }
     }
@@ -822,20 +820,13 @@ pub fn mapping_run(
         w.write(r)?;
     }
     drop(w);
-    let world = world_contacts(
-        &records,
-        &poses,
-        &truth.mounting,
-        o.min_force_n,
-        &poses_path,
-    )?;
-    let points: Vec<[f64; 3]> = world.iter().map(|w| w.position_m).collect();
-    let clusters = cluster(&points, o.radius_m)?;
+    let map = map_touches(&records, &poses, &truth.mounting, &o.map, &poses_path)?;
+    let clusters = map.clusters;
     let matches = match_rods(&clusters, &truth.rods, o.gate_m)?;
     let matched = matches.iter().filter(|m| m.cluster.is_some()).count();
     Ok(MappingRun {
         seed,
-        contacts: points.len(),
+        contacts: map.touches.len(),
         clusters: clusters
             .iter()
             .map(|c| ClusterSummary {
