@@ -23,23 +23,15 @@
 
 use std::time::Instant;
 
-use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
 use optical_tactile::morphology::Shape;
-use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
-use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
-use optical_tactile::sim::scenario::tilted_force;
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile::segment::Thresholds;
+use optical_tactile::sensor::ExtractorConfig;
+use optical_tactile::sim::experiments::{
+    INDENTERS_MM, MdfPlan, SpacingPlan, SweepOptions, TILTS_DEG, ThresholdSet, mdf_sweep,
+    no_progress, rest_sweep, spacing_sweep,
+};
+use optical_tactile::sim::{SimConfig, SyntheticSensor};
 use optical_tactile::{Error, Result};
-
-const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
-/// The characterization protocol's tilts `(yaw, pitch)`, degrees.
-const TILTS_DEG: [(f64, f64); 5] = [
-    (0.0, 0.0),
-    (0.0, 15.0),
-    (0.0, -15.0),
-    (15.0, 0.0),
-    (-15.0, 0.0),
-];
 
 struct Args {
     mode: String,
@@ -54,7 +46,7 @@ struct Args {
     tol_mm: f64,
     margin: usize,
     /// Named threshold sets to evaluate (the presets unless `--candidate`).
-    sets: Vec<(String, Thresholds)>,
+    sets: Vec<ThresholdSet>,
 }
 
 const HELP: &str = "usage: sweep [all|rest|mdf|spacing] [options]
@@ -81,11 +73,7 @@ fn list(s: &str) -> Result<Vec<f64>> {
 }
 
 fn parse_args() -> Result<Args> {
-    let presets = vec![
-        ("LOW".to_string(), Thresholds::LOW),
-        ("MID".to_string(), Thresholds::MID),
-        ("HIGH".to_string(), Thresholds::HIGH),
-    ];
+    let presets = ThresholdSet::presets();
     let mut a = Args {
         mode: "all".into(),
         seed: 1,
@@ -141,7 +129,10 @@ fn parse_args() -> Result<Args> {
                     shape,
                 };
                 t.validate()?;
-                a.sets.push((v.clone(), t));
+                a.sets.push(ThresholdSet {
+                    name: v.clone(),
+                    thresholds: t,
+                });
             }
             _ => return Err(Error::param("argument", format!("unknown `{arg}`\n{HELP}"))),
         }
@@ -159,129 +150,35 @@ fn num(s: &str) -> Result<f64> {
         .map_err(|e| Error::param("number", format!("`{s}`: {e}")))
 }
 
-/// Image column (full-resolution strip pixels) of a rod at arc position `s`.
-fn rod_px(sensor: &SyntheticSensor, s: f64) -> f64 {
-    let c = sensor.config();
-    c.camera.s_to_px(&c.skin, s)
-}
-
-/// Does a patch (native-resolution box) cover column `x_px` (full resolution)?
-fn covers(p: &ContactPatch, scale: f64, x_px: f64) -> bool {
-    let x0 = p.bbox.x as f64 * scale;
-    let x1 = (p.bbox.x + p.bbox.width) as f64 * scale;
-    (x0..=x1).contains(&x_px)
-}
-
-/// One DIS (accurate preset) and one segmenter per threshold set, run on the
-/// same native flow.
-struct Bench {
-    dis: Dis,
-    segs: Vec<Segmenter>,
-    patches: Vec<ContactPatch>,
-    scale: f64,
-}
-
-impl Bench {
-    fn new(args: &Args) -> Result<Self> {
-        let params = DisParams::preset(DisPreset::Accurate);
-        let scale = (1usize << params.finest_scale) as f64;
-        let segs = args
-            .sets
-            .iter()
-            .map(|(_, t)| {
-                Segmenter::new(SegmenterConfig {
-                    thresholds: *t,
-                    margin: args.margin,
-                    scale,
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(Bench {
-            dis: Dis::new(params)?,
-            segs,
-            patches: Vec::new(),
-            scale,
-        })
-    }
-
-    /// Computes the flow of `frame` against the current reference, then calls
-    /// `f(set index, patches)` for every threshold set.
-    fn each(
-        &mut self,
-        frame: &ndarray::Array2<f32>,
-        mut f: impl FnMut(usize, &[ContactPatch]),
-    ) -> Result<()> {
-        self.dis.compute_native(frame)?;
-        let (flow, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
-        for (k, seg) in self.segs.iter_mut().enumerate() {
-            seg.segment_into(flow, &mut self.patches)?;
-            f(k, &self.patches);
-        }
-        Ok(())
-    }
-
-    /// Largest `|flow|` of the last frame, full-resolution pixels.
-    fn peak(&self) -> f64 {
-        let (flow, _) = self.dis.native_flow().expect("computed");
-        flow.u
-            .iter()
-            .zip(flow.v.iter())
-            .map(|(u, v)| u.hypot(*v) as f64)
-            .fold(0.0, f64::max)
-            * self.scale
+fn options(args: &Args) -> SweepOptions {
+    SweepOptions {
+        sets: args.sets.clone(),
+        margin_px: args.margin,
+        debug: std::env::var_os("SWEEP_DEBUG").is_some(),
     }
 }
 
 fn rest(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     let t = Instant::now();
-    let mut bench = Bench::new(args)?;
-    let n = args.sets.len();
-    let mut false_frames = vec![0usize; n];
-    let mut false_patches = vec![0usize; n];
-    let mut peaks = Vec::with_capacity(args.rest);
-    let mut sums = vec![0.0f64; n];
-    // Frame indices far from the other modes' so the noise is fresh.
-    let base = 1_000_000u64;
-    for k in 0..args.rest as u64 {
-        let r = sensor.render_indexed(base + 2 * k, &[], false)?;
-        let o = sensor.render_indexed(base + 2 * k + 1, &[], false)?;
-        bench.dis.set_reference(&r.frame)?;
-        let mut segs_max = vec![0.0f64; n];
-        bench.each(&o.frame, |i, p| {
-            if !p.is_empty() {
-                false_frames[i] += 1;
-                false_patches[i] += p.len();
-            }
-            segs_max[i] = 0.0;
-        })?;
-        for (i, seg) in bench.segs.iter().enumerate() {
-            let s3 = bench.scale.powi(3);
-            let m = seg.contour_sums().iter().copied().fold(0.0, f64::max) * s3;
-            segs_max[i] = m;
-            sums[i] = sums[i].max(m);
-        }
-        peaks.push(bench.peak());
-    }
-    peaks.sort_by(f64::total_cmp);
-    let q = |p: f64| peaks[((p * peaks.len() as f64) as usize).min(peaks.len() - 1)];
+    let r = rest_sweep(sensor, &options(args), args.rest, &no_progress)?;
     println!(
         "### False contacts at rest ({} rest pairs, seed {})\n",
         args.rest, args.seed
     );
     println!(
         "Peak |flow| per rest pair (full-resolution px): median {:.3}, 99th percentile {:.3}, max {:.3}.\n",
-        q(0.5),
-        q(0.99),
-        peaks[peaks.len() - 1]
+        r.peak_quantile(0.5),
+        r.peak_quantile(0.99),
+        r.peak_quantile(1.0)
     );
     println!(
         "| thresholds | frames with a false contact | false patches | largest contour sum at rest |"
     );
     println!("|---|---|---|---|");
-    for (i, (name, _)) in args.sets.iter().enumerate() {
+    for (i, set) in args.sets.iter().enumerate() {
         println!(
-            "| {name} | {} / {} | {} | {:.0} |",
-            false_frames[i], args.rest, false_patches[i], sums[i]
+            "| {} | {} / {} | {} | {:.0} |",
+            set.name, r.false_frames[i], args.rest, r.false_patches[i], r.max_contour_sum[i]
         );
     }
     eprintln!("rest: {:.1} s", t.elapsed().as_secs_f64());
@@ -291,59 +188,11 @@ fn rest(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
 
 fn mdf(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     let t = Instant::now();
-    let mut bench = Bench::new(args)?;
-    let (n, nf) = (args.sets.len(), args.forces.len());
-    // hit[set][indenter][force], out of `per` presses each.
-    let mut hit = vec![vec![vec![0usize; nf]; 3]; n];
-    let mut stray = vec![0usize; n];
-    let per = args.positions.len() * TILTS_DEG.len();
-    let mut idx = 0u64;
-    let debug = std::env::var_os("SWEEP_DEBUG").is_some();
-    for (ii, &d) in INDENTERS_MM.iter().enumerate() {
-        for &s in &args.positions {
-            let x = sensor.config().skin.arc_to_chord(s);
-            let xp = rod_px(sensor, s);
-            for &(yaw, pitch) in &TILTS_DEG {
-                // One fresh reference per condition, a fresh frame per force.
-                let r = sensor.render_indexed(idx, &[], false)?;
-                idx += 1;
-                bench.dis.set_reference(&r.frame)?;
-                for (fi, &f) in args.forces.iter().enumerate() {
-                    let rod = Contact::rod(x, tilted_force(f, yaw, pitch), d);
-                    let o = sensor.render_indexed(idx, &[rod], false)?;
-                    idx += 1;
-                    let scale = bench.scale;
-                    bench.each(&o.frame, |k, p| {
-                        if p.iter().any(|p| covers(p, scale, xp)) {
-                            hit[k][ii][fi] += 1;
-                        }
-                        if debug && f >= 0.8 && p.iter().any(|p| !covers(p, scale, xp)) {
-                            let boxes: Vec<_> = p
-                                .iter()
-                                .map(|p| (p.bbox.x as f64 * scale, p.bbox.x_end() as f64 * scale))
-                                .collect();
-                            eprintln!(
-                                "miss set {k} d {d} s {s} tilt ({yaw},{pitch}) f {f}: rod {xp:.0} boxes {boxes:?}"
-                            );
-                        }
-                        stray[k] += p.iter().filter(|p| !covers(p, scale, xp)).count();
-                    })?;
-                }
-            }
-        }
-    }
-    let min_force_at = |h: &[usize], rate: f64| -> Option<f64> {
-        // Smallest ladder force from which every larger one is detected in >= rate.
-        let mut best = None;
-        for fi in (0..nf).rev() {
-            if h[fi] as f64 >= rate * per as f64 - 1e-9 {
-                best = Some(args.forces[fi]);
-            } else {
-                break;
-            }
-        }
-        best
+    let plan = MdfPlan {
+        positions_mm: args.positions.clone(),
+        forces_n: args.forces.clone(),
     };
+    let r = mdf_sweep(sensor, &options(args), &plan, &no_progress)?;
     println!(
         "### Minimum detectable force ({} positions x {} tilts per indenter and force, seed {})\n",
         args.positions.len(),
@@ -353,26 +202,21 @@ fn mdf(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     println!(
         "Smallest force of the ladder from which >= 95% of presses are detected (a patch covering the rod).\n"
     );
-    let min_force = |h: &[usize]| min_force_at(h, 0.95);
     println!(
         "| thresholds | 2 mm | 5 mm | 10 mm | all indenters | every press (100%) from | patches away from the rod |"
     );
     println!("|---|---|---|---|---|---|---|");
     let fmt = |v: Option<f64>| v.map_or("> ladder".to_string(), |f| format!("{f:.1} N"));
-    for (k, (name, _)) in args.sets.iter().enumerate() {
-        let each: Vec<Option<f64>> = (0..3).map(|i| min_force(&hit[k][i])).collect();
-        let all = each.iter().try_fold(0.0f64, |m, v| v.map(|v| m.max(v)));
-        let every = (0..3)
-            .map(|i| min_force_at(&hit[k][i], 1.0))
-            .try_fold(0.0f64, |m, v| v.map(|v| m.max(v)));
+    for (k, set) in args.sets.iter().enumerate() {
         println!(
-            "| {name} | {} | {} | {} | **{}** | {} | {} |",
-            fmt(each[0]),
-            fmt(each[1]),
-            fmt(each[2]),
-            fmt(all),
-            fmt(every),
-            stray[k]
+            "| {} | {} | {} | {} | **{}** | {} | {} |",
+            set.name,
+            fmt(r.min_force(k, Some(0), 0.95)),
+            fmt(r.min_force(k, Some(1), 0.95)),
+            fmt(r.min_force(k, Some(2), 0.95)),
+            fmt(r.min_force(k, None, 0.95)),
+            fmt(r.min_force(k, None, 1.0)),
+            r.stray[k]
         );
     }
     println!("\nDetection rate per force (all indenters):\n");
@@ -386,11 +230,10 @@ fn mdf(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
         print!("---|");
     }
     println!();
-    for (k, (name, _)) in args.sets.iter().enumerate() {
-        print!("| {name} |");
-        for fi in 0..nf {
-            let h: usize = (0..3).map(|i| hit[k][i][fi]).sum();
-            print!(" {:.0}% |", 100.0 * h as f64 / (3 * per) as f64);
+    for (k, set) in args.sets.iter().enumerate() {
+        print!("| {} |", set.name);
+        for fi in 0..args.forces.len() {
+            print!(" {:.0}% |", 100.0 * r.rate(k, fi));
         }
         println!();
     }
@@ -401,68 +244,13 @@ fn mdf(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
 
 fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     let t = Instant::now();
-    let mut extractors = args
-        .sets
-        .iter()
-        .map(|(_, th)| {
-            ContactExtractor::new(ExtractorConfig {
-                thresholds: *th,
-                margin_px: args.margin,
-                ..ExtractorConfig::default()
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let px_per_mm = sensor.config().camera.px_per_mm_s;
-    let tol = args.tol_mm * px_per_mm;
-    let (n, ns) = (args.sets.len(), args.spacings.len());
-    // apart[set][indenter][force][spacing]: pairs told apart (out of the centres).
-    let mut apart = vec![vec![vec![vec![0usize; ns]; args.spacing_forces.len()]; 3]; n];
-    let mut idx = 2_000_000u64;
-    let debug = std::env::var_os("SWEEP_DEBUG").is_some();
-    for (ii, &d) in INDENTERS_MM.iter().enumerate() {
-        for (fi, &f) in args.spacing_forces.iter().enumerate() {
-            for (si, &sp) in args.spacings.iter().enumerate() {
-                for &c in &args.spacing_centres {
-                    let (s1, s2) = (c - 0.5 * sp, c + 0.5 * sp);
-                    let skin = &sensor.config().skin;
-                    let rods = [
-                        Contact::rod(skin.arc_to_chord(s1), [0.0, 0.0, -f], d),
-                        Contact::rod(skin.arc_to_chord(s2), [0.0, 0.0, -f], d),
-                    ];
-                    let (p1, p2) = (rod_px(sensor, s1), rod_px(sensor, s2));
-                    let r = sensor.render_indexed(idx, &[], false)?;
-                    let o = sensor.render_indexed(idx + 1, &rods, false)?;
-                    idx += 2;
-                    for (k, ex) in extractors.iter_mut().enumerate() {
-                        ex.set_reference(&r.frame)?;
-                        let raws = ex.extract(&o.frame)?.to_vec();
-                        if debug {
-                            let got: Vec<_> = raws
-                                .iter()
-                                .map(|r| (r.x_px.round(), r.bbox.x, r.bbox.x + r.bbox.w))
-                                .collect();
-                            let cores: Vec<_> = ex
-                                .segmenter()
-                                .contour_boxes()
-                                .iter()
-                                .map(|b| (b.x * 2, b.x_end() * 2))
-                                .collect();
-                            eprintln!(
-                                "set {k} d {d} f {f} sp {sp} c {c}: rods {p1:.0} {p2:.0} got {got:?} contours {cores:?}"
-                            );
-                        }
-                        if raws.len() == 2 {
-                            let mut xs = [raws[0].x_px, raws[1].x_px];
-                            xs.sort_by(f64::total_cmp);
-                            if (xs[0] - p1).abs() <= tol && (xs[1] - p2).abs() <= tol {
-                                apart[k][ii][fi][si] += 1;
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
+    let plan = SpacingPlan {
+        spacings_mm: args.spacings.clone(),
+        forces_n: args.spacing_forces.clone(),
+        centres_mm: args.spacing_centres.clone(),
+        tol_mm: args.tol_mm,
+    };
+    let r = spacing_sweep(sensor, &options(args), &plan, &no_progress)?;
     let nc = args.spacing_centres.len();
     println!(
         "### Two-rod spacing sweep (equal straight presses, midpoints at {:?} mm, seed {})\n",
@@ -473,31 +261,23 @@ fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
          Smallest spacing from which every larger spacing of the list is told apart:\n",
         args.tol_mm
     );
-    print!("| thresholds |");
-    for &d in &INDENTERS_MM {
-        for &f in &args.spacing_forces {
-            print!(" {d} mm, {f} N |");
+    let columns = || {
+        let mut s = String::new();
+        for &d in &INDENTERS_MM {
+            for &f in &args.spacing_forces {
+                s += &format!(" {d} mm, {f} N |");
+            }
         }
-    }
-    println!();
-    print!("|---|");
-    for _ in 0..3 * args.spacing_forces.len() {
-        print!("---|");
-    }
-    println!();
-    for (k, (name, _)) in args.sets.iter().enumerate() {
-        print!("| {name} |");
-        for ii in 0..3 {
+        s
+    };
+    let rule = "---|".repeat(INDENTERS_MM.len() * args.spacing_forces.len());
+    println!("| thresholds |{}", columns());
+    println!("|---|{rule}");
+    for (k, set) in args.sets.iter().enumerate() {
+        print!("| {} |", set.name);
+        for ii in 0..INDENTERS_MM.len() {
             for fi in 0..args.spacing_forces.len() {
-                let mut best = None;
-                for si in 0..ns {
-                    if apart[k][ii][fi][si] == nc {
-                        best = Some(args.spacings[si]);
-                    } else {
-                        break;
-                    }
-                }
-                match best {
+                match r.min_spacing(k, ii, Some(fi), None) {
                     Some(s) => print!(" {s} mm |"),
                     None => print!(" > {} mm |", args.spacings[0]),
                 }
@@ -508,24 +288,14 @@ fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     println!(
         "\nPairs told apart per spacing (out of {nc} midpoints), indenter/force in the column order above:\n"
     );
-    print!("| thresholds | spacing |");
-    for &d in &INDENTERS_MM {
-        for &f in &args.spacing_forces {
-            print!(" {d} mm, {f} N |");
-        }
-    }
-    println!();
-    print!("|---|---|");
-    for _ in 0..3 * args.spacing_forces.len() {
-        print!("---|");
-    }
-    println!();
-    for (k, (name, _)) in args.sets.iter().enumerate() {
+    println!("| thresholds | spacing |{}", columns());
+    println!("|---|---|{rule}");
+    for (k, set) in args.sets.iter().enumerate() {
         for (si, sp) in args.spacings.iter().enumerate() {
-            print!("| {name} | {sp} mm |");
-            for ii in 0..3 {
+            print!("| {} | {sp} mm |", set.name);
+            for ii in 0..INDENTERS_MM.len() {
                 for fi in 0..args.spacing_forces.len() {
-                    print!(" {} |", apart[k][ii][fi][si]);
+                    print!(" {} |", r.count(k, ii, fi, si));
                 }
             }
             println!();
@@ -541,10 +311,11 @@ fn main() -> Result<()> {
     let sensor = SyntheticSensor::new(SimConfig::default(), args.seed)?;
     println!("| thresholds | magnitude (px) | sum (px^3) | erode | dilate | shape |");
     println!("|---|---|---|---|---|---|");
-    for (name, t) in &args.sets {
+    for set in &args.sets {
+        let t = &set.thresholds;
         println!(
-            "| {name} | {} | {} | {} | {} | {:?} |",
-            t.magnitude, t.sum, t.erode, t.dilate, t.shape
+            "| {} | {} | {} | {} | {} | {:?} |",
+            set.name, t.magnitude, t.sum, t.erode, t.dilate, t.shape
         );
     }
     println!();

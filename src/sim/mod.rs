@@ -35,6 +35,7 @@
 pub mod camera;
 pub mod cli;
 pub mod elastic;
+pub mod experiments;
 mod render;
 pub mod rng;
 pub mod scenario;
