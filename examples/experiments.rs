@@ -33,9 +33,8 @@ use serde::Serialize;
 use optical_tactile::calibration::{
     Calibration, DetectionLimit, FitOptions, PointTable, QuantityMae,
 };
-use optical_tactile::characterize::{
-    DEFAULT_CONTACT_WINDOW_PX, extract_dataset, fit_dataset, read_dataset,
-};
+use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
 use optical_tactile::io;
@@ -267,7 +266,7 @@ fn characterization(
             &dir,
             &rows,
             &config,
-            DEFAULT_CONTACT_WINDOW_PX,
+            ContactPointMethod::DEFAULT,
             None,
             &|d, n| progress(&stage, d, n),
         )?;
@@ -279,7 +278,7 @@ fn characterization(
         let fit = fit_dataset(
             &ex,
             &config,
-            DEFAULT_CONTACT_WINDOW_PX,
+            ContactPointMethod::DEFAULT,
             name,
             crop,
             SensorGeometry::default(),

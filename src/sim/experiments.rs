@@ -30,6 +30,7 @@ use serde::Serialize;
 use super::scenario::{self, Common, Mapping, Scenario, tilted_force};
 use super::sensor::{Contact, SyntheticSensor};
 use crate::calibration::Calibration;
+use crate::contact::{ContactLocator, ContactPointMethod};
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
@@ -544,7 +545,8 @@ impl SpacingResult {
 /// Presses two straight rods of diameter `indenter_mm` with force `force_n`
 /// each, `spacing_mm` apart along the arc around midpoint `centre_mm`, and
 /// tells whether `extractor` finds exactly two contacts, each within
-/// `tol_mm` (along the arc) of its rod. Frames `frame_index` (reference) and
+/// `tol_mm` (along the arc) of its rod, its column measured as the shipped
+/// calibration does ([`ContactPointMethod::DEFAULT`]). Frames `frame_index` (reference) and
 /// `frame_index + 1` (loaded). With `debug`, prints the case to stderr.
 #[allow(clippy::too_many_arguments)]
 pub fn pair_told_apart(
@@ -600,6 +602,17 @@ pub fn pair_told_apart(
     if raws.len() != 2 {
         return Ok(false);
     }
+    // Each contact's column as the shipped calibration measures it (the
+    // slope peak), not the patch's potential minimum: that is where the
+    // sensor reports the contact.
+    let mut raws = [raws[0], raws[1]];
+    let (flow, s) = extractor.flow();
+    ContactLocator::new().refine(
+        ContactPointMethod::DEFAULT,
+        &mut raws,
+        flow.u.view(),
+        s as f64,
+    )?;
     let mut xs = [raws[0].x_px, raws[1].x_px];
     xs.sort_by(f64::total_cmp);
     Ok((xs[0] - p1).abs() <= tol && (xs[1] - p2).abs() <= tol)
