@@ -70,18 +70,22 @@ fn training_set(seed: u64) -> Vec<Training> {
         .collect()
 }
 
-fn fit(set: &[Training], degree: usize) -> ProfileModel {
-    let samples: Vec<ProfileSample<'_>> = set
-        .iter()
+/// The training contacts as fitting samples, with their own forces or,
+/// given `force`, that one for all.
+fn samples(set: &[Training], force: Option<[f64; 3]>) -> Vec<ProfileSample<'_>> {
+    set.iter()
         .map(|(c, f, p)| ProfileSample {
             column_px: *c,
             profile_u: &p[0],
             profile_v: &p[1],
             scale: SCALE,
-            local_force: *f,
+            local_force: force.unwrap_or(*f),
         })
-        .collect();
-    ProfileModel::fit(&samples, SCALE, 200.0, degree, CENTRE, SPAN).unwrap()
+        .collect()
+}
+
+fn fit(set: &[Training], degree: usize) -> ProfileModel {
+    ProfileModel::fit(&samples(set, None), SCALE, 200.0, degree, CENTRE, SPAN).unwrap()
 }
 
 #[test]
@@ -276,28 +280,10 @@ fn bad_input_is_a_clear_error() {
     assert!(out.is_empty());
     // Too few samples, forces that do not vary, bad parameters.
     let set = training_set(5);
-    let few: Vec<ProfileSample<'_>> = set[..3]
-        .iter()
-        .map(|(c, f, p)| ProfileSample {
-            column_px: *c,
-            profile_u: &p[0],
-            profile_v: &p[1],
-            scale: SCALE,
-            local_force: *f,
-        })
-        .collect();
+    let few = samples(&set[..3], None);
     let e = ProfileModel::fit(&few, SCALE, 120.0, 1, CENTRE, SPAN).unwrap_err();
     assert!(matches!(e, Error::Calibration { .. }), "{e:?}");
-    let same: Vec<ProfileSample<'_>> = set
-        .iter()
-        .map(|(c, _, p)| ProfileSample {
-            column_px: *c,
-            profile_u: &p[0],
-            profile_v: &p[1],
-            scale: SCALE,
-            local_force: [0.0, 0.0, -1.0],
-        })
-        .collect();
+    let same = samples(&set, Some([0.0, 0.0, -1.0]));
     let e = ProfileModel::fit(&same, SCALE, 120.0, 1, CENTRE, SPAN).unwrap_err();
     assert!(e.to_string().contains("singular"), "{e}");
     assert!(ProfileModel::fit(&same, 0.0, 120.0, 1, CENTRE, SPAN).is_err());

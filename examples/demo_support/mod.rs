@@ -271,6 +271,22 @@ pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), String> {
     std::fs::write(path, s + "\n").map_err(|e| format!("cannot write {}: {e}", path.display()))
 }
 
+/// Runs a demo on the process's arguments and turns its outcome into the
+/// exit status every demo documents: 0 when all frames were read, 2 when
+/// some were skipped (each named on stderr), 1 on an error.
+pub fn main_with(run: fn(&[String]) -> Result<bool, String>) -> std::process::ExitCode {
+    use std::process::ExitCode;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match run(&args) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(2),
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
 /// Colours for contacts 0, 1, 2, ...
 pub const PALETTE: [Rgb; 6] = [
     Rgb(30, 100, 220),
