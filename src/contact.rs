@@ -8,6 +8,7 @@ use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
 use crate::image::Roi;
 use crate::io::ContactRecord;
+use crate::profile::column_profile_into;
 
 /// The raw, uncalibrated quantities of one contact patch (SPEC.md step 7), all
 /// in the pixels of the cropped full-resolution image.
@@ -226,18 +227,6 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
     })
 }
 
-/// Column sums of a flow component over all rows, into `out`: the profile
-/// along the arc that [`ContactLocator`] works on.
-fn column_sums_into(u: ArrayView2<'_, f32>, out: &mut Vec<f64>) {
-    out.clear();
-    out.resize(u.ncols(), 0.0);
-    for row in u.rows() {
-        for (o, &x) in out.iter_mut().zip(row.iter()) {
-            *o += x as f64;
-        }
-    }
-}
-
 /// Mean-shift centroid of `w` (non-negative weights per grid column) with a
 /// hard window of half-width `half` columns, restricted to `[lo, hi)`,
 /// starting from the centroid of the whole range. `None` if the weights in
@@ -391,7 +380,7 @@ impl ContactLocator {
                 if raws.is_empty() || u.ncols() == 0 {
                     return Ok(());
                 }
-                column_sums_into(u, &mut self.profile);
+                column_profile_into(u, 1.0, &mut self.profile);
                 for x in &mut self.profile {
                     *x *= *x;
                 }
@@ -431,7 +420,7 @@ impl ContactLocator {
         if raws.is_empty() || n < 3 {
             return;
         }
-        column_sums_into(u, &mut self.profile);
+        column_profile_into(u, 1.0, &mut self.profile);
         let p = &self.profile;
         // Central differences inside, one-sided at the two ends.
         self.slope.clear();
