@@ -151,16 +151,23 @@ fn split_index(s: Split) -> usize {
 }
 
 /// Per extraction, the sample of a detected test, its raw displacements
-/// rotated into the sensor frame at chord position `x_of(raw)`.
+/// rotated into the sensor frame at chord position `x_of(raw)`; with
+/// `local[i]` given, extraction `i`'s profile-matched local force is taken as
+/// its raw displacements ([`sensor_displacements`]).
 fn samples(
     ex: &[Extraction],
     geometry: &SensorGeometry,
+    local: &[Option<[f64; 3]>],
     x_of: impl Fn(&RawContact) -> Result<f64>,
 ) -> Result<Vec<Option<Sample>>> {
     ex.iter()
-        .map(|e| {
+        .enumerate()
+        .map(|(i, e)| {
             e.raw
                 .map(|mut raw| {
+                    if let Some(f) = local.get(i).copied().flatten() {
+                        raw.local_force = Some(f);
+                    }
                     raw.d_sensor = sensor_displacements(geometry, x_of(&raw)?, &raw);
                     Ok(Sample::from_test(&e.row, &raw))
                 })
@@ -211,43 +218,47 @@ pub fn fit_dataset(
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).
-    let first = detected(&samples(extractions, &geometry, |_| Ok(0.0))?);
+    let first = detected(&samples(extractions, &geometry, &[], |_| Ok(0.0))?);
     let pass1 = calibration::fit(&first, &setup, options)?;
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
     // then every detected test's local force is matched with it.
-    let mut extractions = std::borrow::Cow::Borrowed(extractions);
-    let profile = match options.profile {
-        None => None,
+    let (profile, local) = match options.profile {
+        None => (None, Vec::new()),
         Some(p) => {
-            let model = fit_profile(&extractions, &geometry, &setup.crop, p)?;
+            let model = fit_profile(extractions, &geometry, &setup.crop, p)?;
             let mut matcher = ForceMatcher::new();
             let mut forces = Vec::new();
-            for e in extractions.to_mut().iter_mut() {
-                if let Some(raw) = e.raw.as_mut() {
-                    matcher.measure(
-                        &model,
-                        &[raw.x_px],
-                        &e.profiles[0],
-                        &e.profiles[1],
-                        e.scale,
-                        &mut forces,
-                    )?;
-                    raw.local_force = forces.first().copied();
-                }
-            }
-            Some(model)
+            let local = extractions
+                .iter()
+                .map(|e| {
+                    e.raw
+                        .map(|raw| {
+                            matcher.measure(
+                                &model,
+                                &[raw.x_px],
+                                &e.profiles[0],
+                                &e.profiles[1],
+                                e.scale,
+                                &mut forces,
+                            )?;
+                            Ok(forces[0])
+                        })
+                        .transpose()
+                })
+                .collect::<Result<Vec<_>>>()?;
+            (Some(model), local)
         }
     };
     // Pass 2: rotate at the predicted location, fit everything.
-    let second = samples(&extractions, &geometry, |r| {
+    let second = samples(extractions, &geometry, &local, |r| {
         Ok(pass1.location_sheared(r.x_px, r.y_px, r.shear_ratio())?[0])
     })?;
     let mut cal = calibration::fit(&detected(&second), &setup, options)?;
     cal.profile = profile;
     let mut misses = [0usize; 3];
     let mut detections = Vec::with_capacity(extractions.len());
-    for e in extractions.iter() {
+    for e in extractions {
         if e.raw.is_none() {
             misses[split_index(e.row.split)] += 1;
         }
