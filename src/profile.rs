@@ -339,14 +339,23 @@ fn solve_in_place(a: &mut [f64], b: &mut [f64], n: usize) -> Option<()> {
 /// once ([`ProfileModel`]); keeps its buffers from frame to frame.
 #[derive(Debug, Default, Clone)]
 pub struct ForceMatcher {
-    ata: Vec<f64>,
-    atb: Vec<f64>,
-    row: Vec<f64>,
-    ridge: Vec<f64>,
+    system: NormalEquations,
     profile_u: Vec<f64>,
     profile_v: Vec<f64>,
     forces: Vec<[f64; 3]>,
     columns: Vec<f64>,
+}
+
+/// The least-squares system of one frame's force match, and the copies its
+/// solver works on (so that a singular system can be solved again with a
+/// ridge).
+#[derive(Debug, Default, Clone)]
+struct NormalEquations {
+    ata: Vec<f64>,
+    atb: Vec<f64>,
+    row: Vec<f64>,
+    work_a: Vec<f64>,
+    work_b: Vec<f64>,
 }
 
 impl ForceMatcher {
@@ -364,6 +373,58 @@ impl ForceMatcher {
     /// bad scale, a non-finite column or profile value, or a model with no
     /// response at all near the contacts.
     pub fn measure(
+        &mut self,
+        model: &ProfileModel,
+        columns_px: &[f64],
+        profile_u: &[f64],
+        profile_v: &[f64],
+        scale: f64,
+        out: &mut Vec<[f64; 3]>,
+    ) -> Result<()> {
+        self.system
+            .solve(model, columns_px, profile_u, profile_v, scale, out)
+    }
+
+    /// Sets every contact's [`RawContact::local_force`] from the frame's
+    /// flow (`u`, `v` on a grid of `scale` full-resolution pixels per cell),
+    /// all contacts solved at once at their current `x_px`.
+    pub fn measure_contacts(
+        &mut self,
+        model: &ProfileModel,
+        raws: &mut [RawContact],
+        u: ArrayView2<'_, f32>,
+        v: ArrayView2<'_, f32>,
+        scale: f64,
+    ) -> Result<()> {
+        if u.dim() != v.dim() {
+            return Err(Error::shape(
+                "flow v against u",
+                (u.ncols(), u.nrows()),
+                (v.ncols(), v.nrows()),
+            ));
+        }
+        column_profile_into(u, scale, &mut self.profile_u);
+        column_profile_into(v, scale, &mut self.profile_v);
+        self.columns.clear();
+        self.columns.extend(raws.iter().map(|r| r.x_px));
+        self.system.solve(
+            model,
+            &self.columns,
+            &self.profile_u,
+            &self.profile_v,
+            scale,
+            &mut self.forces,
+        )?;
+        for (r, f) in raws.iter_mut().zip(&self.forces) {
+            r.local_force = Some(*f);
+        }
+        Ok(())
+    }
+}
+
+impl NormalEquations {
+    /// See [`ForceMatcher::measure`].
+    fn solve(
         &mut self,
         model: &ProfileModel,
         columns_px: &[f64],
@@ -422,66 +483,32 @@ impl ForceMatcher {
         // make the system singular. Rather than fail the frame, a small ridge
         // then shares the force out evenly between them (the minimum-norm
         // answer); the solution is otherwise untouched.
-        self.row.copy_from_slice(&self.atb);
-        let ridge_scale = (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max);
-        self.ridge.clear();
-        self.ridge.extend_from_slice(&self.ata);
-        if solve_in_place(&mut self.ata, &mut self.atb, n).is_none() {
-            self.ata.copy_from_slice(&self.ridge);
-            self.atb.copy_from_slice(&self.row);
+        let solved = |ata: &[f64], atb: &[f64], wa: &mut Vec<f64>, wb: &mut Vec<f64>| {
+            wa.clear();
+            wa.extend_from_slice(ata);
+            wb.clear();
+            wb.extend_from_slice(atb);
+            solve_in_place(wa, wb, n).is_some()
+        };
+        if !solved(&self.ata, &self.atb, &mut self.work_a, &mut self.work_b) {
+            let ridge = 1e-9 * (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max);
             for i in 0..n {
-                self.ata[i * n + i] += 1e-9 * ridge_scale;
+                self.ata[i * n + i] += ridge;
             }
-            solve_in_place(&mut self.ata, &mut self.atb, n).ok_or_else(|| Error::Numerical {
-                what: "profile force match".into(),
-                message: format!(
-                    "no motion near the contacts at columns {columns_px:?} (all-zero system)"
-                ),
-            })?;
+            if !solved(&self.ata, &self.atb, &mut self.work_a, &mut self.work_b) {
+                return Err(Error::Numerical {
+                    what: "profile force match".into(),
+                    message: format!(
+                        "no motion near the contacts at columns {columns_px:?} (all-zero system)"
+                    ),
+                });
+            }
         }
         out.extend(
-            self.atb
+            self.work_b
                 .chunks_exact(COMPONENTS)
                 .map(|c| [c[0], c[1], c[2]]),
         );
         Ok(())
-    }
-
-    /// Sets every contact's [`RawContact::local_force`] from the frame's
-    /// flow (`u`, `v` on a grid of `scale` full-resolution pixels per cell),
-    /// all contacts solved at once at their current `x_px`.
-    pub fn measure_contacts(
-        &mut self,
-        model: &ProfileModel,
-        raws: &mut [RawContact],
-        u: ArrayView2<'_, f32>,
-        v: ArrayView2<'_, f32>,
-        scale: f64,
-    ) -> Result<()> {
-        if u.dim() != v.dim() {
-            return Err(Error::shape(
-                "flow v against u",
-                (u.ncols(), u.nrows()),
-                (v.ncols(), v.nrows()),
-            ));
-        }
-        column_profile_into(u, scale, &mut self.profile_u);
-        column_profile_into(v, scale, &mut self.profile_v);
-        let mut columns = std::mem::take(&mut self.columns);
-        let mut forces = std::mem::take(&mut self.forces);
-        let (pu, pv) = (
-            std::mem::take(&mut self.profile_u),
-            std::mem::take(&mut self.profile_v),
-        );
-        columns.clear();
-        columns.extend(raws.iter().map(|r| r.x_px));
-        let res = self.measure(model, &columns, &pu, &pv, scale, &mut forces);
-        if res.is_ok() {
-            for (r, f) in raws.iter_mut().zip(&forces) {
-                r.local_force = Some(*f);
-            }
-        }
-        (self.columns, self.forces, self.profile_u, self.profile_v) = (columns, forces, pu, pv);
-        res
     }
 }
