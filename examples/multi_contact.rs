@@ -313,14 +313,10 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
         println!("\nall true contacts detected in {d} of {n} loaded frames (gate {gate} mm)");
     }
     if let Some(p) = &a.png {
-        picture(&out, truth.as_deref())
-            .save_png(p)
-            .map_err(|e| e.to_string())?;
-        eprintln!("wrote {}", p.display());
+        save_png(&picture(&out, truth.as_deref()), p)?;
     }
     if let Some(p) = &a.json {
         write_json(p, &out)?;
-        eprintln!("wrote {}", p.display());
     }
     Ok(run.skipped == 0)
 }

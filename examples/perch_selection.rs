@@ -260,14 +260,10 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
             out.stiffer.x_mm, out.move_mm
         );
         let pf = time_plot(&title, "F N", sf);
-        stack(&[px.render(900, 260), pf.render(900, 300)])
-            .save_png(p)
-            .map_err(|e| e.to_string())?;
-        eprintln!("wrote {}", p.display());
+        save_png(&stack(&[px.render(900, 260), pf.render(900, 300)]), p)?;
     }
     if let Some(p) = &a.json {
         write_json(p, &out)?;
-        eprintln!("wrote {}", p.display());
     }
     Ok(run.skipped == 0)
 }

@@ -25,18 +25,9 @@ use std::time::Instant;
 use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
 use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use optical_tactile::sensor::ExtractorConfig;
-use optical_tactile::sim::scenario::tilted_force;
+use optical_tactile::sim::scenario::{INDENTERS_MM, TILTS_DEG, tilted_force};
 use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::{Error, Result};
-
-const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
-const TILTS_DEG: [(f64, f64); 5] = [
-    (0.0, 0.0),
-    (0.0, 15.0),
-    (0.0, -15.0),
-    (15.0, 0.0),
-    (-15.0, 0.0),
-];
 
 struct Args {
     mode: String,

@@ -47,8 +47,8 @@ use std::process::ExitCode;
 use demo_support::*;
 use optical_tactile::io;
 use optical_tactile::mapping::{
-    MapOptions, Mounting, RodsTruth, TouchMap, map_touches, match_rods, poses_by_frame,
-    read_rods_json,
+    Cluster, ClusterSummary, MapOptions, Mounting, RodsTruth, TouchMap, map_touches, match_rods,
+    poses_by_frame, read_rods_json,
 };
 use optical_tactile::sim::scenario::{Mapping, Scenario};
 use optical_tactile::viz::{Plot, Rgb, Series, Style};
@@ -62,17 +62,8 @@ fn usage() -> String {
 }
 
 #[derive(Serialize)]
-struct ClusterOut {
-    x_m: f64,
-    y_m: f64,
-    z_m: f64,
-    count: usize,
-    spread_m: f64,
-}
-
-#[derive(Serialize)]
 struct Output {
-    clusters: Vec<ClusterOut>,
+    clusters: Vec<ClusterSummary>,
 }
 
 /// Runs the demo on the command-line arguments `args` (without the program
@@ -330,24 +321,13 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
         if !zooms.is_empty() {
             panels.push(row(&zooms));
         }
-        stack(&panels).save_png(p).map_err(|e| e.to_string())?;
-        eprintln!("wrote {}", p.display());
+        save_png(&stack(&panels), p)?;
     }
     if let Some(p) = &a.json {
         let out = Output {
-            clusters: clusters
-                .iter()
-                .map(|c| ClusterOut {
-                    x_m: c.position_m[0],
-                    y_m: c.position_m[1],
-                    z_m: c.position_m[2],
-                    count: c.count,
-                    spread_m: c.spread_m,
-                })
-                .collect(),
+            clusters: clusters.iter().map(Cluster::summary).collect(),
         };
         write_json(p, &out)?;
-        eprintln!("wrote {}", p.display());
     }
     Ok(run.skipped == 0)
 }

@@ -36,7 +36,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::io::{FrameRecord, PoseRow};
@@ -266,6 +266,36 @@ pub struct Cluster {
     pub spread_m: f64,
     /// Indices of the members in the input, ascending.
     pub members: Vec<usize>,
+}
+
+/// One obstacle estimate as the demos and experiments report it (world
+/// frame; the JSON shape of issue 8's `touch_mapping`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ClusterSummary {
+    /// Mean position of the touches, x, m.
+    pub x_m: f64,
+    /// Mean position of the touches, y, m.
+    pub y_m: f64,
+    /// Mean position of the touches, z, m.
+    pub z_m: f64,
+    /// Number of contacts (one per frame they were seen in).
+    pub count: usize,
+    /// RMS distance of the contacts from the mean, m.
+    pub spread_m: f64,
+}
+
+impl Cluster {
+    /// The cluster without its member list.
+    pub fn summary(&self) -> ClusterSummary {
+        let [x_m, y_m, z_m] = self.position_m;
+        ClusterSummary {
+            x_m,
+            y_m,
+            z_m,
+            count: self.count,
+            spread_m: self.spread_m,
+        }
+    }
 }
 
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {

@@ -265,10 +265,19 @@ pub fn read_truth(path: &Path) -> Result<Vec<FrameRecord>, String> {
     io::read_jsonl(path).map_err(|e| format!("cannot read truth: {e}"))
 }
 
-/// Writes `v` as pretty JSON.
+/// Writes `v` as pretty JSON and says so on stderr.
 pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), String> {
     let s = serde_json::to_string_pretty(v).map_err(|e| e.to_string())?;
-    std::fs::write(path, s + "\n").map_err(|e| format!("cannot write {}: {e}", path.display()))
+    std::fs::write(path, s + "\n").map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}
+
+/// Writes a picture as PNG and says so on stderr.
+pub fn save_png(picture: &Canvas, path: &Path) -> Result<(), String> {
+    picture.save_png(path).map_err(|e| e.to_string())?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
 }
 
 /// Runs a demo on the process's arguments and turns its outcome into the

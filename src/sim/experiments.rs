@@ -35,21 +35,16 @@ use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::io::{self, FrameRecord};
-use crate::mapping::{MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json};
+pub use crate::mapping::ClusterSummary;
+use crate::mapping::{
+    Cluster, MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json,
+};
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
 
-/// The characterization protocol's indenter diameters, mm.
-pub const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
-
-/// The characterization protocol's tilts `(yaw, pitch)`, degrees.
-pub const TILTS_DEG: [(f64, f64); 5] = [
-    (0.0, 0.0),
-    (0.0, 15.0),
-    (0.0, -15.0),
-    (15.0, 0.0),
-    (-15.0, 0.0),
-];
+/// The characterization protocol's indenters and tilts, which the sweeps
+/// run through.
+pub use super::scenario::{INDENTERS_MM, TILTS_DEG};
 
 /// First frame index of the rest pairs: far from the other sweeps' so that
 /// their noise is fresh.
@@ -730,21 +725,6 @@ impl Default for MappingOptions {
     }
 }
 
-/// One obstacle estimate, world frame.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct ClusterSummary {
-    /// Mean position of the touches, m.
-    pub x_m: f64,
-    /// Mean position of the touches, m.
-    pub y_m: f64,
-    /// Mean position of the touches, m.
-    pub z_m: f64,
-    /// Number of contacts (one per frame they were seen in).
-    pub count: usize,
-    /// RMS distance of the contacts from the mean, m.
-    pub spread_m: f64,
-}
-
 /// The result of one touch-mapping run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MappingRun {
@@ -840,16 +820,7 @@ pub fn mapping_run(
     Ok(MappingRun {
         seed,
         contacts: map.touches.len(),
-        clusters: clusters
-            .iter()
-            .map(|c| ClusterSummary {
-                x_m: c.position_m[0],
-                y_m: c.position_m[1],
-                z_m: c.position_m[2],
-                count: c.count,
-                spread_m: c.spread_m,
-            })
-            .collect(),
+        clusters: clusters.iter().map(Cluster::summary).collect(),
         errors_m: matches.iter().map(|m| m.error_m).collect(),
         false_clusters: clusters.len() - matched,
     })

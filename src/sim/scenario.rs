@@ -482,8 +482,10 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair) -> Result<Summary> {
 /// validation; the test split repeats points 5, 8, 11.
 const TRAIN_POINTS: [u32; 10] = [2, 3, 4, 6, 7, 9, 10, 12, 13, 14];
 const HELD_OUT_POINTS: [u32; 3] = [5, 8, 11];
-const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
-const TILTS_DEG: [(f64, f64); 5] = [
+/// The characterization protocol's indenter diameters, mm.
+pub const INDENTERS_MM: [f64; 3] = [2.0, 5.0, 10.0];
+/// The characterization protocol's tilts `(yaw, pitch)`, degrees.
+pub const TILTS_DEG: [(f64, f64); 5] = [
     (0.0, 0.0),
     (0.0, 15.0),
     (0.0, -15.0),
