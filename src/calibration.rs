@@ -496,9 +496,10 @@ impl Calibration {
 
     /// With a profile model, sets each contact's
     /// [`RawContact::local_force`] from the frame's flow (`u`, `v` on a grid
-    /// of `scale` full-resolution pixels per cell), all contacts at once at
-    /// their current columns; without one, does nothing. A sensor calls this
-    /// after [`Calibration::refine_contacts_with`].
+    /// of `scale` full-resolution pixels per cell), all contacts at once;
+    /// without one, does nothing. Each contact is matched at
+    /// [`Calibration::match_column`]. A sensor calls this after
+    /// [`Calibration::refine_contacts_with`].
     pub fn match_forces_with(
         &self,
         matcher: &mut ForceMatcher,
@@ -508,8 +509,25 @@ impl Calibration {
         scale: f64,
     ) -> Result<()> {
         match &self.profile {
-            Some(model) if !raws.is_empty() => matcher.measure_contacts(model, raws, u, v, scale),
+            Some(model) if !raws.is_empty() => {
+                matcher
+                    .measure_contacts_at(model, raws, u, v, scale, |r| self.match_column(model, r))
+            }
             _ => Ok(()),
+        }
+    }
+
+    /// The column at which `model` matches a contact's profile: the model's
+    /// anchor column ([`crate::profile::ColumnMap`]) of the contact's
+    /// calibrated location, or the measured column `x_px` for a model
+    /// without one.
+    pub fn match_column(&self, model: &ProfileModel, raw: &RawContact) -> Result<f64> {
+        match &model.anchor {
+            Some(map) => {
+                let [x, _, _] = self.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
+                Ok(map.column(x))
+            }
+            None => Ok(raw.x_px),
         }
     }
 
@@ -881,17 +899,26 @@ pub struct ProfileFitOptions {
     pub half_width_px: f64,
     /// Degree of the kernels' polynomial in the contact's column.
     pub degree: usize,
+    /// Largest degree of the kernels' anchor map
+    /// ([`crate::profile::ColumnMap`]): the fit tries the measured columns
+    /// and every degree `1..=max`, and keeps the one whose matched forces
+    /// have the lowest validation MAE. 0: measured columns only (files
+    /// from before the anchor map).
+    #[serde(default)]
+    pub anchor_max_degree: usize,
 }
 
 impl Default for ProfileFitOptions {
     /// 300 px (about 60 mm of arc on the default strip, where a press's
     /// motion has mostly died out) and degree 2 (measured on the simulator's
     /// protocol: degree 2 predicted the unseen test points best, 4 and 6
-    /// overfitted).
+    /// overfitted), anchor maps up to degree 5 (the camera's projection of
+    /// the arc is close to a cubic).
     fn default() -> Self {
         ProfileFitOptions {
             half_width_px: 300.0,
             degree: 2,
+            anchor_max_degree: 5,
         }
     }
 }

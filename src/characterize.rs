@@ -25,7 +25,7 @@ use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
 use crate::image::Roi;
 use crate::io::{self, Split, TestRow};
-use crate::profile::{ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
+use crate::profile::{ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
 use crate::sensor::{ContactExtractor, ExtractorConfig};
 
 /// One test of the dataset and what the pipeline found in it.
@@ -151,14 +151,14 @@ fn split_index(s: Split) -> usize {
 }
 
 /// Per extraction, the sample of a detected test, its raw displacements
-/// rotated into the sensor frame at chord position `x_of(raw)`; with
+/// rotated into the sensor frame at chord position `x_of(extraction, raw)`; with
 /// `local[i]` given, extraction `i`'s profile-matched local force is taken as
 /// its raw displacements ([`sensor_displacements`]).
 fn samples(
     ex: &[Extraction],
     geometry: &SensorGeometry,
     local: &[Option<[f64; 3]>],
-    x_of: impl Fn(&RawContact) -> Result<f64>,
+    x_of: impl Fn(&Extraction, &RawContact) -> Result<f64>,
 ) -> Result<Vec<Option<Sample>>> {
     ex.iter()
         .enumerate()
@@ -168,7 +168,7 @@ fn samples(
                     if let Some(f) = local.get(i).copied().flatten() {
                         raw.local_force = Some(f);
                     }
-                    raw.d_sensor = sensor_displacements(geometry, x_of(&raw)?, &raw);
+                    raw.d_sensor = sensor_displacements(geometry, x_of(e, &raw)?, &raw);
                     Ok(Sample::from_test(&e.row, &raw))
                 })
                 .transpose()
@@ -218,7 +218,7 @@ pub fn fit_dataset(
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).
-    let first = detected(&samples(extractions, &geometry, &[], |_| Ok(0.0))?);
+    let first = detected(&samples(extractions, &geometry, &[], |_, _| Ok(0.0))?);
     let pass1 = calibration::fit(&first, &setup, options)?;
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
@@ -226,33 +226,19 @@ pub fn fit_dataset(
     let (profile, local) = match options.profile {
         None => (None, Vec::new()),
         Some(p) => {
-            let model = fit_profile(extractions, &geometry, &setup.crop, p)?;
-            let mut matcher = ForceMatcher::new();
-            let mut forces = Vec::new();
-            let local = extractions
-                .iter()
-                .map(|e| {
-                    e.raw
-                        .map(|raw| {
-                            matcher.measure(
-                                &model,
-                                &[raw.x_px],
-                                &e.profiles[0],
-                                &e.profiles[1],
-                                e.scale,
-                                &mut forces,
-                            )?;
-                            Ok(forces[0])
-                        })
-                        .transpose()
-                })
-                .collect::<Result<Vec<_>>>()?;
+            let model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
+            let local = match_forces(&model, extractions, |e, raw| {
+                Ok(match_position(&model, e, raw, &pass1)?.1)
+            })?;
             (Some(model), local)
         }
     };
-    // Pass 2: rotate at the predicted location, fit everything.
-    let second = samples(extractions, &geometry, &local, |r| {
-        Ok(pass1.location_sheared(r.x_px, r.y_px, r.shear_ratio())?[0])
+    // Pass 2: rotate at the predicted location (the true one for the
+    // training tests of an anchored profile model, see `match_position`),
+    // fit everything.
+    let second = samples(extractions, &geometry, &local, |e, raw| match &profile {
+        Some(model) => Ok(match_position(model, e, raw, &pass1)?.0),
+        None => Ok(pass1.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0]),
     })?;
     let mut cal = calibration::fit(&detected(&second), &setup, options)?;
     cal.profile = profile;
@@ -275,21 +261,130 @@ pub fn fit_dataset(
     })
 }
 
-/// Fits the profile model on the detected training tests.
+/// Where a detected test's force is matched and rotated: its chord position
+/// (mm) and the column its profile is matched at. Test and validation
+/// tests, like a sensor at run time, use `cal`'s location and
+/// [`Calibration::match_column`]. Training tests of an anchored model use
+/// their true position and its anchor column, as the kernels were fitted:
+/// the force maps then learn what the kernels get wrong, not the location
+/// map's errors (which are largest at the outer training points, and would
+/// otherwise teach the force maps corrections that do not hold elsewhere).
+fn match_position(
+    model: &ProfileModel,
+    e: &Extraction,
+    raw: &RawContact,
+    cal: &Calibration,
+) -> Result<(f64, f64)> {
+    match &model.anchor {
+        Some(map) if e.row.split == Split::Train => Ok((e.row.x_mm, map.column(e.row.x_mm))),
+        _ => Ok((
+            cal.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0],
+            cal.match_column(model, raw)?,
+        )),
+    }
+}
+
+/// Each detected test's local force matched by `model` at the column
+/// `column_of(extraction, raw)`.
+fn match_forces<'a>(
+    model: &ProfileModel,
+    extractions: impl IntoIterator<Item = &'a Extraction>,
+    column_of: impl Fn(&Extraction, &RawContact) -> Result<f64>,
+) -> Result<Vec<Option<[f64; 3]>>> {
+    let mut matcher = ForceMatcher::new();
+    let mut forces = Vec::new();
+    extractions
+        .into_iter()
+        .map(|e| {
+            e.raw
+                .map(|raw| {
+                    let column = column_of(e, &raw)?;
+                    matcher.measure(
+                        model,
+                        &[column],
+                        &e.profiles[0],
+                        &e.profiles[1],
+                        e.scale,
+                        &mut forces,
+                    )?;
+                    Ok(forces[0])
+                })
+                .transpose()
+        })
+        .collect()
+}
+
+/// Fits the profile model on the detected training tests, once at their
+/// measured columns and once per anchor map degree `1..=anchor_max_degree`
+/// ([`ColumnMap`]), and keeps the model whose matched forces, rotated into
+/// the sensor frame at `cal`'s locations, have the lowest validation MAE
+/// (summed over Fx, Fy, Fz).
 fn fit_profile(
     extractions: &[Extraction],
     geometry: &SensorGeometry,
     crop: &Roi,
     options: crate::calibration::ProfileFitOptions,
+    cal: &Calibration,
 ) -> Result<ProfileModel> {
-    let samples: Vec<ProfileSample<'_>> = extractions
+    let train: Vec<&Extraction> = extractions
         .iter()
-        .filter(|e| e.row.split == Split::Train)
+        .filter(|e| e.row.split == Split::Train && e.raw.is_some())
+        .collect();
+    let anchors = std::iter::once(None).chain((1..=options.anchor_max_degree).map(Some));
+    let mut best: Option<(f64, ProfileModel)> = None;
+    let mut last_error = None;
+    for degree in anchors {
+        let anchor = match degree {
+            None => None,
+            Some(d) => {
+                let points: Vec<(f64, f64)> = train
+                    .iter()
+                    .filter_map(|e| e.raw.map(|r| (e.row.x_mm, r.x_px)))
+                    .collect();
+                match ColumnMap::fit(&points, d) {
+                    Ok(m) => Some(m),
+                    Err(e) => {
+                        last_error = Some(e);
+                        continue;
+                    }
+                }
+            }
+        };
+        let model = match fit_profile_at(&train, geometry, crop, options, anchor) {
+            Ok(m) => m,
+            Err(e) => {
+                last_error = Some(e);
+                continue;
+            }
+        };
+        let score = validation_force_mae(&model, extractions, geometry, cal)?;
+        if best.as_ref().is_none_or(|(b, _)| score < *b) {
+            best = Some((score, model));
+        }
+    }
+    match (best, last_error) {
+        (Some((_, model)), _) => Ok(model),
+        (None, Some(e)) => Err(e),
+        (None, None) => Err(Error::param("profile", "no profile model candidate")),
+    }
+}
+
+/// Fits the profile model on `train` with its kernels anchored by `anchor`
+/// at the true positions (or at the measured columns without one).
+fn fit_profile_at(
+    train: &[&Extraction],
+    geometry: &SensorGeometry,
+    crop: &Roi,
+    options: crate::calibration::ProfileFitOptions,
+    anchor: Option<ColumnMap>,
+) -> Result<ProfileModel> {
+    let samples: Vec<ProfileSample<'_>> = train
+        .iter()
         .filter_map(|e| {
             let raw = e.raw.as_ref()?;
             let r = &e.row;
             Some(ProfileSample {
-                column_px: raw.x_px,
+                column_px: anchor.as_ref().map_or(raw.x_px, |a| a.column(r.x_mm)),
                 profile_u: &e.profiles[0],
                 profile_v: &e.profiles[1],
                 scale: e.scale,
@@ -299,14 +394,49 @@ fn fit_profile(
         .collect();
     // The position polynomial's variable runs over -1..1 across the crop.
     let half = 0.5 * crop.w as f64;
-    ProfileModel::fit(
+    let mut model = ProfileModel::fit(
         &samples,
-        extractions.first().map_or(1.0, |e| e.scale),
+        train.first().map_or(1.0, |e| e.scale),
         options.half_width_px,
         options.degree,
         half - 0.5,
         half.max(1.0),
-    )
+    )?;
+    model.anchor = anchor;
+    Ok(model)
+}
+
+/// Validation MAE of `model`'s matched forces in the sensor frame, summed
+/// over the three axes (infinite without a detected validation test).
+fn validation_force_mae(
+    model: &ProfileModel,
+    extractions: &[Extraction],
+    geometry: &SensorGeometry,
+    cal: &Calibration,
+) -> Result<f64> {
+    let val: Vec<&Extraction> = extractions
+        .iter()
+        .filter(|e| e.row.split == Split::Val && e.raw.is_some())
+        .collect();
+    let forces = match_forces(model, val.iter().copied(), |_, raw| {
+        cal.match_column(model, raw)
+    })?;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (e, f) in val.iter().zip(&forces) {
+        let (Some(raw), Some(f)) = (e.raw, f) else {
+            continue;
+        };
+        let x = cal.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0];
+        let f = geometry.local_to_sensor(x, *f);
+        let r = &e.row;
+        sum += (f[0] - r.fx_n).abs() + (f[1] - r.fy_n).abs() + (f[2] - r.fz_n).abs();
+        n += 1;
+    }
+    Ok(if n == 0 {
+        f64::INFINITY
+    } else {
+        sum / n as f64
+    })
 }
 
 /// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).

@@ -4,7 +4,9 @@
 
 use nalgebra::{DMatrix, DVector};
 use optical_tactile::Error;
-use optical_tactile::profile::{ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
+use optical_tactile::profile::{
+    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
+};
 use optical_tactile::sim::rng::SplitMix64;
 
 const N: usize = 400; // profile cells
@@ -295,4 +297,144 @@ fn bad_input_is_a_clear_error() {
     let mut nan = model;
     nan.kernels[0][0][5] = f64::NAN;
     assert!(nan.validate().is_err());
+}
+
+#[test]
+fn column_map_recovers_a_polynomial_and_rejects_bad_input() {
+    // Columns of a cubic camera-like projection of chord positions.
+    let truth = |x: f64| 799.5 + 4.97 * x - 1.6e-4 * x * x + 8.4e-6 * x * x * x;
+    let points: Vec<(f64, f64)> = (-11..=11)
+        .map(|i| 10.0 * i as f64)
+        .map(|x| (x, truth(x)))
+        .collect();
+    let map = ColumnMap::fit(&points, 3).unwrap();
+    for x in [-107.0, -3.3, 0.0, 58.1, 110.0] {
+        assert!((map.column(x) - truth(x)).abs() < 1e-6, "{x}");
+    }
+    map.validate().unwrap();
+    // A line cannot follow the cubic's ends.
+    let line = ColumnMap::fit(&points, 1).unwrap();
+    assert!((line.column(110.0) - truth(110.0)).abs() > 1.0);
+    // Bad input: degree, too few points, NaN.
+    assert!(ColumnMap::fit(&points, 0).is_err());
+    assert!(ColumnMap::fit(&points, 7).is_err());
+    let e = ColumnMap::fit(&points[..5], 3).unwrap_err();
+    assert!(matches!(e, Error::Calibration { .. }), "{e:?}");
+    let mut nan = points.clone();
+    nan[4].1 = f64::NAN;
+    assert!(matches!(
+        ColumnMap::fit(&nan, 3).unwrap_err(),
+        Error::InvalidParameter { .. }
+    ));
+    // All points at one position: no polynomial through them.
+    let same = vec![(5.0, 800.0); 20];
+    assert!(ColumnMap::fit(&same, 2).is_err());
+    // A loaded map with a bad scale or coefficient fails validation, and so
+    // does a model that carries it.
+    let mut bad = map.clone();
+    bad.scale_mm = 0.0;
+    assert!(bad.validate().is_err());
+    let mut model = fit(&training_set(6), 1);
+    model.anchor = Some(ColumnMap {
+        scale_mm: 100.0,
+        coefficients: vec![1.0, f64::INFINITY],
+    });
+    assert!(model.validate().is_err());
+}
+
+#[test]
+fn model_json_keeps_the_anchor_and_older_files_have_none() {
+    let mut model = fit(&training_set(7), 1);
+    let plain = serde_json::to_string(&model).unwrap();
+    assert!(!plain.contains("anchor"), "no anchor, no field");
+    assert_eq!(
+        serde_json::from_str::<ProfileModel>(&plain).unwrap().anchor,
+        None
+    );
+    model.anchor = Some(ColumnMap {
+        scale_mm: 114.0,
+        coefficients: vec![799.5, 566.0, -2.1, 12.4],
+    });
+    let back: ProfileModel = serde_json::from_str(&serde_json::to_string(&model).unwrap()).unwrap();
+    // (Kernel samples round-trip to within JSON's float printing.)
+    assert_eq!(back.anchor, model.anchor);
+}
+
+/// Why kernels are anchored at a smooth map of the true positions: when the
+/// measured column moves in step with the tangential force (as the steepest
+/// rise of a sheared profile does), kernels fitted at the measured columns
+/// mix the normal and tangential responses; fitted at the anchor columns
+/// they do not.
+#[test]
+fn anchored_kernels_are_not_smeared_by_a_shear_dependent_column() {
+    let px_per_mm = 5.0;
+    let column_of = |x_mm: f64| CENTRE + px_per_mm * x_mm;
+    let shift_per_n = 6.0; // measured column moves 6 px per N of tangential force
+    let mut rng = SplitMix64::new(11);
+    let set: Vec<(f64, f64, [f64; 3], [Vec<f64>; 2])> = (0..150)
+        .map(|_| {
+            let x_mm = -50.0 + 100.0 * rng.next_f64();
+            let f = [
+                rng.next_f64() - 0.5,
+                0.2 * (rng.next_f64() - 0.5),
+                -0.5 - 2.5 * rng.next_f64(),
+            ];
+            let c = column_of(x_mm);
+            (x_mm, c + shift_per_n * f[0], f, profiles(&[c], &[f]))
+        })
+        .collect();
+    let points: Vec<(f64, f64)> = set.iter().map(|(x, m, _, _)| (*x, *m)).collect();
+    let map = ColumnMap::fit(&points, 1).unwrap();
+    let fit_at = |anchored: bool| {
+        let samples: Vec<ProfileSample<'_>> = set
+            .iter()
+            .map(|(x, measured, f, p)| ProfileSample {
+                column_px: if anchored { map.column(*x) } else { *measured },
+                profile_u: &p[0],
+                profile_v: &p[1],
+                scale: SCALE,
+                local_force: *f,
+            })
+            .collect();
+        ProfileModel::fit(&samples, SCALE, 200.0, 1, CENTRE, SPAN).unwrap()
+    };
+    let (smeared, anchored) = (fit_at(false), fit_at(true));
+    let mut m = ForceMatcher::new();
+    let (mut err_smeared, mut err_anchored) = (0.0f64, 0.0f64);
+    for (x_mm, f) in [(-31.0, [0.4, 0.05, -2.2]), (12.5, [-0.3, -0.06, -1.1])] {
+        let c = column_of(x_mm);
+        let p = profiles(&[c], &[f]);
+        let mut out = Vec::new();
+        m.measure(
+            &smeared,
+            &[c + shift_per_n * f[0]],
+            &p[0],
+            &p[1],
+            SCALE,
+            &mut out,
+        )
+        .unwrap();
+        err_smeared = err_smeared.max((out[0][2] - f[2]).abs());
+        m.measure(
+            &anchored,
+            &[map.column(x_mm)],
+            &p[0],
+            &p[1],
+            SCALE,
+            &mut out,
+        )
+        .unwrap();
+        err_anchored = err_anchored.max((out[0][2] - f[2]).abs());
+    }
+    // The anchor map of zero-mean shifts is the true column to within the
+    // spread of the tangential forces' mean; the normal force comes back to
+    // a few percent, against a clearly larger error when smeared.
+    assert!(
+        err_anchored < 0.05,
+        "anchored normal force error {err_anchored}"
+    );
+    assert!(
+        err_smeared > 3.0 * err_anchored,
+        "smeared {err_smeared} vs anchored {err_anchored}"
+    );
 }
