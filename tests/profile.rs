@@ -371,7 +371,9 @@ fn anchored_kernels_are_not_smeared_by_a_shear_dependent_column() {
     let column_of = |x_mm: f64| CENTRE + px_per_mm * x_mm;
     let shift_per_n = 6.0; // measured column moves 6 px per N of tangential force
     let mut rng = SplitMix64::new(11);
-    let set: Vec<(f64, f64, [f64; 3], [Vec<f64>; 2])> = (0..150)
+    // (true position mm, measured column, local force, profiles)
+    type Press = (f64, f64, [f64; 3], [Vec<f64>; 2]);
+    let set: Vec<Press> = (0..150)
         .map(|_| {
             let x_mm = -50.0 + 100.0 * rng.next_f64();
             let f = [
