@@ -54,7 +54,8 @@ pub enum DisPreset {
     /// OpenCV 5 `PRESET_FAST` (the paper's default): scale 2, 8/4 patches,
     /// 16 descent iterations, 5 refinement iterations, but the refinement
     /// only on the finest level (`refine_levels = Some(1)`: 17 % fewer
-    /// instructions at 1080p), propagation stripes of at least 3 patch rows
+    /// instructions at 1080p), OpenCV's step order at the descent's stop
+    /// (`step_on_stop`), propagation stripes of at least 3 patch rows
     /// (`min_stripe_rows`) and a coarsest level at least 3 patches high
     /// (`coarsest_min_patches`: OpenCV's 30x16 top level of a 1080p marker
     /// image is aliased noise that made 16.7 px of motion fail). Measured
