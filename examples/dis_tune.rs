@@ -51,6 +51,9 @@ fn main() -> Result<()> {
             "refine_iterations" => p.refinement.outer_iterations = num(k, v)?,
             "sor_iterations" => p.refinement.sor_iterations = num(k, v)?,
             "normalized_gradients" => p.normalized_gradients = v == "1",
+            "step_on_stop" => p.step_on_stop = v == "1",
+            "min_stripe_rows" => p.min_stripe_rows = num(k, v)?,
+            "coarsest_min_patches" => p.coarsest_min_patches = num(k, v)?,
             _ => return Err(Error::param("set", format!("unknown parameter `{k}`"))),
         }
     }

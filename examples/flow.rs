@@ -5,7 +5,7 @@
 //!     [--repeat N] --out flow.flo [--png flow.png] [--truth truth.flo]
 //!     [--set name=value ...]
 //! cargo run --release --example flow -- synth OUTDIR [--size WxH] [--max-disp D]
-//!     [--translate DX,DY] [--seed S]
+//!     [--translate DX,DY] [--affine A,B,C,D,TX,TY] [--seed S]
 //! ```
 //!
 //! The first form writes the flow (Middlebury .flo), optionally a colour-wheel
@@ -16,7 +16,9 @@
 //! patch_size, patch_stride, iterations, mean_normalization,
 //! spatial_propagation, normalized_gradients, prefilter_sigma, backtracking,
 //! stripes, zero_candidate, prefilter_all_levels, refine_iterations, sor_iterations, exact_derivatives, alpha,
-//! delta, gamma); `--native` times only the flow at its native level (no
+//! delta, gamma, refine_levels (a number or `all`), early_stop, step_on_stop, min_stripe_rows,
+//! coarsest_min_patches); `--affine A,B,C,D,TX,TY` renders the affine motion
+//! `d = [[A, B], [C, D]] (p - centre) + (TX, TY)`; `--native` times only the flow at its native level (no
 //! final upsampling). The second form renders a synthetic marker pair (ref.png,
 //! cur.png, truth.flo) to try it on.
 
@@ -44,7 +46,7 @@ fn usage() -> Error {
         "arguments",
         "usage: flow REF.png CUR.png [--preset P] [--threads N] [--repeat N] --out flow.flo \
          [--png flow.png] [--truth truth.flo] [--set name=value]... | flow synth OUTDIR \
-         [--size WxH] [--max-disp D] [--translate DX,DY] [--seed S]",
+         [--size WxH] [--max-disp D] [--translate DX,DY] [--affine A,B,C,D,TX,TY] [--seed S]",
     )
 }
 
@@ -149,6 +151,17 @@ fn apply_set(p: &mut DisParams, s: &str) -> Result<()> {
         "zero_candidate" => p.zero_candidate = b(v),
         "prefilter_all_levels" => p.prefilter_all_levels = b(v),
         "refine_iterations" => p.refinement.outer_iterations = parse_num(k, v)?,
+        "refine_levels" => {
+            p.refine_levels = if v == "all" {
+                None
+            } else {
+                Some(parse_num(k, v)?)
+            }
+        }
+        "early_stop" => p.early_stop = parse_num(k, v)?,
+        "step_on_stop" => p.step_on_stop = b(v),
+        "min_stripe_rows" => p.min_stripe_rows = parse_num(k, v)?,
+        "coarsest_min_patches" => p.coarsest_min_patches = parse_num(k, v)?,
         "sor_iterations" => p.refinement.sor_iterations = parse_num(k, v)?,
         "exact_derivatives" => p.refinement.exact_derivatives = b(v),
         "alpha" => p.refinement.alpha = parse_num(k, v)?,
@@ -164,6 +177,7 @@ fn synth(args: &[String]) -> Result<()> {
     let dir = args.first().ok_or_else(usage)?;
     let (mut w, mut h, mut max_disp, mut seed) = (1920usize, 1080usize, 5.0f64, 1u64);
     let mut translate = None;
+    let mut affine = None;
     let mut it = args[1..].iter();
     while let Some(a) = it.next() {
         let v = it.next().ok_or_else(usage)?;
@@ -178,12 +192,29 @@ fn synth(args: &[String]) -> Result<()> {
                 let (a, b) = v.split_once(',').ok_or_else(usage)?;
                 translate = Some((parse_num("translate", a)?, parse_num("translate", b)?));
             }
+            "--affine" => {
+                // a,b,c,d,tx,ty: d = [[a, b], [c, d]] (p - centre) + t.
+                let vals = v
+                    .split(',')
+                    .map(|s| parse_num::<f64>("affine", s))
+                    .collect::<Result<Vec<_>>>()?;
+                let [a, b, c, d, tx, ty] = vals[..] else {
+                    return Err(usage());
+                };
+                affine = Some(([a, b, c, d], [tx, ty]));
+            }
             _ => return Err(usage()),
         }
     }
-    let motion = match translate {
-        Some((dx, dy)) => support::Motion::Translation(dx, dy),
-        None => support::press_motion(w, h, max_disp, seed),
+    let motion = match (translate, affine) {
+        (Some((dx, dy)), _) => support::Motion::Translation(dx, dy),
+        (None, Some((a, t))) => support::Motion::Affine {
+            cx: w as f64 / 2.0,
+            cy: h as f64 / 2.0,
+            a,
+            t,
+        },
+        (None, None) => support::press_motion(w, h, max_disp, seed),
     };
     let (r, c, t) = support::marker_pair(w, h, &motion, seed);
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;

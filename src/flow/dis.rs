@@ -54,8 +54,13 @@ pub enum DisPreset {
     /// OpenCV 5 `PRESET_FAST` (the paper's default): scale 2, 8/4 patches,
     /// 16 descent iterations, 5 refinement iterations, but the refinement
     /// only on the finest level (`refine_levels = Some(1)`: 17 % fewer
-    /// instructions at 1080p; AEPE within 0.002 px on 1080p marker pairs and
-    /// lower on strips). [`DisParams::opencv_semantics`] restores OpenCV's.
+    /// instructions at 1080p), OpenCV's step order at the descent's stop
+    /// (`step_on_stop`), propagation stripes of at least 3 patch rows
+    /// (`min_stripe_rows`) and a coarsest level at least 3 patches high
+    /// (`coarsest_min_patches`: OpenCV's 30x16 top level of a 1080p marker
+    /// image is aliased noise that made 16.7 px of motion fail). Measured
+    /// against OpenCV FAST in docs/results/flow.md.
+    /// [`DisParams::opencv_semantics`] restores OpenCV's.
     Fast,
     /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent
     /// iterations, 5 refinement iterations.
@@ -189,6 +194,30 @@ pub struct DisParams {
     /// (`None` = every level, as in OpenCV). The coarse levels' flow is
     /// only a start for the finer patch search, which re-estimates it.
     pub refine_levels: Option<usize>,
+    /// When a patch's cost stops falling, still apply the step computed at
+    /// that last (worse) vector before stopping, as OpenCV does, instead of
+    /// returning to the best vector evaluated. Just past the minimum, the
+    /// Gauss-Newton step from there points back towards it, so the final
+    /// vector lands nearer the minimum than either evaluated point; with
+    /// OpenCV's un-normalized (1/8) steps that is worth 0.005-0.015 px AEPE
+    /// on marker pairs (`Fast`; the other presets keep returning to the best
+    /// vector, as tuned). Ignored when `backtracking` handles the stop.
+    pub step_on_stop: bool,
+    /// Least number of patch rows per propagation stripe (1 = `stripes`
+    /// alone decides, as in OpenCV). The coarse levels have only a few patch
+    /// rows: cut into `stripes` stripes they get no vertical propagation at
+    /// all, and a wrong vector of an aliased coarse level is never replaced
+    /// by its neighbour's. Still a fixed function of the level size, so
+    /// results do not depend on the thread count.
+    pub min_stripe_rows: usize,
+    /// The coarsest level keeps at least this many patch sides along the
+    /// image's shorter side (1 = OpenCV's rule, one patch). At 1920x1080 with
+    /// 8-px patches OpenCV's rule picks scale 6, a 30x16 image in which
+    /// 1-px markers are aliased noise: a patch search there can lock onto a
+    /// wrong vector that every finer level doubles (16.7 px of motion gave
+    /// an AEPE of 77 px). 3 patch sides stop at scale 5 (60x33), which still
+    /// starts the search within a pixel for motions of ~30 px.
+    pub coarsest_min_patches: usize,
 }
 
 impl DisParams {
@@ -212,6 +241,9 @@ impl DisParams {
             min_texture: 0.0,
             early_stop: 0.0,
             refine_levels: None,
+            step_on_stop: false,
+            min_stripe_rows: 1,
+            coarsest_min_patches: 1,
         };
         match preset {
             DisPreset::Ultrafast => DisParams {
@@ -226,6 +258,9 @@ impl DisParams {
             // (see `refine_levels`).
             DisPreset::Fast => DisParams {
                 refine_levels: Some(1),
+                step_on_stop: true,
+                min_stripe_rows: 3,
+                coarsest_min_patches: 3,
                 ..base
             },
             DisPreset::Medium => DisParams {
@@ -261,12 +296,16 @@ impl DisParams {
     }
 
     /// The same parameters with OpenCV's iteration semantics: no early stop
-    /// of the descent and the refinement on every level. `Fast` and
-    /// `Ultrafast` are then exactly OpenCV 5's presets.
+    /// of the descent, the refinement on every level, OpenCV's stripes and
+    /// coarsest level, and its step at the stop. `Fast` and `Ultrafast` are
+    /// then exactly OpenCV 5's presets.
     pub fn opencv_semantics(self) -> Self {
         DisParams {
             early_stop: 0.0,
             refine_levels: None,
+            step_on_stop: true,
+            min_stripe_rows: 1,
+            coarsest_min_patches: 1,
             ..self
         }
     }
@@ -310,6 +349,15 @@ impl DisParams {
         }
         if self.stripes == 0 {
             return Err(Error::param("stripes", "must be at least 1"));
+        }
+        if self.min_stripe_rows == 0 {
+            return Err(Error::param("min_stripe_rows", "must be at least 1"));
+        }
+        if !(1..=64).contains(&self.coarsest_min_patches) {
+            return Err(Error::param(
+                "coarsest_min_patches",
+                format!("{} is outside 1..=64", self.coarsest_min_patches),
+            ));
         }
         if !(self.min_texture.is_finite() && self.min_texture >= 0.0) {
             return Err(Error::param(
@@ -512,11 +560,15 @@ impl Dis {
             .coarsest_scale
             .unwrap_or_else(|| Dis::auto_coarsest_scale(w, h, p.patch_size))
             .max(p.finest_scale);
-        // Never go coarser than a level that still holds one patch.
+        // Never go coarser than a level that still holds one patch
+        // (`coarsest_min_patches` of them along each side); the finest level
+        // is always kept.
+        let min_side = p.patch_size * p.coarsest_min_patches;
         let mut scales = Vec::new();
         for s in p.finest_scale..=coarsest {
             let (lw, lh) = pyramid::level_size(w, h, s);
-            if lw < p.patch_size || lh < p.patch_size {
+            let small = lw < p.patch_size || lh < p.patch_size;
+            if small || (!scales.is_empty() && (lw < min_side || lh < min_side)) {
                 break;
             }
             scales.push(s);
@@ -1096,7 +1148,7 @@ fn fast_floor(x: f32) -> f32 {
 fn search_level(lvl: &mut Level, p: &DisParams) {
     let ws = lvl.ws();
     let hs = lvl.hs();
-    let stripe_rows = hs.div_ceil(p.stripes).max(1);
+    let stripe_rows = hs.div_ceil(p.stripes).max(p.min_stripe_rows);
     let iters = p.gradient_descent_iterations / 2;
     let stop2 = p.early_stop * p.early_stop;
     let view = LevelView {
@@ -1187,7 +1239,13 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                                     halved = true;
                                     continue;
                                 }
-                                (u, v) = (lu, lv);
+                                if p.step_on_stop && t > 0 {
+                                    // OpenCV's order: step, then test.
+                                    u -= pr.ih11 * cur.bx + pr.ih12 * cur.by;
+                                    v -= pr.ih12 * cur.bx + pr.ih22 * cur.by;
+                                } else {
+                                    (u, v) = (lu, lv);
+                                }
                                 break;
                             }
                             prev = cur.ssd;
