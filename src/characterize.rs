@@ -284,6 +284,14 @@ fn match_position(
     }
 }
 
+/// The extractions of `split` in which a contact was detected.
+fn detected_in(extractions: &[Extraction], split: Split) -> Vec<&Extraction> {
+    extractions
+        .iter()
+        .filter(|e| e.row.split == split && e.raw.is_some())
+        .collect()
+}
+
 /// Each detected test's local force matched by `model` at the column
 /// `column_of(extraction, raw)`.
 fn match_forces<'a>(
@@ -326,10 +334,7 @@ fn fit_profile(
     options: crate::calibration::ProfileFitOptions,
     cal: &Calibration,
 ) -> Result<ProfileModel> {
-    let train: Vec<&Extraction> = extractions
-        .iter()
-        .filter(|e| e.row.split == Split::Train && e.raw.is_some())
-        .collect();
+    let train = detected_in(extractions, Split::Train);
     let anchors = std::iter::once(None).chain((1..=options.anchor_max_degree).map(Some));
     let mut best: Option<(f64, ProfileModel)> = None;
     let mut last_error = None;
@@ -414,10 +419,7 @@ fn validation_force_mae(
     geometry: &SensorGeometry,
     cal: &Calibration,
 ) -> Result<f64> {
-    let val: Vec<&Extraction> = extractions
-        .iter()
-        .filter(|e| e.row.split == Split::Val && e.raw.is_some())
-        .collect();
+    let val = detected_in(extractions, Split::Val);
     let forces = match_forces(model, val.iter().copied(), |_, raw| {
         cal.match_column(model, raw)
     })?;
