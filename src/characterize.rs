@@ -335,25 +335,24 @@ fn fit_profile(
     cal: &Calibration,
 ) -> Result<ProfileModel> {
     let train = detected_in(extractions, Split::Train);
+    // The anchor maps' points: each training test's true position and measured column.
+    let points: Vec<(f64, f64)> = train
+        .iter()
+        .filter_map(|e| e.raw.map(|r| (e.row.x_mm, r.x_px)))
+        .collect();
     let anchors = std::iter::once(None).chain((1..=options.anchor_max_degree).map(Some));
     let mut best: Option<(f64, ProfileModel)> = None;
     let mut last_error = None;
     for degree in anchors {
         let anchor = match degree {
             None => None,
-            Some(d) => {
-                let points: Vec<(f64, f64)> = train
-                    .iter()
-                    .filter_map(|e| e.raw.map(|r| (e.row.x_mm, r.x_px)))
-                    .collect();
-                match ColumnMap::fit(&points, d) {
-                    Ok(m) => Some(m),
-                    Err(e) => {
-                        last_error = Some(e);
-                        continue;
-                    }
+            Some(d) => match ColumnMap::fit(&points, d) {
+                Ok(m) => Some(m),
+                Err(e) => {
+                    last_error = Some(e);
+                    continue;
                 }
-            }
+            },
         };
         let model = match fit_profile_at(&train, geometry, crop, options, anchor) {
             Ok(m) => m,
