@@ -40,8 +40,8 @@ use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
 const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
-[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-y2d] \
-[--preset ultrafast|fast|medium|accurate (default accurate)] [--crop x,y,w,h] [--predictions FILE]";
+[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 3)] [--force-y2d] \
+[--preset ultrafast|fast|medium|accurate|balanced|fine (default accurate)] [--crop x,y,w,h] [--predictions FILE]";
 
 struct Args {
     dir: PathBuf,
@@ -50,6 +50,7 @@ struct Args {
     custom: Option<(f32, f32)>,
     contact_point: ContactPointMethod,
     shear_order: u32,
+    force_order: u32,
     force_y2d: bool,
     flow: DisPreset,
     crop: Option<Roi>,
@@ -99,6 +100,7 @@ fn parse() -> Result<Option<Args>, String> {
     let mut custom = None;
     let mut contact_point = ContactPointMethod::DEFAULT;
     let mut shear_order = FitOptions::default().location_shear_order;
+    let mut force_order = FitOptions::default().displacement_max_order;
     // The characterization rods span the skin's width, so y2d carries only
     // noise into the force maps (measured: Fx 0.082 -> 0.063 N, Fz 0.30 ->
     // 0.24 N test MAE without it): off unless asked for.
@@ -162,6 +164,14 @@ fn parse() -> Result<Option<Args>, String> {
                     .filter(|&n: &u32| n <= 5)
                     .ok_or(format!("--shear-order: expected 0..=5, got `{v}`"))?;
             }
+            "--force-order" => {
+                let v = val("--force-order")?;
+                force_order = v
+                    .parse()
+                    .ok()
+                    .filter(|n: &u32| (1..=6).contains(n))
+                    .ok_or(format!("--force-order: expected 1..=6, got `{v}`"))?;
+            }
             "--preset" => flow = DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?,
             "--crop" => crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
             "--predictions" => predictions = Some(PathBuf::from(val("--predictions")?)),
@@ -177,6 +187,7 @@ fn parse() -> Result<Option<Args>, String> {
         custom,
         contact_point,
         shear_order,
+        force_order,
         force_y2d,
         flow,
         crop,
@@ -259,6 +270,7 @@ fn run() -> Result<(), String> {
         eprintln!();
         let options = FitOptions {
             location_shear_order: args.shear_order,
+            displacement_max_order: args.force_order,
             force_use_y2d: args.force_y2d,
             ..FitOptions::default()
         };

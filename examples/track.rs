@@ -42,7 +42,7 @@ use optical_tactile::track::{FilterConfig, ReferencePolicy};
 use optical_tactile::viz;
 
 const USAGE: &str = "usage: track [SEQ_DIR (default fixtures/press)] [--calibration FILE (default fixtures/calibration.json)] \
-[--crop x,y,w,h] [--thresholds low|mid|high] [--preset ultrafast|fast|medium|accurate|balanced] \
+[--crop x,y,w,h] [--thresholds low|mid|high] [--preset ultrafast|fast|medium|accurate|balanced|fine] \
 [--filter on|off (default off)] [--rereference on|off (default on)] [--out contacts.jsonl] [--debug DIR] [--quiet]";
 
 struct Args {
@@ -295,18 +295,10 @@ fn run() -> Result<bool, String> {
 }
 
 fn preset_name(p: &DisParams) -> String {
-    for preset in [
-        DisPreset::Ultrafast,
-        DisPreset::Fast,
-        DisPreset::Medium,
-        DisPreset::Accurate,
-        DisPreset::Balanced,
-    ] {
-        if DisParams::preset(preset) == *p {
-            return preset.name().to_string();
-        }
-    }
-    "custom".into()
+    DisPreset::ALL
+        .into_iter()
+        .find(|&preset| DisParams::preset(preset) == *p)
+        .map_or_else(|| "custom".into(), |preset| preset.name().to_string())
 }
 
 fn main() -> ExitCode {

@@ -104,7 +104,7 @@ pub fn extract_dataset(
                 let frame = load(dir, &row.frame, crop)?;
                 ex.set_reference(&reference)?;
                 let mut raws = ex.extract(&frame)?.to_vec();
-                let (flow, s) = ex.flow();
+                let (flow, s) = ex.finest_flow();
                 let s = s as f64;
                 locator.refine(contact_point, &mut raws, flow.u.view(), s)?;
                 let mut profiles = [Vec::new(), Vec::new()];

@@ -137,6 +137,134 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
+/// The finest grid, in full-resolution pixels per cell, on which
+/// [`ContactExtractor`] segments and decomposes. A full-resolution flow
+/// ([`DisPreset::Fine`]) is averaged 2x2 down to it for those stages: at full
+/// resolution the nHHD of a patch costs 4-5x more and the patches it finds
+/// are the same, while the force profiles, which do need the finest motion,
+/// read the native flow ([`ContactExtractor::finest_flow`]).
+pub const ANALYSIS_MIN_SCALE: usize = 2;
+
+/// DIS's native flow brought to the analysis grid: in full-resolution pixel
+/// units, and averaged down to [`ANALYSIS_MIN_SCALE`] when finer, with the
+/// native flow kept beside it. Shared by [`ContactExtractor`] and the
+/// simulator's segmentation sweeps, so that both see the same grid.
+#[derive(Debug)]
+pub(crate) struct AnalysisGrid {
+    /// Full-resolution pixels per native flow pixel.
+    fine_scale: usize,
+    /// Full-resolution pixels per analysis-grid pixel.
+    scale: usize,
+    /// The flow on the analysis grid, full-resolution pixel units.
+    flow: FlowField,
+    /// The native flow in full-resolution pixel units, when finer than the
+    /// analysis grid (empty otherwise: `flow` is the native flow).
+    fine: FlowField,
+    /// The analysis-grid flow in its own pixel units (the segmenter's
+    /// input), when pooled from a finer flow.
+    pooled: FlowField,
+}
+
+impl AnalysisGrid {
+    /// The grid for a DIS flow of finest scale `finest_scale` (a native
+    /// pixel is `2^finest_scale` full-resolution pixels).
+    pub(crate) fn new(finest_scale: usize) -> Self {
+        let fine_scale = 1usize << finest_scale;
+        AnalysisGrid {
+            fine_scale,
+            scale: fine_scale.max(ANALYSIS_MIN_SCALE),
+            flow: FlowField::zeros(0, 0),
+            fine: FlowField::zeros(0, 0),
+            pooled: FlowField::zeros(0, 0),
+        }
+    }
+
+    /// Full-resolution pixels per analysis-grid pixel.
+    pub(crate) fn scale(&self) -> usize {
+        self.scale
+    }
+
+    /// Takes a new native flow (in its own pixel units); returns the
+    /// analysis-grid flow in the grid's own pixel units (what the segmenter
+    /// reads). Errors on a non-finite flow.
+    pub(crate) fn update<'a>(&'a mut self, native: &'a FlowField) -> Result<&'a FlowField> {
+        let factor = self.scale / self.fine_scale;
+        if factor == 1 {
+            scale_into(native, self.fine_scale as f32, &mut self.flow);
+            self.flow.check_finite("optical flow")?;
+            Ok(native)
+        } else {
+            // A finer flow than the analysis grid: kept whole for the force
+            // profiles, and averaged down for segmentation and the nHHD.
+            scale_into(native, self.fine_scale as f32, &mut self.fine);
+            self.fine.check_finite("optical flow")?;
+            pool_into(native, factor, &mut self.pooled)?;
+            scale_into(&self.pooled, self.scale as f32, &mut self.flow);
+            Ok(&self.pooled)
+        }
+    }
+
+    /// The analysis-grid flow (full-resolution units) and its scale.
+    pub(crate) fn flow(&self) -> (&FlowField, usize) {
+        (&self.flow, self.scale)
+    }
+
+    /// The native flow (full-resolution units) and its scale.
+    pub(crate) fn finest(&self) -> (&FlowField, usize) {
+        if self.fine_scale == self.scale {
+            (&self.flow, self.scale)
+        } else {
+            (&self.fine, self.fine_scale)
+        }
+    }
+}
+
+/// `out = flow * gain`, resized to `flow`'s size if needed.
+fn scale_into(flow: &FlowField, gain: f32, out: &mut FlowField) {
+    if out.size() != flow.size() {
+        *out = FlowField::zeros(flow.width(), flow.height());
+    }
+    ndarray::Zip::from(&mut out.u)
+        .and(&flow.u)
+        .for_each(|o, &x| *o = x * gain);
+    ndarray::Zip::from(&mut out.v)
+        .and(&flow.v)
+        .for_each(|o, &x| *o = x * gain);
+}
+
+/// Averages `flow` over `factor x factor` blocks into `out`, in the pixel
+/// units of the coarser grid (so divided by `factor`); a partial last row or
+/// column of blocks is left out. Errors if `flow` holds not even one block.
+fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()> {
+    let (w, h) = (flow.width() / factor, flow.height() / factor);
+    if w == 0 || h == 0 {
+        return Err(Error::TooSmall {
+            what: "flow to average down to the analysis grid".into(),
+            width: flow.width(),
+            height: flow.height(),
+            min_w: factor,
+            min_h: factor,
+        });
+    }
+    if out.size() != (w, h) {
+        *out = FlowField::zeros(w, h);
+    }
+    let norm = 1.0 / (factor * factor * factor) as f32;
+    for (src, dst) in [(&flow.u, &mut out.u), (&flow.v, &mut out.v)] {
+        for (r, mut row) in dst.rows_mut().into_iter().enumerate() {
+            row.fill(0.0);
+            for sr in r * factor..(r + 1) * factor {
+                let s = src.row(sr);
+                for (c, o) in row.iter_mut().enumerate() {
+                    *o += s.slice(ndarray::s![c * factor..(c + 1) * factor]).sum();
+                }
+            }
+            row.mapv_inplace(|x| x * norm);
+        }
+    }
+    Ok(())
+}
+
 /// Flow -> patches -> nHHD -> raw quantities, on cropped grayscale frames
 /// (see the module docs). Built once; nothing is allocated per frame once the
 /// patch sizes have been seen.
@@ -145,10 +273,7 @@ pub struct ContactExtractor {
     config: ExtractorConfig,
     dis: Dis,
     segmenter: Segmenter,
-    /// Full-resolution pixels per native flow pixel.
-    scale: usize,
-    /// The native flow in full-resolution pixel units.
-    flow: FlowField,
+    grid: AnalysisGrid,
     patches: Vec<ContactPatch>,
     slots: Vec<Slot>,
     raws: Vec<RawContact>,
@@ -159,18 +284,17 @@ impl ContactExtractor {
     /// An extractor for `config` (checked here).
     pub fn new(config: ExtractorConfig) -> Result<Self> {
         let dis = Dis::new(config.flow.clone())?;
-        let scale = 1usize << config.flow.finest_scale;
+        let grid = AnalysisGrid::new(config.flow.finest_scale);
         let segmenter = Segmenter::new(SegmenterConfig {
             thresholds: config.thresholds,
             margin: config.margin_px,
-            scale: scale as f64,
+            scale: grid.scale() as f64,
         })?;
         Ok(ContactExtractor {
             config,
             dis,
             segmenter,
-            scale,
-            flow: FlowField::zeros(0, 0),
+            grid,
             patches: Vec::new(),
             slots: Vec::new(),
             raws: Vec::new(),
@@ -195,7 +319,7 @@ impl ContactExtractor {
 
     /// Full-resolution pixels per pixel of the native flow.
     pub fn scale(&self) -> usize {
-        self.scale
+        self.grid.scale()
     }
 
     /// The raw quantities of every contact patch of `frame` (cropped, same
@@ -203,23 +327,12 @@ impl ContactExtractor {
     pub fn extract(&mut self, frame: &ArrayRef2<f32>) -> Result<&[RawContact]> {
         let t = Instant::now();
         self.dis.compute_native(frame)?;
-        let (native, scale) = self.dis.native_flow().ok_or(Error::NoReference)?;
-        // The flow in full-resolution pixel units, at native resolution.
-        let gain = scale as f32;
-        if self.flow.size() != native.size() {
-            self.flow = FlowField::zeros(native.width(), native.height());
-        }
-        ndarray::Zip::from(&mut self.flow.u)
-            .and(&native.u)
-            .for_each(|o, &x| *o = x * gain);
-        ndarray::Zip::from(&mut self.flow.v)
-            .and(&native.v)
-            .for_each(|o, &x| *o = x * gain);
-        self.flow.check_finite("optical flow")?;
+        let (native, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
+        let seg_input = self.grid.update(native)?;
         self.timings.flow_ms = ms(t);
 
         let t = Instant::now();
-        self.segmenter.segment_into(native, &mut self.patches)?;
+        self.segmenter.segment_into(seg_input, &mut self.patches)?;
         self.timings.segment_ms = ms(t);
 
         let t = Instant::now();
@@ -227,8 +340,8 @@ impl ContactExtractor {
         if self.slots.len() < n {
             self.slots.resize_with(n, Slot::default);
         }
-        let s = scale as f64;
-        let (flow, subpixel) = (&self.flow, self.config.subpixel);
+        let (flow, scale) = self.grid.flow();
+        let (s, subpixel) = (scale as f64, self.config.subpixel);
         self.slots[..n]
             .par_iter_mut()
             .zip(self.patches.par_iter())
@@ -249,10 +362,21 @@ impl ContactExtractor {
         &self.raws
     }
 
-    /// The last flow at native resolution, in full-resolution pixel units,
-    /// and the scale (full-resolution pixels per flow pixel).
+    /// The last flow on the analysis grid (where the patches and their
+    /// nHHD live), in full-resolution pixel units, and the grid's scale
+    /// (full-resolution pixels per flow pixel). This is DIS's native flow,
+    /// or, for a flow finer than [`ANALYSIS_MIN_SCALE`], that flow averaged
+    /// down to it.
     pub fn flow(&self) -> (&FlowField, usize) {
-        (&self.flow, self.scale)
+        self.grid.flow()
+    }
+
+    /// The last flow at DIS's native resolution, in full-resolution pixel
+    /// units, and its scale: the finest motion there is, from which the
+    /// force profiles and the contact column are measured. The same as
+    /// [`flow`](Self::flow) unless the flow is finer than the analysis grid.
+    pub fn finest_flow(&self) -> (&FlowField, usize) {
+        self.grid.finest()
     }
 
     /// The patches of the last frame (native-resolution boxes), in the order
@@ -540,7 +664,7 @@ impl TactileSensor {
         // and rotate its displacements into the sensor frame there.
         self.raws.clear();
         self.raws.extend_from_slice(self.extractor.raws());
-        let (flow, scale) = self.extractor.flow();
+        let (flow, scale) = self.extractor.finest_flow();
         self.calibration.refine_contacts_with(
             &mut self.locator,
             &mut self.raws,
@@ -622,5 +746,75 @@ impl TactileSensor {
     /// The cropped grayscale image of the last frame.
     pub fn cropped(&self) -> &Array2<f32> {
         &self.cropped
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The obvious twin of `pool_into`: each output cell averages its block
+    /// one value at a time.
+    fn pool_naive(flow: &FlowField, f: usize) -> FlowField {
+        let (w, h) = (flow.width() / f, flow.height() / f);
+        let mut out = FlowField::zeros(w, h);
+        for r in 0..h {
+            for c in 0..w {
+                let (mut su, mut sv) = (0.0f64, 0.0f64);
+                for i in 0..f {
+                    for j in 0..f {
+                        su += f64::from(flow.u[[r * f + i, c * f + j]]);
+                        sv += f64::from(flow.v[[r * f + i, c * f + j]]);
+                    }
+                }
+                let n = (f * f * f) as f64;
+                out.u[[r, c]] = (su / n) as f32;
+                out.v[[r, c]] = (sv / n) as f32;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn pooling_matches_the_block_mean_and_drops_partial_blocks() {
+        for (w, h, f) in [(16, 8, 2), (17, 9, 2), (30, 13, 4), (2, 2, 2)] {
+            let mut flow = FlowField::zeros(w, h);
+            for r in 0..h {
+                for c in 0..w {
+                    flow.u[[r, c]] = ((r * 31 + c * 17) % 23) as f32 * 0.1 - 1.0;
+                    flow.v[[r, c]] = ((r * 7 + c * 13) % 19) as f32 * -0.05;
+                }
+            }
+            let mut out = FlowField::zeros(0, 0);
+            pool_into(&flow, f, &mut out).unwrap();
+            let want = pool_naive(&flow, f);
+            assert_eq!(out.size(), want.size());
+            for (a, b) in out
+                .u
+                .iter()
+                .chain(out.v.iter())
+                .zip(want.u.iter().chain(want.v.iter()))
+            {
+                assert!((a - b).abs() < 1e-6, "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn pooling_a_flow_smaller_than_one_block_is_an_error() {
+        let mut out = FlowField::zeros(0, 0);
+        let err = pool_into(&FlowField::zeros(1, 5), 2, &mut out).unwrap_err();
+        assert!(matches!(err, Error::TooSmall { .. }), "{err}");
+    }
+
+    #[test]
+    fn the_analysis_grid_is_never_finer_than_two_pixels() {
+        assert_eq!(AnalysisGrid::new(0).scale(), 2);
+        assert_eq!(AnalysisGrid::new(1).scale(), 2);
+        assert_eq!(AnalysisGrid::new(2).scale(), 4);
+        let mut g = AnalysisGrid::new(1);
+        let mut native = FlowField::zeros(4, 2);
+        native.u[[1, 3]] = f32::NAN;
+        assert!(matches!(g.update(&native), Err(Error::NonFinite { .. })));
     }
 }

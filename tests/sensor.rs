@@ -59,6 +59,52 @@ fn both_rods_are_found_where_they_press() {
     }
 }
 
+/// With the full-resolution `fine` flow, segmentation and the nHHD run on
+/// the 2-px analysis grid (the 2x2 mean of the native flow), while
+/// `finest_flow` keeps the native flow for the force profiles; both rods are
+/// still found where they press.
+#[test]
+fn fine_flow_is_analysed_on_the_two_pixel_grid() {
+    let truth: Vec<FrameRecord> = read_jsonl(format!("{SEQ}/truth.jsonl")).unwrap();
+    let frames = frames();
+    let config = ExtractorConfig {
+        flow: DisParams::preset(DisPreset::Fine),
+        ..sensitive()
+    };
+    let mut ex = ContactExtractor::new(config).unwrap();
+    assert_eq!(ex.scale(), 2);
+    ex.set_reference(&frames[0].image).unwrap();
+    let raws = ex.extract(&frames[7].image).unwrap().to_vec();
+    let (fine, fs) = ex.finest_flow();
+    let (grid, gs) = ex.flow();
+    assert_eq!((fs, gs), (1, 2));
+    let (w, h) = (frames[7].image.ncols(), frames[7].image.nrows());
+    assert_eq!(fine.size(), (w, h));
+    assert_eq!(grid.size(), (w / 2, h / 2));
+    // Every analysis cell is the mean of its 2x2 block, in the same units.
+    for (r, c) in [(0, 0), (37, 350), (50, 450), (99, 799)] {
+        for (g, f) in [(&grid.u, &fine.u), (&grid.v, &fine.v)] {
+            let mean = (f[[2 * r, 2 * c]]
+                + f[[2 * r, 2 * c + 1]]
+                + f[[2 * r + 1, 2 * c]]
+                + f[[2 * r + 1, 2 * c + 1]])
+                / 4.0;
+            assert!(
+                (g[[r, c]] - mean).abs() < 1e-5,
+                "({r}, {c}): {} vs {mean}",
+                g[[r, c]]
+            );
+        }
+    }
+    assert_eq!(raws.len(), 2, "{raws:?}");
+    let mut xs: Vec<f64> = raws.iter().map(|r| r.x_px).collect();
+    xs.sort_by(f64::total_cmp);
+    for (x, c) in xs.iter().zip(&truth[7].contacts) {
+        let want = c.x_px.unwrap();
+        assert!((x - want).abs() < 10.0, "contact at {x}, rod at {want}");
+    }
+}
+
 fn sensor() -> TactileSensor {
     let config = SensorConfig {
         extractor: sensitive(),

@@ -88,10 +88,23 @@ pub enum DisPreset {
     /// motion and with the smallest sub-pixel bias, but much worse under
     /// strong strain (steep presses: rigid patches with no refinement).
     Balanced,
+    /// The tactile sensor's preset: [`DisPreset::Balanced`]'s patch search
+    /// at full resolution (finest scale 0), 8-px patches on an 8-px stride,
+    /// 4 descent iterations, a 1.5 px prefilter, no refinement and a texture
+    /// gate of 1 (the full-resolution noise of the black coating beyond the
+    /// skin reaches 0.1, [`DisPreset::Accurate`]'s gate, at its edge). Under a
+    /// rod the skin's along-arc motion has a near step (the normal load) and
+    /// a sharp peak (the tangential load) a few pixels wide; a flow computed
+    /// at half resolution blurs them by an amount that depends on the marker
+    /// pattern there, and the forces matched to the blurred profile scatter
+    /// with the position (docs/results/calibration.md). At full resolution
+    /// the shape survives, and the coarser stride and fewer iterations keep
+    /// it about as fast as [`DisPreset::Accurate`] on the 1600x200 strip.
+    Fine,
 }
 
 impl DisPreset {
-    /// Parses `ultrafast`, `fast`, `medium`, `accurate`, `balanced`
+    /// Parses `ultrafast`, `fast`, `medium`, `accurate`, `balanced`, `fine`
     /// (case-insensitive).
     pub fn parse(name: &str) -> Result<Self> {
         match name.to_ascii_lowercase().as_str() {
@@ -100,10 +113,11 @@ impl DisPreset {
             "medium" => Ok(DisPreset::Medium),
             "accurate" => Ok(DisPreset::Accurate),
             "balanced" => Ok(DisPreset::Balanced),
+            "fine" => Ok(DisPreset::Fine),
             _ => Err(Error::param(
                 "preset",
                 format!(
-                    "unknown DIS preset `{name}` (ultrafast, fast, medium, accurate, balanced)"
+                    "unknown DIS preset `{name}` (ultrafast, fast, medium, accurate, balanced, fine)"
                 ),
             )),
         }
@@ -117,16 +131,18 @@ impl DisPreset {
             DisPreset::Medium => "medium",
             DisPreset::Accurate => "accurate",
             DisPreset::Balanced => "balanced",
+            DisPreset::Fine => "fine",
         }
     }
 
     /// All presets.
-    pub const ALL: [DisPreset; 5] = [
+    pub const ALL: [DisPreset; 6] = [
         DisPreset::Ultrafast,
         DisPreset::Fast,
         DisPreset::Medium,
         DisPreset::Accurate,
         DisPreset::Balanced,
+        DisPreset::Fine,
     ];
 }
 
@@ -290,6 +306,14 @@ impl DisParams {
                     outer_iterations: 1,
                     ..RefineParams::opencv()
                 },
+                ..DisParams::preset(DisPreset::Balanced)
+            },
+            DisPreset::Fine => DisParams {
+                finest_scale: 0,
+                patch_stride: 8,
+                gradient_descent_iterations: 4,
+                prefilter_sigma: 1.5,
+                min_texture: 1.0,
                 ..DisParams::preset(DisPreset::Balanced)
             },
         }

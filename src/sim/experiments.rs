@@ -32,15 +32,14 @@ use super::sensor::{Contact, SyntheticSensor};
 use crate::calibration::Calibration;
 use crate::contact::{ContactLocator, ContactPointMethod};
 use crate::error::{Error, Result};
-use crate::flow::FlowField;
-use crate::flow::dis::{Dis, DisParams, DisPreset};
+use crate::flow::dis::Dis;
 use crate::io::{self, FrameRecord};
 pub use crate::mapping::ClusterSummary;
 use crate::mapping::{
     Cluster, MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json,
 };
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
-use crate::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
+use crate::sensor::{AnalysisGrid, ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
 
 /// The characterization protocol's indenters and tilts, which the sweeps
 /// run through.
@@ -141,10 +140,11 @@ fn covers(p: &ContactPatch, scale: f64, x_px: f64) -> bool {
     (x0..=x1).contains(&x_px)
 }
 
-/// One DIS (accurate preset) and one segmenter per threshold set, run on the
-/// same native flow.
+/// One DIS (the sensor's default preset) and one segmenter per threshold
+/// set, run on the same flow on the extractor's analysis grid.
 struct Bench {
     dis: Dis,
+    grid: AnalysisGrid,
     segs: Vec<Segmenter>,
     patches: Vec<ContactPatch>,
     scale: f64,
@@ -152,8 +152,9 @@ struct Bench {
 
 impl Bench {
     fn new(o: &SweepOptions) -> Result<Self> {
-        let params = DisParams::preset(DisPreset::Accurate);
-        let scale = (1usize << params.finest_scale) as f64;
+        let params = ExtractorConfig::default().flow;
+        let grid = AnalysisGrid::new(params.finest_scale);
+        let scale = grid.scale() as f64;
         let segs = o
             .sets
             .iter()
@@ -167,6 +168,7 @@ impl Bench {
             .collect::<Result<Vec<_>>>()?;
         Ok(Bench {
             dis: Dis::new(params)?,
+            grid,
             segs,
             patches: Vec::new(),
             scale,
@@ -181,7 +183,8 @@ impl Bench {
         mut f: impl FnMut(usize, &[ContactPatch], &Segmenter),
     ) -> Result<()> {
         self.dis.compute_native(frame)?;
-        let (flow, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
+        let (native, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
+        let flow = self.grid.update(native)?;
         for (k, seg) in self.segs.iter_mut().enumerate() {
             seg.segment_into(flow, &mut self.patches)?;
             f(k, &self.patches, seg);
@@ -191,14 +194,13 @@ impl Bench {
 
     /// Largest `|flow|` of the last frame, full-resolution pixels.
     fn peak(&self) -> Result<f64> {
-        let (flow, _): (&FlowField, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
+        let (flow, _) = self.grid.flow();
         Ok(flow
             .u
             .iter()
             .zip(flow.v.iter())
             .map(|(u, v)| u.hypot(*v) as f64)
-            .fold(0.0, f64::max)
-            * self.scale)
+            .fold(0.0, f64::max))
     }
 }
 
@@ -601,7 +603,7 @@ pub fn pair_told_apart(
     // slope peak), not the patch's potential minimum: that is where the
     // sensor reports the contact.
     let mut raws = [raws[0], raws[1]];
-    let (flow, s) = extractor.flow();
+    let (flow, s) = extractor.finest_flow();
     ContactLocator::new().refine(
         ContactPointMethod::DEFAULT,
         &mut raws,
