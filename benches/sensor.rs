@@ -86,7 +86,7 @@ fn bench_process(c: &mut Criterion) {
     for full_frame in [true, false] {
         let (reference, pressed, crop) = frames(full_frame);
         let size = format!("{}x{}", reference.ncols(), reference.nrows());
-        for preset in [DisPreset::Fast, DisPreset::Accurate] {
+        for preset in [DisPreset::Fast, DisPreset::Accurate, DisPreset::Fine] {
             let config = SensorConfig {
                 crop: Some(crop),
                 extractor: ExtractorConfig {

@@ -40,8 +40,8 @@ use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
 const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
-[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 3)] [--force-y2d] \
-[--preset ultrafast|fast|medium|accurate|balanced|fine (default accurate)] [--crop x,y,w,h] [--predictions FILE]";
+[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 5)] [--force-y2d] \
+[--preset ultrafast|fast|medium|accurate|balanced|fine (default fine, the sensor's)] [--crop x,y,w,h] [--predictions FILE]";
 
 struct Args {
     dir: PathBuf,
@@ -94,7 +94,7 @@ fn parse() -> Result<Option<Args>, String> {
     let mut dir = None;
     let mut out = None;
     let mut presets = vec!["high"];
-    let mut flow = DisPreset::Accurate;
+    let mut flow = DisPreset::Fine; // ExtractorConfig::default()'s
     let mut crop = None;
     let mut predictions = None;
     let mut custom = None;

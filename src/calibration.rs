@@ -843,7 +843,11 @@ pub struct FitOptions {
     /// (0.63 against 0.25 mm). Older files, which lack it, used `MaxOfGroups`.
     #[serde(default = "max_of_groups")]
     pub location_cross: CrossTerms,
-    /// Largest order of the displacement group `{dx, dy, dz}` in the force maps.
+    /// Largest order of the displacement group `{dx, dy, dz}` in the force
+    /// maps. Default 5: the profile-matched forces bend away from the true
+    /// force as the indenter's footprint widens with the load, and on the
+    /// simulator's full protocol the order search picked the largest order
+    /// offered up to 5 (test Fz MAE 0.057 N with at most 3, 0.045 with 5).
     pub displacement_max_order: u32,
     /// Largest order of the location group `{x2d, y2d}` in the force maps.
     pub force_location_max_order: u32,
@@ -874,7 +878,7 @@ impl Default for FitOptions {
             location_max_order: 5,
             location_shear_order: 2,
             location_cross: CrossTerms::Mixed(2),
-            displacement_max_order: 3,
+            displacement_max_order: 5,
             force_location_max_order: 2,
             d_pf_max_order: 2,
             force_use_y2d: true,

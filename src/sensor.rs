@@ -3,10 +3,14 @@
 //! - [`ContactExtractor`] runs SPEC.md steps 4-7 on cropped grayscale frames:
 //!   DIS optical flow against a fixed reference, segmentation into patches, a
 //!   natural HHD per patch (in parallel), and each patch's raw quantities. It
-//!   works at the flow's **native resolution** (DIS's finest computed level,
-//!   1/4 resolution for `fast`): the flow is never upsampled; the HHD uses the
-//!   level's grid spacing, so every quantity comes out in full-resolution
-//!   pixels. Calibration fitting uses it directly.
+//!   works at the flow's **native resolution** (DIS's finest computed level:
+//!   full resolution for the default `fine`, 1/4 for `fast`): the flow is
+//!   never upsampled. Segmentation and the nHHD use a grid of at least 2 px
+//!   ([`ANALYSIS_MIN_SCALE`]; a full-resolution flow is averaged 2x2 down to
+//!   it) with the grid's spacing, so every quantity comes out in
+//!   full-resolution pixels; the contact column and the force profiles read
+//!   the native flow ([`ContactExtractor::finest_flow`]). Calibration fitting
+//!   uses it directly.
 //! - [`TactileSensor`] adds the crop, the calibration (mm and N), tracking
 //!   (identity, hysteresis, smoothing) and safe re-referencing.
 //!
@@ -52,7 +56,7 @@ use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 /// How the extractor cuts and measures patches.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExtractorConfig {
-    /// Optical flow parameters.
+    /// Optical flow parameters (default [`DisPreset::Fine`]).
     pub flow: DisParams,
     /// Segmentation thresholds (full-resolution pixels).
     pub thresholds: Thresholds,
@@ -66,7 +70,7 @@ pub struct ExtractorConfig {
 impl Default for ExtractorConfig {
     fn default() -> Self {
         ExtractorConfig {
-            flow: DisParams::preset(DisPreset::Accurate),
+            flow: DisParams::preset(DisPreset::Fine),
             thresholds: Thresholds::HIGH,
             margin_px: 24,
             subpixel: true,
@@ -250,16 +254,26 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
         *out = FlowField::zeros(w, h);
     }
     let norm = 1.0 / (factor * factor * factor) as f32;
+    let sw = flow.width();
     for (src, dst) in [(&flow.u, &mut out.u), (&flow.v, &mut out.v)] {
-        for (r, mut row) in dst.rows_mut().into_iter().enumerate() {
-            row.fill(0.0);
-            for sr in r * factor..(r + 1) * factor {
-                let s = src.row(sr);
-                for (c, o) in row.iter_mut().enumerate() {
-                    *o += s.slice(ndarray::s![c * factor..(c + 1) * factor]).sum();
+        // Plain row slices let the inner loops run without per-element
+        // index arithmetic (a standard-layout copy only if `flow` is not).
+        let src = src.as_standard_layout();
+        let src = src.as_slice().expect("standard layout is contiguous");
+        if !dst.is_standard_layout() {
+            *dst = ndarray::Array2::zeros((h, w));
+        }
+        let dst = dst.as_slice_mut().expect("standard layout is contiguous");
+        for (r, drow) in dst.chunks_exact_mut(w).enumerate() {
+            drow.fill(0.0);
+            for srow in src[r * factor * sw..(r + 1) * factor * sw].chunks_exact(sw) {
+                for (o, block) in drow.iter_mut().zip(srow.chunks_exact(factor)) {
+                    *o += block.iter().sum::<f32>();
                 }
             }
-            row.mapv_inplace(|x| x * norm);
+            for o in drow.iter_mut() {
+                *o *= norm;
+            }
         }
     }
     Ok(())

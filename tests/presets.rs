@@ -1,12 +1,14 @@
 //! The segmentation presets on simulated strips (the default 1600 x 200 px,
 //! 320 mm skin: a few frames only) through the whole [`ContactExtractor`]
-//! (accurate DIS at native resolution -> segmentation -> nHHD): tests that
+//! (the default `fine` DIS -> segmentation on the 2-px grid -> nHHD, and the
+//! sensor's contact column): tests that
 //! fail if a preset stops rejecting rest noise, stops detecting a press it
 //! is documented to detect, or stops telling two close rods apart.
 //!
 //! The full measurements (many positions, tilts, rest pairs) are made by
 //! `cargo run --release --example sweep` (docs/results/segmentation.md).
 
+use optical_tactile::contact::{ContactLocator, ContactPointMethod};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
 use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
@@ -47,12 +49,19 @@ fn contacts(
     let r = sensor.render_indexed(2 * index, &[], false).unwrap();
     let o = sensor.render_indexed(2 * index + 1, &rods, false).unwrap();
     ex.set_reference(&r.frame).unwrap();
-    let mut xs: Vec<f64> = ex
-        .extract(&o.frame)
-        .unwrap()
-        .iter()
-        .map(|c| c.x_px)
-        .collect();
+    let mut raws = ex.extract(&o.frame).unwrap().to_vec();
+    // Each contact's column as the sensor measures it (the slope peak of the
+    // native flow's profile), not the patch's potential minimum.
+    let (flow, scale) = ex.finest_flow();
+    ContactLocator::new()
+        .refine(
+            ContactPointMethod::DEFAULT,
+            &mut raws,
+            flow.u.view(),
+            scale as f64,
+        )
+        .unwrap();
+    let mut xs: Vec<f64> = raws.iter().map(|c| c.x_px).collect();
     xs.sort_by(f64::total_cmp);
     xs
 }

@@ -24,8 +24,9 @@
 //! ([`Dis::compute_into`]) or read at its own level ([`Dis::native_flow`]).
 //!
 //! The `Ultrafast`, `Fast` and `Medium` presets use OpenCV 5's values; the
-//! `Accurate` preset (the default) and `Balanced` fix what makes OpenCV's DIS
-//! weak on marker images (see [`DisPreset::Accurate`]).
+//! `Accurate` preset (the default here) and `Balanced` fix what makes OpenCV's
+//! DIS weak on marker images (see [`DisPreset::Accurate`]); `Fine`, the tactile
+//! sensor's preset, runs the search at full resolution ([`DisPreset::Fine`]).
 //!
 //! Bad input is an [`Error`]: an empty reference or one too small for a
 //! patch at the finest scale ([`Error::TooSmall`]), a current frame of
@@ -65,7 +66,9 @@ pub enum DisPreset {
     /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent
     /// iterations, 5 refinement iterations.
     Medium,
-    /// Our marker-image preset and the sensor's default: the finest scale
+    /// Our most accurate marker-image flow (the lowest endpoint error on
+    /// our synthetic pairs; the sensor's default until [`DisPreset::Fine`]
+    /// matched its forces better): the finest scale
     /// 1 (1-px markers are sub-pixel dots at scale 2), true Gauss-Newton
     /// steps (Sobel normalized to the true derivative, so each step solves
     /// the linearized problem instead of moving 1/8 of the way; 8 iterations
@@ -401,7 +404,8 @@ impl DisParams {
 }
 
 impl Default for DisParams {
-    /// The sensor's default, [`DisPreset::Accurate`].
+    /// [`DisPreset::Accurate`], the lowest endpoint error (the tactile
+    /// sensor uses [`DisPreset::Fine`]: `ExtractorConfig::default`).
     fn default() -> Self {
         DisParams::preset(DisPreset::Accurate)
     }

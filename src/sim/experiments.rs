@@ -39,7 +39,10 @@ use crate::mapping::{
     Cluster, MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json,
 };
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
-use crate::sensor::{AnalysisGrid, ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
+use crate::sensor::{
+    AnalysisGrid, ContactExtractor, ExtractorConfig, QUIET_MIN_TEXTURE, QUIET_TILE_PX,
+    SensorConfig, TactileSensor, textured_tiles_into,
+};
 
 /// The characterization protocol's indenters and tilts, which the sweeps
 /// run through.
@@ -192,15 +195,29 @@ impl Bench {
         Ok(())
     }
 
-    /// Largest `|flow|` of the last frame, full-resolution pixels.
-    fn peak(&self) -> Result<f64> {
-        let (flow, _) = self.grid.flow();
-        Ok(flow
-            .u
-            .iter()
-            .zip(flow.v.iter())
-            .map(|(u, v)| u.hypot(*v) as f64)
-            .fold(0.0, f64::max))
+    /// Largest `|flow|` of the last frame, full-resolution pixels, over the
+    /// skin's interior: the cells whose `tile_px` tile of the reference and
+    /// its 8 neighbours are all textured (`textured` from
+    /// [`textured_tiles_into`], `tiles_x` tiles per row). On the black strip
+    /// ends the flow is not measurable and DIS fills in what its coarse
+    /// levels guessed; a tile on the skin's edge holds both, and the
+    /// full-resolution `fine` flow put up to 1.3 px there at rest.
+    fn peak(&self, textured: &[bool], tiles_x: usize, tile_px: usize) -> f64 {
+        let (flow, scale) = self.grid.flow();
+        let tiles_y = textured.len().div_ceil(tiles_x.max(1));
+        let inside = |ty: usize, tx: usize| {
+            (ty.saturating_sub(1)..=(ty + 1).min(tiles_y - 1)).all(|y| {
+                (tx.saturating_sub(1)..=(tx + 1).min(tiles_x - 1))
+                    .all(|x| textured.get(y * tiles_x + x).copied().unwrap_or(true))
+            })
+        };
+        let mut best = 0.0f64;
+        for ((r, c), u) in flow.u.indexed_iter() {
+            if tiles_x == 0 || inside(r * scale / tile_px, c * scale / tile_px) {
+                best = best.max(f64::from(u.hypot(flow.v[[r, c]])));
+            }
+        }
+        best
     }
 }
 
@@ -218,7 +235,8 @@ pub struct RestResult {
     /// Per set: the largest contour sum (full-resolution px^3) seen at rest,
     /// how far below the sum threshold the noise stays.
     pub max_contour_sum: Vec<f64>,
-    /// Peak `|flow|` of every rest pair (full-resolution px), ascending.
+    /// Peak `|flow|` of every rest pair over the textured skin
+    /// (full-resolution px), ascending.
     pub peaks_px: Vec<f64>,
 }
 
@@ -250,12 +268,14 @@ pub fn rest_sweep(
     let per: Vec<(Vec<usize>, Vec<f64>, f64)> = (0..pairs as u64)
         .into_par_iter()
         .map_init(
-            || None,
-            |slot: &mut Option<Bench>, k| {
+            || (None, Vec::new()),
+            |(slot, textured): &mut (Option<Bench>, Vec<bool>), k| {
                 let bench = worker(slot, || Bench::new(o))?;
                 let r = sensor.render_indexed(REST_BASE + 2 * k, &[], false)?;
                 let f = sensor.render_indexed(REST_BASE + 2 * k + 1, &[], false)?;
                 bench.dis.set_reference(&r.frame)?;
+                let tiles_x =
+                    textured_tiles_into(&r.frame, QUIET_TILE_PX, QUIET_MIN_TEXTURE, textured);
                 let mut patches = vec![0usize; n];
                 let mut sums = vec![0.0f64; n];
                 let s3 = bench.scale.powi(3);
@@ -263,7 +283,7 @@ pub fn rest_sweep(
                     patches[i] = p.len();
                     sums[i] = seg.contour_sums().iter().copied().fold(0.0, f64::max) * s3;
                 })?;
-                let peak = bench.peak()?;
+                let peak = bench.peak(&textured, tiles_x, QUIET_TILE_PX);
                 progress(
                     "rest",
                     done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
