@@ -905,6 +905,8 @@ struct LevelView<'a> {
     /// that keeps a `(psz+1)^2` window inside (no usize -> f32 conversions
     /// per evaluation).
     lim: [f32; 2],
+    /// `psz * psz` as f32 (the mean's divisor).
+    n_px: f32,
 }
 
 impl LevelView<'_> {
@@ -917,8 +919,8 @@ impl LevelView<'_> {
         let psz = self.psz;
         let fxp = x0 as f32 + u;
         let fyp = y0 as f32 + v;
-        let ixf = fast_floor(fxp);
-        let iyf = fast_floor(fyp);
+        let (ixf, ix) = floor_both(fxp);
+        let (iyf, iy) = floor_both(fyp);
         let (ax, ay) = (fxp - ixf, fyp - iyf);
         // Sample window (psz+1)^2 starting at (ix, iy): read in place when
         // inside, else copied with border replication (the rare slow path).
@@ -927,8 +929,9 @@ impl LevelView<'_> {
         let inside = ixf >= 0.0 && iyf >= 0.0 && ixf < self.lim[0] && iyf < self.lim[1];
         let wts = [ax, ay];
         let (sd, mut sd2, mut bx, mut by) = if inside {
-            // In range: both are non-negative and below the image size.
-            let o = iyf as i32 as usize * self.w + ixf as i32 as usize;
+            // In range: both are non-negative and below the image size (and
+            // then the integer floors equal the float ones).
+            let o = iy as usize * self.w + ix as usize;
             let win = &self.i1[o..];
             if psz == 8 {
                 accumulate8(win, self.w, pd, wts)
@@ -939,7 +942,7 @@ impl LevelView<'_> {
             self.accumulate_clamped(ixf, iyf, x0, y0, pd, wts)
         };
         if self.mean_norm {
-            let mean = sd / (psz * psz) as f32;
+            let mean = sd / self.n_px;
             bx -= mean * pr.sgx;
             by -= mean * pr.sgy;
             sd2 -= sd * mean;
@@ -1108,10 +1111,14 @@ fn lanes_dot(a: &[f32; 64], b: &[f32; 64]) -> [f32; 4] {
 #[inline(never)]
 fn accumulate8_lanes(win: &[f32], stride: usize, pd: &Patch8, [ax, ay]: [f32; 2]) -> [[f32; 4]; 4] {
     let mut hl = [0.0f32; 72];
+    // The window rows by stepping a slice (one length test per row, no index
+    // products).
+    let mut rest = win;
     for r in 0..9 {
-        let row: &[f32; 9] = win[r * stride..r * stride + 9]
-            .try_into()
-            .expect("9 values");
+        if r > 0 {
+            rest = &rest[stride..];
+        }
+        let row: &[f32; 9] = rest[..9].try_into().expect("9 values");
         for c in 0..8 {
             hl[8 * r + c] = row[c] + ax * (row[c + 1] - row[c]);
         }
@@ -1134,6 +1141,20 @@ fn accumulate8(win: &[f32], stride: usize, pd: &Patch8, wts: [f32; 2]) -> (f32, 
     let a = accumulate8_lanes(win, stride, pd, wts);
     let h = |x: [f32; 4]| (x[0] + x[2]) + (x[1] + x[3]);
     (h(a[0]), h(a[1]), h(a[2]), h(a[3]))
+}
+
+/// [`fast_floor`] and the same floor as an integer (from the one conversion
+/// it makes). The integer is the float's value whenever `0 <= x < 2^24`
+/// (below -2^31 it wraps; callers use it only for non-negative floors).
+#[inline]
+fn floor_both(x: f32) -> (f32, i32) {
+    let i = x as i32;
+    let t = i as f32;
+    if t > x {
+        (t - 1.0, i.wrapping_sub(1))
+    } else {
+        (t, i)
+    }
 }
 
 /// `floor` without the libm call (exact for |x| < 2^31; larger or NaN
@@ -1161,6 +1182,7 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
         psz: p.patch_size,
         mean_norm: p.mean_normalization,
         lim: [(lvl.w - p.patch_size) as f32, (lvl.h - p.patch_size) as f32],
+        n_px: (p.patch_size * p.patch_size) as f32,
     };
     let (px, py, patches) = (&lvl.px, &lvl.py, &lvl.patches);
     lvl.sx
@@ -1504,6 +1526,7 @@ mod tests {
                     psz,
                     mean_norm,
                     lim: [(w - psz) as f32, (h - psz) as f32],
+                    n_px: (psz * psz) as f32,
                 };
                 // Inside, at sub-pixel offsets, and hanging over every edge.
                 for &(x0, y0, u, v) in &[
@@ -1530,6 +1553,19 @@ mod tests {
                     assert!((got.by - want.by).abs() < tol(want.by) * 10.0);
                 }
             }
+        }
+    }
+
+    #[test]
+    fn floor_both_is_floor_as_float_and_integer() {
+        let mut xs = vec![0.0f32, -0.0, 1.0, -1.0, 0.5, -0.5, 2.999_999_8, -2.000_001];
+        xs.extend((0..2000).map(|k| (k as f32 - 1000.0) * 0.137));
+        xs.extend((0..200).map(|k| k as f32 * 8191.7));
+        for x in xs {
+            let (f, i) = floor_both(x);
+            assert_eq!(f.to_bits(), fast_floor(x).to_bits(), "{x}");
+            assert_eq!(f, x.floor(), "{x}");
+            assert_eq!(i as f32, f, "{x}");
         }
     }
 

@@ -696,94 +696,99 @@ fn split_derivatives(
         .zip(black[rl..(h + 1) * rl].par_chunks_mut(rl))
         .enumerate()
         .with_min_len(mt)
-        .for_each(|(i, (rrow, brow))| {
-            let up = i.saturating_sub(1) * w;
-            let dn = (i + 1).min(h - 1) * w;
-            let o = i * w;
-            fn seg(a: &[f32], off: usize, n: usize) -> &[f32] {
-                &a[off..][..n]
-            }
-            let row = |a, off| seg(a, off, w);
-            let (wxr, wyr) = (row(wx, o), row(wy, o));
-            let (wxu, wxd, wyu, wyd) = (row(wx, up), row(wx, dn), row(wy, up), row(wy, dn));
-            let (gx, gy, gxx, gxy, gyy) = (
-                row(&r.gx, o),
-                row(&r.gy, o),
-                row(&r.gxx, o),
-                row(&r.gxy, o),
-                row(&r.gyy, o),
-            );
-            let (i0, wr) = (row(&r.i0, o), row(warped, o));
-            // The row in chunks of DERIV_CHUNK pixels (even, so a chunk's
-            // colours start at the row's parity): the nine quantities
-            // computed and normalised on contiguous stack arrays (loops that
-            // vectorise), then dealt out to the two colours. Same arithmetic
-            // per pixel as a per-pixel loop, so the same result.
-            let mut q = [[0.0f32; DERIV_CHUNK]; N_DERIV];
-            let mut j0 = 0;
-            while j0 < w {
-                let len = DERIV_CHUNK.min(w - j0);
-                let [bx, by, bz, xx, xy, xz, yx, yy, yz] = &mut q;
-                let sl = |a| seg(a, j0, len);
-                let (cgx, cgy, cwx, cwy) = (sl(gx), sl(gy), sl(wxr), sl(wyr));
-                let (cgxx, cgxy, cgyy) = (sl(gxx), sl(gxy), sl(gyy));
-                let (ci0, cwr) = (sl(i0), sl(wr));
-                let (cxu, cxd, cyu, cyd) = (sl(wxu), sl(wxd), sl(wyu), sl(wyd));
-                for t in 0..len {
-                    bx[t] = 0.5 * (cgx[t] + cwx[t]);
-                    by[t] = 0.5 * (cgy[t] + cwy[t]);
-                    bz[t] = cwr[t] - ci0[t];
-                    // wxx is filled below (it needs the row's neighbours).
-                    let wxy = s * (cxd[t] - cxu[t]);
-                    let wyy = s * (cyd[t] - cyu[t]);
-                    let ixy = 0.5 * (cgxy[t] + wxy);
-                    xy[t] = ixy;
-                    xz[t] = cwx[t] - cgx[t];
-                    yx[t] = ixy;
-                    yy[t] = 0.5 * (cgyy[t] + wyy);
-                    yz[t] = cwy[t] - cgy[t];
+        // The nine chunk arrays (9 KiB) are created once per rayon job, not zeroed
+        // again for every row: every value read is written first.
+        .for_each_init(
+            || [[0.0f32; DERIV_CHUNK]; N_DERIV],
+            |q, (i, (rrow, brow))| {
+                let up = i.saturating_sub(1) * w;
+                let dn = (i + 1).min(h - 1) * w;
+                let o = i * w;
+                fn seg(a: &[f32], off: usize, n: usize) -> &[f32] {
+                    &a[off..][..n]
                 }
-                // I_xx: central difference of wx along the row, replicated at
-                // the ends (interior first, as contiguous slices).
-                let lo = usize::from(j0 == 0);
-                let hi = if j0 + len == w { len - 1 } else { len };
-                if hi > lo {
-                    let n = hi - lo;
-                    let right = &wxr[j0 + lo + 1..][..n];
-                    let left = &wxr[j0 + lo - 1..][..n];
-                    let (cg, out) = (&cgxx[lo..hi], &mut xx[lo..hi]);
-                    for t in 0..n {
-                        out[t] = 0.5 * (cg[t] + s * (right[t] - left[t]));
+                let row = |a, off| seg(a, off, w);
+                let (wxr, wyr) = (row(wx, o), row(wy, o));
+                let (wxu, wxd, wyu, wyd) = (row(wx, up), row(wx, dn), row(wy, up), row(wy, dn));
+                let (gx, gy, gxx, gxy, gyy) = (
+                    row(&r.gx, o),
+                    row(&r.gy, o),
+                    row(&r.gxx, o),
+                    row(&r.gxy, o),
+                    row(&r.gyy, o),
+                );
+                let (i0, wr) = (row(&r.i0, o), row(warped, o));
+                // The row in chunks of DERIV_CHUNK pixels (even, so a chunk's
+                // colours start at the row's parity): the nine quantities
+                // computed and normalised on contiguous stack arrays (loops that
+                // vectorise), then dealt out to the two colours. Same arithmetic
+                // per pixel as a per-pixel loop, so the same result.
+                let mut j0 = 0;
+                while j0 < w {
+                    let len = DERIV_CHUNK.min(w - j0);
+                    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = &mut *q;
+                    let sl = |a| seg(a, j0, len);
+                    let (cgx, cgy, cwx, cwy) = (sl(gx), sl(gy), sl(wxr), sl(wyr));
+                    let (cgxx, cgxy, cgyy) = (sl(gxx), sl(gxy), sl(gyy));
+                    let (ci0, cwr) = (sl(i0), sl(wr));
+                    let (cxu, cxd, cyu, cyd) = (sl(wxu), sl(wxd), sl(wyu), sl(wyd));
+                    for t in 0..len {
+                        bx[t] = 0.5 * (cgx[t] + cwx[t]);
+                        by[t] = 0.5 * (cgy[t] + cwy[t]);
+                        bz[t] = cwr[t] - ci0[t];
+                        // wxx is filled below (it needs the row's neighbours).
+                        let wxy = s * (cxd[t] - cxu[t]);
+                        let wyy = s * (cyd[t] - cyu[t]);
+                        let ixy = 0.5 * (cgxy[t] + wxy);
+                        xy[t] = ixy;
+                        xz[t] = cwx[t] - cgx[t];
+                        yx[t] = ixy;
+                        yy[t] = 0.5 * (cgyy[t] + wyy);
+                        yz[t] = cwy[t] - cgy[t];
                     }
-                }
-                for t in (0..lo).chain(hi..len) {
-                    let j = j0 + t;
-                    let (jl, jr) = (j.saturating_sub(1), (j + 1).min(w - 1));
-                    xx[t] = 0.5 * (cgxx[t] + s * (wxr[jr] - wxr[jl]));
-                }
-                {
-                    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = q.each_mut().map(|a| &mut a[..len]);
-                    normalise([bx, by, bz], z2);
-                    normalise([xx, xy, xz], z2);
-                    normalise([yx, yy, yz], z2);
-                }
-                for (c, dst) in [&mut *rrow, &mut *brow].into_iter().enumerate() {
-                    let p = Grid::p(c, i);
-                    if len <= p {
-                        continue;
-                    }
-                    // Pixels j0 + p, j0 + p + 2, ... are k = j0 / 2, j0 / 2 + 1, ...
-                    let cnt = (len - p).div_ceil(2);
-                    for (plane, src) in dst.chunks_exact_mut(st).zip(q.iter()) {
-                        let out = &mut plane[1 + j0 / 2..][..cnt];
-                        for (m, v) in out.iter_mut().enumerate() {
-                            *v = src[2 * m + p];
+                    // I_xx: central difference of wx along the row, replicated at
+                    // the ends (interior first, as contiguous slices).
+                    let lo = usize::from(j0 == 0);
+                    let hi = if j0 + len == w { len - 1 } else { len };
+                    if hi > lo {
+                        let n = hi - lo;
+                        let right = &wxr[j0 + lo + 1..][..n];
+                        let left = &wxr[j0 + lo - 1..][..n];
+                        let (cg, out) = (&cgxx[lo..hi], &mut xx[lo..hi]);
+                        for t in 0..n {
+                            out[t] = 0.5 * (cg[t] + s * (right[t] - left[t]));
                         }
                     }
+                    for t in (0..lo).chain(hi..len) {
+                        let j = j0 + t;
+                        let (jl, jr) = (j.saturating_sub(1), (j + 1).min(w - 1));
+                        xx[t] = 0.5 * (cgxx[t] + s * (wxr[jr] - wxr[jl]));
+                    }
+                    {
+                        let [bx, by, bz, xx, xy, xz, yx, yy, yz] =
+                            q.each_mut().map(|a| &mut a[..len]);
+                        normalise([bx, by, bz], z2);
+                        normalise([xx, xy, xz], z2);
+                        normalise([yx, yy, yz], z2);
+                    }
+                    for (c, dst) in [&mut *rrow, &mut *brow].into_iter().enumerate() {
+                        let p = Grid::p(c, i);
+                        if len <= p {
+                            continue;
+                        }
+                        // Pixels j0 + p, j0 + p + 2, ... are k = j0 / 2, j0 / 2 + 1, ...
+                        let cnt = (len - p).div_ceil(2);
+                        for (plane, src) in dst.chunks_exact_mut(st).zip(q.iter()) {
+                            let out = &mut plane[1 + j0 / 2..][..cnt];
+                            for (m, v) in out.iter_mut().enumerate() {
+                                *v = src[2 * m + p];
+                            }
+                        }
+                    }
+                    j0 += len;
                 }
-                j0 += len;
-            }
-        });
+            },
+        );
 }
 
 /// Pixels per chunk of a row in [`split_derivatives`] (even; nine stack
