@@ -1570,6 +1570,47 @@ mod tests {
     }
 
     #[test]
+    fn vectorised_densify_row_matches_the_per_pixel_row_bit_for_bit() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for _ in 0..200 {
+            let top: Vec<f32> = (0..9).map(|_| 255.0 * rnd()).collect();
+            let bot: Vec<f32> = (0..9).map(|_| 255.0 * rnd()).collect();
+            let reference: Vec<f32> = (0..8).map(|_| 255.0 * rnd()).collect();
+            let (ax, ay) = (rnd(), rnd());
+            let (pu, pv) = (20.0 * rnd() - 10.0, 20.0 * rnd() - 10.0);
+            // Non-zero sums to add to, as in a real row.
+            let start: Vec<f32> = (0..8).map(|_| rnd()).collect();
+            let (mut u1, mut v1, mut w1) = (start.clone(), start.clone(), start.clone());
+            let (mut u2, mut v2, mut w2) = (start.clone(), start.clone(), start.clone());
+            densify_patch_row8(
+                [&top, &bot],
+                &reference,
+                [ax, ay],
+                [pu, pv],
+                [&mut u1, &mut v1, &mut w1],
+            );
+            densify_patch_row(
+                8,
+                [&top, &bot],
+                &reference,
+                [ax, ay],
+                [pu, pv],
+                [&mut u2, &mut v2, &mut w2],
+            );
+            let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&u1), bits(&u2));
+            assert_eq!(bits(&v1), bits(&v2));
+            assert_eq!(bits(&w1), bits(&w2));
+        }
+    }
+
+    #[test]
     fn densification_matches_the_naive_weighted_average() {
         let mut dis = Dis::with_preset(DisPreset::Ultrafast);
         let (w, h) = (96usize, 64usize);
