@@ -1090,9 +1090,13 @@ fn assemble_row(
 ) {
     let n = inv_a11.len();
     let (a12, inv_a22, b1, b2) = (&mut a12[..n], &mut inv_a22[..n], &mut b1[..n], &mut b2[..n]);
-    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = x.d.map(|s| &s[..n]);
+    // Sliced without `map` (see `sor_row`).
+    let d = &x.d;
+    let (bx, by, bz) = (&d[0][..n], &d[1][..n], &d[2][..n]);
+    let (xx, xy, xz) = (&d[3][..n], &d[4][..n], &d[5][..n]);
+    let (yx, yy, yz) = (&d[6][..n], &d[7][..n], &d[8][..n]);
     let (fu, fv, bu, bv) = (&x.fu[..n], &x.fv[..n], &x.bu[..n], &x.bv[..n]);
-    let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
+    let (wl, wr, wu, wd) = (&x.w[0][..n], &x.w[1][..n], &x.w[2][..n], &x.w[3][..n]);
     let AssembleConsts {
         z2,
         e2,
@@ -1165,8 +1169,12 @@ fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
     let keep = 1.0 - omega;
     let n = du.len();
     let dv = &mut dv[..n];
-    let [ia11, a12, ia22, b1, b2] = x.sys.map(|s| &s[..n]);
-    let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
+    // Every slice cut to its length here, without `map` (a generic call that is
+    // inlined or not depending on which codegen unit its instance lands in, which
+    // made this loop's code change with edits elsewhere in the crate).
+    let (ia11, a12, ia22) = (&x.sys[0][..n], &x.sys[1][..n], &x.sys[2][..n]);
+    let (b1, b2) = (&x.sys[3][..n], &x.sys[4][..n]);
+    let (wl, wr, wu, wd) = (&x.w[0][..n], &x.w[1][..n], &x.w[2][..n], &x.w[3][..n]);
     let (lru, uu, du_) = (&x.nu[0][..n + 1], &x.nu[1][..n], &x.nu[2][..n]);
     let (lrv, uv, dv_) = (&x.nv[0][..n + 1], &x.nv[1][..n], &x.nv[2][..n]);
     for i in 0..n {
