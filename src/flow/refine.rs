@@ -568,8 +568,92 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
 }
 
 /// [`warp`] of image row `i` from contiguous flow rows (same arithmetic).
+///
+/// In chunks of [`WARP_CHUNK`] pixels and three passes, so that two of them
+/// vectorise: the sample positions, fractions and flat offsets (4 lanes), then
+/// the four taps of every pixel gathered one pixel at a time (SSE2 has no
+/// gather), then the bilinear blends (4 lanes). The per-pixel form was scalar
+/// throughout (~58 instructions per pixel). Same values bit for bit; the
+/// per-pixel form is the oracle in the tests.
 #[inline(never)]
 fn warp_row(i1: &[f32], w: usize, h: usize, i: usize, ur: &[f32], vr: &[f32], row: &mut [f32]) {
+    // Offsets in u32 (a 32-bit multiply vectorises, a 64-bit one does not): a
+    // level this large never reaches the refinement, but stay exact anyway.
+    if w * h > u32::MAX as usize {
+        warp_row_scalar(i1, w, h, i, ur, vr, row);
+        return;
+    }
+    let xmax = (w - 1) as f32;
+    let ymax = (h - 1) as f32;
+    let (wm2, hm2) = ((w - 2) as i32, (h - 2) as i32);
+    let yi = i as f32;
+    let w32 = w as u32;
+    let n = row.len();
+    let (ur, vr) = (&ur[..n], &vr[..n]);
+    let mut idx = [0u32; WARP_CHUNK];
+    let mut fx = [0.0f32; WARP_CHUNK];
+    let mut fy = [0.0f32; WARP_CHUNK];
+    let mut taps = [[0.0f32; WARP_CHUNK]; 4];
+    for (c, ((out, uc), vc)) in row
+        .chunks_mut(WARP_CHUNK)
+        .zip(ur.chunks(WARP_CHUNK))
+        .zip(vr.chunks(WARP_CHUNK))
+        .enumerate()
+    {
+        let len = out.len();
+        let j0 = (c * WARP_CHUNK) as i32;
+        let (idx, fx, fy) = (&mut idx[..len], &mut fx[..len], &mut fy[..len]);
+        let (uc, vc) = (&uc[..len], &vc[..len]);
+        for t in 0..len {
+            // 0 <= x, y < 2^31: the i32 conversion is exact (x, y are whole
+            // numbers plus a fraction, far below 2^24 here).
+            let x = ((j0 + t as i32) as f32 + uc[t]).clamp(0.0, xmax);
+            let y = (yi + vc[t]).clamp(0.0, ymax);
+            let x0 = (x as i32).min(wm2);
+            let y0 = (y as i32).min(hm2);
+            fx[t] = x - x0 as f32;
+            fy[t] = y - y0 as f32;
+            idx[t] = y0 as u32 * w32 + x0 as u32;
+        }
+        let [t00, t01, t10, t11] = &mut taps;
+        let (t00, t01, t10, t11) = (
+            &mut t00[..len],
+            &mut t01[..len],
+            &mut t10[..len],
+            &mut t11[..len],
+        );
+        for t in 0..len {
+            // x0 <= w - 2 and y0 <= h - 2, so the 2x2 block is inside.
+            let q = &i1[idx[t] as usize..][..w + 2];
+            t00[t] = q[0];
+            t01[t] = q[1];
+            t10[t] = q[w];
+            t11[t] = q[w + 1];
+        }
+        for t in 0..len {
+            // Weighted form (not `a + f * (b - a)`): exact at f = 0 and f = 1, so a
+            // zero flow reproduces the image bit for bit.
+            let top = (1.0 - fx[t]) * t00[t] + fx[t] * t01[t];
+            let bot = (1.0 - fx[t]) * t10[t] + fx[t] * t11[t];
+            out[t] = (1.0 - fy[t]) * top + fy[t] * bot;
+        }
+    }
+}
+
+/// Pixels per chunk of [`warp_row`] (stack arrays of this many values).
+const WARP_CHUNK: usize = 128;
+
+/// [`warp_row`] one pixel at a time: the oracle of its tests, and its fallback
+/// for levels with more than 2^32 pixels.
+fn warp_row_scalar(
+    i1: &[f32],
+    w: usize,
+    h: usize,
+    i: usize,
+    ur: &[f32],
+    vr: &[f32],
+    row: &mut [f32],
+) {
     let xmax = (w - 1) as f32;
     let ymax = (h - 1) as f32;
     let (ur, vr) = (&ur[..row.len()], &vr[..row.len()]);
@@ -612,94 +696,99 @@ fn split_derivatives(
         .zip(black[rl..(h + 1) * rl].par_chunks_mut(rl))
         .enumerate()
         .with_min_len(mt)
-        .for_each(|(i, (rrow, brow))| {
-            let up = i.saturating_sub(1) * w;
-            let dn = (i + 1).min(h - 1) * w;
-            let o = i * w;
-            fn seg(a: &[f32], off: usize, n: usize) -> &[f32] {
-                &a[off..][..n]
-            }
-            let row = |a, off| seg(a, off, w);
-            let (wxr, wyr) = (row(wx, o), row(wy, o));
-            let (wxu, wxd, wyu, wyd) = (row(wx, up), row(wx, dn), row(wy, up), row(wy, dn));
-            let (gx, gy, gxx, gxy, gyy) = (
-                row(&r.gx, o),
-                row(&r.gy, o),
-                row(&r.gxx, o),
-                row(&r.gxy, o),
-                row(&r.gyy, o),
-            );
-            let (i0, wr) = (row(&r.i0, o), row(warped, o));
-            // The row in chunks of DERIV_CHUNK pixels (even, so a chunk's
-            // colours start at the row's parity): the nine quantities
-            // computed and normalised on contiguous stack arrays (loops that
-            // vectorise), then dealt out to the two colours. Same arithmetic
-            // per pixel as a per-pixel loop, so the same result.
-            let mut q = [[0.0f32; DERIV_CHUNK]; N_DERIV];
-            let mut j0 = 0;
-            while j0 < w {
-                let len = DERIV_CHUNK.min(w - j0);
-                let [bx, by, bz, xx, xy, xz, yx, yy, yz] = &mut q;
-                let sl = |a| seg(a, j0, len);
-                let (cgx, cgy, cwx, cwy) = (sl(gx), sl(gy), sl(wxr), sl(wyr));
-                let (cgxx, cgxy, cgyy) = (sl(gxx), sl(gxy), sl(gyy));
-                let (ci0, cwr) = (sl(i0), sl(wr));
-                let (cxu, cxd, cyu, cyd) = (sl(wxu), sl(wxd), sl(wyu), sl(wyd));
-                for t in 0..len {
-                    bx[t] = 0.5 * (cgx[t] + cwx[t]);
-                    by[t] = 0.5 * (cgy[t] + cwy[t]);
-                    bz[t] = cwr[t] - ci0[t];
-                    // wxx is filled below (it needs the row's neighbours).
-                    let wxy = s * (cxd[t] - cxu[t]);
-                    let wyy = s * (cyd[t] - cyu[t]);
-                    let ixy = 0.5 * (cgxy[t] + wxy);
-                    xy[t] = ixy;
-                    xz[t] = cwx[t] - cgx[t];
-                    yx[t] = ixy;
-                    yy[t] = 0.5 * (cgyy[t] + wyy);
-                    yz[t] = cwy[t] - cgy[t];
+        // The nine chunk arrays (9 KiB) are created once per rayon job, not zeroed
+        // again for every row: every value read is written first.
+        .for_each_init(
+            || [[0.0f32; DERIV_CHUNK]; N_DERIV],
+            |q, (i, (rrow, brow))| {
+                let up = i.saturating_sub(1) * w;
+                let dn = (i + 1).min(h - 1) * w;
+                let o = i * w;
+                fn seg(a: &[f32], off: usize, n: usize) -> &[f32] {
+                    &a[off..][..n]
                 }
-                // I_xx: central difference of wx along the row, replicated at
-                // the ends (interior first, as contiguous slices).
-                let lo = usize::from(j0 == 0);
-                let hi = if j0 + len == w { len - 1 } else { len };
-                if hi > lo {
-                    let n = hi - lo;
-                    let right = &wxr[j0 + lo + 1..][..n];
-                    let left = &wxr[j0 + lo - 1..][..n];
-                    let (cg, out) = (&cgxx[lo..hi], &mut xx[lo..hi]);
-                    for t in 0..n {
-                        out[t] = 0.5 * (cg[t] + s * (right[t] - left[t]));
+                let row = |a, off| seg(a, off, w);
+                let (wxr, wyr) = (row(wx, o), row(wy, o));
+                let (wxu, wxd, wyu, wyd) = (row(wx, up), row(wx, dn), row(wy, up), row(wy, dn));
+                let (gx, gy, gxx, gxy, gyy) = (
+                    row(&r.gx, o),
+                    row(&r.gy, o),
+                    row(&r.gxx, o),
+                    row(&r.gxy, o),
+                    row(&r.gyy, o),
+                );
+                let (i0, wr) = (row(&r.i0, o), row(warped, o));
+                // The row in chunks of DERIV_CHUNK pixels (even, so a chunk's
+                // colours start at the row's parity): the nine quantities
+                // computed and normalised on contiguous stack arrays (loops that
+                // vectorise), then dealt out to the two colours. Same arithmetic
+                // per pixel as a per-pixel loop, so the same result.
+                let mut j0 = 0;
+                while j0 < w {
+                    let len = DERIV_CHUNK.min(w - j0);
+                    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = &mut *q;
+                    let sl = |a| seg(a, j0, len);
+                    let (cgx, cgy, cwx, cwy) = (sl(gx), sl(gy), sl(wxr), sl(wyr));
+                    let (cgxx, cgxy, cgyy) = (sl(gxx), sl(gxy), sl(gyy));
+                    let (ci0, cwr) = (sl(i0), sl(wr));
+                    let (cxu, cxd, cyu, cyd) = (sl(wxu), sl(wxd), sl(wyu), sl(wyd));
+                    for t in 0..len {
+                        bx[t] = 0.5 * (cgx[t] + cwx[t]);
+                        by[t] = 0.5 * (cgy[t] + cwy[t]);
+                        bz[t] = cwr[t] - ci0[t];
+                        // wxx is filled below (it needs the row's neighbours).
+                        let wxy = s * (cxd[t] - cxu[t]);
+                        let wyy = s * (cyd[t] - cyu[t]);
+                        let ixy = 0.5 * (cgxy[t] + wxy);
+                        xy[t] = ixy;
+                        xz[t] = cwx[t] - cgx[t];
+                        yx[t] = ixy;
+                        yy[t] = 0.5 * (cgyy[t] + wyy);
+                        yz[t] = cwy[t] - cgy[t];
                     }
-                }
-                for t in (0..lo).chain(hi..len) {
-                    let j = j0 + t;
-                    let (jl, jr) = (j.saturating_sub(1), (j + 1).min(w - 1));
-                    xx[t] = 0.5 * (cgxx[t] + s * (wxr[jr] - wxr[jl]));
-                }
-                {
-                    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = q.each_mut().map(|a| &mut a[..len]);
-                    normalise([bx, by, bz], z2);
-                    normalise([xx, xy, xz], z2);
-                    normalise([yx, yy, yz], z2);
-                }
-                for (c, dst) in [&mut *rrow, &mut *brow].into_iter().enumerate() {
-                    let p = Grid::p(c, i);
-                    if len <= p {
-                        continue;
-                    }
-                    // Pixels j0 + p, j0 + p + 2, ... are k = j0 / 2, j0 / 2 + 1, ...
-                    let cnt = (len - p).div_ceil(2);
-                    for (plane, src) in dst.chunks_exact_mut(st).zip(q.iter()) {
-                        let out = &mut plane[1 + j0 / 2..][..cnt];
-                        for (m, v) in out.iter_mut().enumerate() {
-                            *v = src[2 * m + p];
+                    // I_xx: central difference of wx along the row, replicated at
+                    // the ends (interior first, as contiguous slices).
+                    let lo = usize::from(j0 == 0);
+                    let hi = if j0 + len == w { len - 1 } else { len };
+                    if hi > lo {
+                        let n = hi - lo;
+                        let right = &wxr[j0 + lo + 1..][..n];
+                        let left = &wxr[j0 + lo - 1..][..n];
+                        let (cg, out) = (&cgxx[lo..hi], &mut xx[lo..hi]);
+                        for t in 0..n {
+                            out[t] = 0.5 * (cg[t] + s * (right[t] - left[t]));
                         }
                     }
+                    for t in (0..lo).chain(hi..len) {
+                        let j = j0 + t;
+                        let (jl, jr) = (j.saturating_sub(1), (j + 1).min(w - 1));
+                        xx[t] = 0.5 * (cgxx[t] + s * (wxr[jr] - wxr[jl]));
+                    }
+                    {
+                        let [bx, by, bz, xx, xy, xz, yx, yy, yz] =
+                            q.each_mut().map(|a| &mut a[..len]);
+                        normalise([bx, by, bz], z2);
+                        normalise([xx, xy, xz], z2);
+                        normalise([yx, yy, yz], z2);
+                    }
+                    for (c, dst) in [&mut *rrow, &mut *brow].into_iter().enumerate() {
+                        let p = Grid::p(c, i);
+                        if len <= p {
+                            continue;
+                        }
+                        // Pixels j0 + p, j0 + p + 2, ... are k = j0 / 2, j0 / 2 + 1, ...
+                        let cnt = (len - p).div_ceil(2);
+                        for (plane, src) in dst.chunks_exact_mut(st).zip(q.iter()) {
+                            let out = &mut plane[1 + j0 / 2..][..cnt];
+                            for (m, v) in out.iter_mut().enumerate() {
+                                *v = src[2 * m + p];
+                            }
+                        }
+                    }
+                    j0 += len;
                 }
-                j0 += len;
-            }
-        });
+            },
+        );
 }
 
 /// Pixels per chunk of a row in [`split_derivatives`] (even; nine stack
@@ -1001,9 +1090,13 @@ fn assemble_row(
 ) {
     let n = inv_a11.len();
     let (a12, inv_a22, b1, b2) = (&mut a12[..n], &mut inv_a22[..n], &mut b1[..n], &mut b2[..n]);
-    let [bx, by, bz, xx, xy, xz, yx, yy, yz] = x.d.map(|s| &s[..n]);
+    // Sliced without `map` (see `sor_row`).
+    let d = &x.d;
+    let (bx, by, bz) = (&d[0][..n], &d[1][..n], &d[2][..n]);
+    let (xx, xy, xz) = (&d[3][..n], &d[4][..n], &d[5][..n]);
+    let (yx, yy, yz) = (&d[6][..n], &d[7][..n], &d[8][..n]);
     let (fu, fv, bu, bv) = (&x.fu[..n], &x.fv[..n], &x.bu[..n], &x.bv[..n]);
-    let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
+    let (wl, wr, wu, wd) = (&x.w[0][..n], &x.w[1][..n], &x.w[2][..n], &x.w[3][..n]);
     let AssembleConsts {
         z2,
         e2,
@@ -1058,12 +1151,15 @@ fn assemble_row(
 
 /// Inputs of one colour row of an SOR half-sweep, each `n` long: the system
 /// (`omega/A11, A12, omega/A22, B1, B2`), the edge weights (left, right, up, down) and the
-/// neighbours' current flow (left, right, up, down).
+/// neighbours' current flow `[left and right, up, down]`: the first slice (`n + 1`
+/// long) holds the left neighbours and, one further on, the right ones, so that both
+/// are read through one pointer (the loop has ~20 input streams, more than x86-64's
+/// 16 registers: each stream fewer is one stack reload fewer per iteration).
 struct SorIn<'a> {
     sys: [&'a [f32]; 5],
     w: [&'a [f32]; 4],
-    nu: [&'a [f32]; 4],
-    nv: [&'a [f32]; 4],
+    nu: [&'a [f32]; 3],
+    nv: [&'a [f32]; 3],
 }
 
 /// SOR update of one colour row (separate function: `du`, `dv` are then known not to
@@ -1073,13 +1169,17 @@ fn sor_row(omega: f32, x: &SorIn, du: &mut [f32], dv: &mut [f32]) {
     let keep = 1.0 - omega;
     let n = du.len();
     let dv = &mut dv[..n];
-    let [ia11, a12, ia22, b1, b2] = x.sys.map(|s| &s[..n]);
-    let [wl, wr, wu, wd] = x.w.map(|s| &s[..n]);
-    let [lu, ru, uu, du_] = x.nu.map(|s| &s[..n]);
-    let [lv, rv, uv, dv_] = x.nv.map(|s| &s[..n]);
+    // Every slice cut to its length here, without `map` (a generic call that is
+    // inlined or not depending on which codegen unit its instance lands in, which
+    // made this loop's code change with edits elsewhere in the crate).
+    let (ia11, a12, ia22) = (&x.sys[0][..n], &x.sys[1][..n], &x.sys[2][..n]);
+    let (b1, b2) = (&x.sys[3][..n], &x.sys[4][..n]);
+    let (wl, wr, wu, wd) = (&x.w[0][..n], &x.w[1][..n], &x.w[2][..n], &x.w[3][..n]);
+    let (lru, uu, du_) = (&x.nu[0][..n + 1], &x.nu[1][..n], &x.nu[2][..n]);
+    let (lrv, uv, dv_) = (&x.nv[0][..n + 1], &x.nv[1][..n], &x.nv[2][..n]);
     for i in 0..n {
-        let su = wl[i] * lu[i] + wr[i] * ru[i] + wu[i] * uu[i] + wd[i] * du_[i];
-        let sv = wl[i] * lv[i] + wr[i] * rv[i] + wu[i] * uv[i] + wd[i] * dv_[i];
+        let su = wl[i] * lru[i] + wr[i] * lru[i + 1] + wu[i] * uu[i] + wd[i] * du_[i];
+        let sv = wl[i] * lrv[i] + wr[i] * lrv[i + 1] + wu[i] * uv[i] + wd[i] * dv_[i];
         // du + omega * (gauss_seidel - du), with omega / a11 precomputed.
         let nu = keep * du[i] + (su + b1[i] - a12[i] * dv[i]) * ia11[i];
         let nv = keep * dv[i] + (sv + b2[i] - a12[i] * nu) * ia22[i];
@@ -1135,14 +1235,12 @@ fn sor_one_row(
         sys: [a11, a12, a22, b1, b2],
         w: [wl, wr, wu, wd],
         nu: [
-            &nrow[U * st + pp..][..n],
-            &nrow[U * st + pp + 1..][..n],
+            &nrow[U * st + pp..][..n + 1],
             &urow[U * st + 1..][..n],
             &drow[U * st + 1..][..n],
         ],
         nv: [
-            &nrow[V * st + pp..][..n],
-            &nrow[V * st + pp + 1..][..n],
+            &nrow[V * st + pp..][..n + 1],
             &urow[V * st + 1..][..n],
             &drow[V * st + 1..][..n],
         ],
@@ -1329,6 +1427,37 @@ mod tests {
         assert_eq!((g.n(0, 1), g.n(1, 1)), (2, 3));
         let g = Grid::new(4, 3);
         assert_eq!((g.n(0, 0), g.n(1, 0), g.n(0, 1), g.n(1, 1)), (2, 2, 2, 2));
+    }
+
+    #[test]
+    fn chunked_warp_matches_the_per_pixel_warp_bit_for_bit() {
+        // Rows longer than a chunk, flows that leave the image on every side,
+        // whole and fractional displacements.
+        for (w, h) in [(2usize, 2usize), (7, 5), (300, 9)] {
+            let i1: Vec<f32> = (0..w * h)
+                .map(|k| ((k * 37 % 101) as f32) * 2.5 + (k % 7) as f32 * 0.13)
+                .collect();
+            for i in 0..h {
+                let ur: Vec<f32> = (0..w)
+                    .map(|j| ((j * 13 + i * 7) % 23) as f32 * 0.77 - 8.0)
+                    .collect();
+                let vr: Vec<f32> = (0..w)
+                    .map(|j| ((j * 5 + i * 11) % 19) as f32 * 0.61 - 5.5)
+                    .collect();
+                let zero = vec![0.0f32; w];
+                for (u, v) in [(&ur, &vr), (&zero, &zero)] {
+                    let (mut got, mut want) = (vec![0.0f32; w], vec![0.0f32; w]);
+                    warp_row(&i1, w, h, i, u, v, &mut got);
+                    warp_row_scalar(&i1, w, h, i, u, v, &mut want);
+                    let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&got), bits(&want), "{w}x{h} row {i}");
+                }
+                // A zero flow reproduces the image exactly.
+                let mut out = vec![0.0f32; w];
+                warp_row(&i1, w, h, i, &zero, &zero, &mut out);
+                assert_eq!(out, i1[i * w..(i + 1) * w]);
+            }
+        }
     }
 
     #[test]
