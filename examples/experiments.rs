@@ -726,8 +726,9 @@ fn run() -> Result<(), String> {
         a.seed
     );
     println!(
-        "Simulator defaults (1600 x 200 px strip, 5 px/mm), accurate DIS flow, extractor margin {} px. \
-         Wall time {:.0} s on {} threads.\n",
+        "Simulator defaults (1600 x 200 px strip, 5 px/mm), `{}` DIS flow (the sensor's default), \
+         extractor margin {} px. Wall time {:.0} s on {} threads.\n",
+        optical_tactile::characterize::preset_name(&ExtractorConfig::default()),
         o.margin_px,
         wall,
         rayon::current_num_threads()

@@ -8,8 +8,8 @@
 //!   apart = exactly two contacts, each within `--tol-mm` of its rod.
 //!
 //! Frames are rendered with the simulator's library API (no PNGs) and go
-//! through the default (accurate) DIS flow at its native resolution, as in
-//! [`ContactExtractor`].
+//! through the sensor's default DIS flow (`fine`) on the extractor's
+//! analysis grid, as in [`ContactExtractor`].
 //!
 //! ```text
 //! cargo run --release --example sweep -- all

@@ -4,8 +4,8 @@
 //! `examples/experiments.rs` (the paper's sensor-performance section).
 //!
 //! Frames are rendered with [`SyntheticSensor::render_indexed`] (no PNGs) and
-//! go through the default (accurate) DIS flow at its native resolution, as in
-//! [`ContactExtractor`]. Every frame index is fixed by the condition it
+//! go through the sensor's default DIS flow (`fine`) on the extractor's
+//! analysis grid, as in [`ContactExtractor`]. Every frame index is fixed by the condition it
 //! belongs to, so the results do not depend on the thread count: conditions
 //! run in parallel, each worker with its own flow and segmenters.
 //!
@@ -283,7 +283,7 @@ pub fn rest_sweep(
                     patches[i] = p.len();
                     sums[i] = seg.contour_sums().iter().copied().fold(0.0, f64::max) * s3;
                 })?;
-                let peak = bench.peak(&textured, tiles_x, QUIET_TILE_PX);
+                let peak = bench.peak(textured, tiles_x, QUIET_TILE_PX);
                 progress(
                     "rest",
                     done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
