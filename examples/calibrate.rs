@@ -52,7 +52,8 @@ struct Args {
     shear_order: u32,
     force_order: u32,
     force_y2d: bool,
-    flow: DisPreset,
+    /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
+    flow: Option<DisPreset>,
     crop: Option<Roi>,
     predictions: Option<PathBuf>,
 }
@@ -94,7 +95,7 @@ fn parse() -> Result<Option<Args>, String> {
     let mut dir = None;
     let mut out = None;
     let mut presets = vec!["high"];
-    let mut flow = DisPreset::Fine; // ExtractorConfig::default()'s
+    let mut flow = None;
     let mut crop = None;
     let mut predictions = None;
     let mut custom = None;
@@ -172,7 +173,9 @@ fn parse() -> Result<Option<Args>, String> {
                     .filter(|n: &u32| (1..=6).contains(n))
                     .ok_or(format!("--force-order: expected 1..=6, got `{v}`"))?;
             }
-            "--preset" => flow = DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?,
+            "--preset" => {
+                flow = Some(DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?)
+            }
             "--crop" => crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
             "--predictions" => predictions = Some(PathBuf::from(val("--predictions")?)),
             _ if a.starts_with("--") => return Err(format!("unknown option {a}\n{USAGE}")),
@@ -242,11 +245,13 @@ fn run() -> Result<(), String> {
     let mut table_i = Vec::new();
     let mut table_ii = Vec::new();
     for (k, preset) in args.presets.iter().enumerate() {
-        let config = ExtractorConfig {
-            flow: DisParams::preset(args.flow),
+        let mut config = ExtractorConfig {
             thresholds: thresholds(preset, args.custom),
             ..ExtractorConfig::default()
         };
+        if let Some(p) = args.flow {
+            config.flow = DisParams::preset(p);
+        }
         let t0 = Instant::now();
         let step = (rows.len() / 20).max(1);
         let progress = |done: usize, total: usize| {

@@ -33,6 +33,7 @@ use std::time::Instant;
 
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::{FrameSource, SequenceSource};
+use optical_tactile::characterize::preset_name;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::image::Roi;
 use optical_tactile::io::{FrameRecord, JsonlWriter};
@@ -170,7 +171,7 @@ fn run() -> Result<bool, String> {
         seq.len(),
         a.calibration.display(),
         sensor.crop(),
-        preset_name(&c.extractor.flow),
+        preset_name(&c.extractor),
         c.extractor.thresholds.magnitude,
         c.extractor.thresholds.sum,
         if a.filter { "on" } else { "off" },
@@ -292,13 +293,6 @@ fn run() -> Result<bool, String> {
         println!("no frame processed ({skipped} skipped)");
     }
     Ok(skipped == 0)
-}
-
-fn preset_name(p: &DisParams) -> String {
-    DisPreset::ALL
-        .into_iter()
-        .find(|&preset| DisParams::preset(preset) == *p)
-        .map_or_else(|| "custom".into(), |preset| preset.name().to_string())
 }
 
 fn main() -> ExitCode {
