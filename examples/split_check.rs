@@ -12,8 +12,10 @@
 //!   apart when each rod is covered by its own patch (patch level, no nHHD;
 //!   `sweep -- spacing` measures the contacts' positions).
 //!
-//! The flow is the default (accurate) DIS at its native resolution and the
-//! margin the extractor's, as in `ContactExtractor`.
+//! The flow is the `accurate` DIS at its native resolution (the sensor's
+//! default when the split rule was tuned; `sweep` and `experiments` now use
+//! the default `fine` flow on the extractor's analysis grid) and the margin
+//! the extractor's.
 //!
 //! ```text
 //! cargo run --release --example split_check -- all

@@ -260,9 +260,7 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
         // index arithmetic (a standard-layout copy only if `flow` is not).
         let src = src.as_standard_layout();
         let src = src.as_slice().expect("standard layout is contiguous");
-        if !dst.is_standard_layout() {
-            *dst = ndarray::Array2::zeros((h, w));
-        }
+        // `out` is the grid's own buffer, made by `FlowField::zeros`.
         let dst = dst.as_slice_mut().expect("standard layout is contiguous");
         for (r, drow) in dst.chunks_exact_mut(w).enumerate() {
             drow.fill(0.0);

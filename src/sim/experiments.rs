@@ -150,7 +150,6 @@ struct Bench {
     grid: AnalysisGrid,
     segs: Vec<Segmenter>,
     patches: Vec<ContactPatch>,
-    scale: f64,
 }
 
 impl Bench {
@@ -174,8 +173,12 @@ impl Bench {
             grid,
             segs,
             patches: Vec::new(),
-            scale,
         })
+    }
+
+    /// Full-resolution pixels per pixel of the analysis grid.
+    fn scale(&self) -> f64 {
+        self.grid.scale() as f64
     }
 
     /// Computes the flow of `frame` against the current reference, then calls
@@ -278,7 +281,7 @@ pub fn rest_sweep(
                     textured_tiles_into(&r.frame, QUIET_TILE_PX, QUIET_MIN_TEXTURE, textured);
                 let mut patches = vec![0usize; n];
                 let mut sums = vec![0.0f64; n];
-                let s3 = bench.scale.powi(3);
+                let s3 = bench.scale().powi(3);
                 bench.each(&f.frame, |i, p, seg| {
                     patches[i] = p.len();
                     sums[i] = seg.contour_sums().iter().copied().fold(0.0, f64::max) * s3;
@@ -432,7 +435,7 @@ pub fn mdf_sweep(
                 bench.dis.set_reference(&r.frame)?;
                 let mut hit = vec![vec![false; nf]; n];
                 let mut stray = vec![0usize; n];
-                let scale = bench.scale;
+                let scale = bench.scale();
                 for (fi, &f) in plan.forces_n.iter().enumerate() {
                     let rod = Contact::rod(x, tilted_force(f, yaw, pitch), d);
                     let fr = sensor.render_indexed(idx, &[rod], false)?;
