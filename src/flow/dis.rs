@@ -1136,8 +1136,45 @@ fn lanes_dot(a: &[f32; 64], b: &[f32; 64]) -> [f32; 4] {
 /// one column into a vector instead (a shuffle per pixel, 2-4x the
 /// instructions). Not inlined for the same reason: the stores of the
 /// result are what steer the vectorizer to whole-lane vectors.
+///
+/// Dispatched at run time (`pulp`, see [`super::simd_arch`]): with AVX2 a window row
+/// of 8 is one vector. The same operations in the same order on every path, so the
+/// sums are bit-identical.
 #[inline(never)]
-fn accumulate8_lanes(win: &[f32], stride: usize, pd: &Patch8, [ax, ay]: [f32; 2]) -> [[f32; 4]; 4] {
+fn accumulate8_lanes(win: &[f32], stride: usize, pd: &Patch8, wts: [f32; 2]) -> [[f32; 4]; 4] {
+    super::simd_arch().dispatch(Acc8Op {
+        win,
+        stride,
+        pd,
+        wts,
+    })
+}
+
+/// [`accumulate8_lanes_kernel`]'s arguments as a `pulp` operation (a method marked
+/// `#[inline(always)]` is inlined into `pulp`'s AVX2 function; a closure is not).
+struct Acc8Op<'a> {
+    win: &'a [f32],
+    stride: usize,
+    pd: &'a Patch8,
+    wts: [f32; 2],
+}
+
+impl pulp::WithSimd for Acc8Op<'_> {
+    type Output = [[f32; 4]; 4];
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> [[f32; 4]; 4] {
+        accumulate8_lanes_kernel(self.win, self.stride, self.pd, self.wts)
+    }
+}
+
+/// The body of [`accumulate8_lanes`].
+#[inline(always)]
+fn accumulate8_lanes_kernel(
+    win: &[f32],
+    stride: usize,
+    pd: &Patch8,
+    [ax, ay]: [f32; 2],
+) -> [[f32; 4]; 4] {
     let mut hl = [0.0f32; 72];
     // The window rows by stepping a slice (one length test per row, no index
     // products).
@@ -1594,6 +1631,48 @@ mod tests {
             assert_eq!(f.to_bits(), fast_floor(x).to_bits(), "{x}");
             assert_eq!(f, x.floor(), "{x}");
             assert_eq!(i as f32, f, "{x}");
+        }
+    }
+
+    #[test]
+    fn dispatched_patch_kernel_matches_the_baseline_kernel_bit_for_bit() {
+        // The oracle for the runtime SIMD dispatch: the kernel called directly here is
+        // compiled for the baseline target; `accumulate8_lanes` runs it in the
+        // instruction set `simd_arch` found (AVX2 on most x86-64), and the explicit
+        // scalar-arch dispatch is the fallback path. Values spanning several orders of
+        // magnitude, so that any reordering or FMA contraction would change the bits.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for stride in [9usize, 13, 40] {
+            for _ in 0..100 {
+                let win: Vec<f32> = (0..8 * stride + 9)
+                    .map(|_| 255.0 * rnd() * if rnd() < 0.1 { 1e3 } else { 1.0 })
+                    .collect();
+                let mut pd = Patch8::zeroed();
+                for k in 0..64 {
+                    pd.i0[k] = 255.0 * rnd();
+                    pd.gx[k] = 2000.0 * rnd() - 1000.0;
+                    pd.gy[k] = 2e-3 * rnd() - 1e-3;
+                }
+                let wts = [rnd(), rnd()];
+                let direct = accumulate8_lanes_kernel(&win, stride, &pd, wts);
+                let dispatched = accumulate8_lanes(&win, stride, &pd, wts);
+                let op = Acc8Op {
+                    win: &win,
+                    stride,
+                    pd: &pd,
+                    wts,
+                };
+                let scalar = pulp::Arch::Scalar.dispatch(op);
+                let bits = |a: [[f32; 4]; 4]| a.map(|l| l.map(f32::to_bits));
+                assert_eq!(bits(dispatched), bits(direct));
+                assert_eq!(bits(scalar), bits(direct));
+            }
         }
     }
 
