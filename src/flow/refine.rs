@@ -575,8 +575,51 @@ fn warp(i1: &[f32], u: &Array2<f32>, v: &Array2<f32>, g: Grid, out: &mut [f32]) 
 /// gather), then the bilinear blends (4 lanes). The per-pixel form was scalar
 /// throughout (~58 instructions per pixel). Same values bit for bit; the
 /// per-pixel form is the oracle in the tests.
+///
+/// Dispatched at run time like [`sor_row`].
 #[inline(never)]
 fn warp_row(i1: &[f32], w: usize, h: usize, i: usize, ur: &[f32], vr: &[f32], row: &mut [f32]) {
+    super::simd_arch().dispatch(WarpOp {
+        i1,
+        w,
+        h,
+        i,
+        ur,
+        vr,
+        row,
+    });
+}
+
+/// [`warp_row_kernel`]'s arguments as a `pulp` operation (see [`SorOp`]).
+struct WarpOp<'a> {
+    i1: &'a [f32],
+    w: usize,
+    h: usize,
+    i: usize,
+    ur: &'a [f32],
+    vr: &'a [f32],
+    row: &'a mut [f32],
+}
+
+impl pulp::WithSimd for WarpOp<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        warp_row_kernel(self.i1, self.w, self.h, self.i, self.ur, self.vr, self.row);
+    }
+}
+
+/// The body of [`warp_row`].
+#[inline(always)]
+fn warp_row_kernel(
+    i1: &[f32],
+    w: usize,
+    h: usize,
+    i: usize,
+    ur: &[f32],
+    vr: &[f32],
+    row: &mut [f32],
+) {
     // Offsets in u32 (a 32-bit multiply vectorises, a 64-bit one does not): a
     // level this large never reaches the refinement, but stay exact anyway.
     if w * h > u32::MAX as usize {
@@ -937,8 +980,58 @@ fn weights_one_row(
 /// Smoothness weights of one colour row from the flow (`[u, v]`) at the pixels, their
 /// right and their down neighbours. Separate function
 /// so that the outputs are known not to alias the inputs (the loop vectorises).
+/// Dispatched at run time like [`sor_row`].
 #[inline(never)]
 fn weights_row(
+    alpha2: f32,
+    e2: f32,
+    c: [&[f32]; 2],
+    r: [&[f32]; 2],
+    d: [&[f32]; 2],
+    wr: &mut [f32],
+    wd: &mut [f32],
+) {
+    super::simd_arch().dispatch(WeightsOp {
+        alpha2,
+        e2,
+        c,
+        r,
+        d,
+        wr,
+        wd,
+    });
+}
+
+/// [`weights_row_kernel`]'s arguments as a `pulp` operation (see [`SorOp`]).
+struct WeightsOp<'a> {
+    alpha2: f32,
+    e2: f32,
+    c: [&'a [f32]; 2],
+    r: [&'a [f32]; 2],
+    d: [&'a [f32]; 2],
+    wr: &'a mut [f32],
+    wd: &'a mut [f32],
+}
+
+impl pulp::WithSimd for WeightsOp<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        weights_row_kernel(
+            self.alpha2,
+            self.e2,
+            self.c,
+            self.r,
+            self.d,
+            self.wr,
+            self.wd,
+        );
+    }
+}
+
+/// The body of [`weights_row`].
+#[inline(always)]
+fn weights_row_kernel(
     alpha2: f32,
     e2: f32,
     c: [&[f32]; 2],
@@ -1078,8 +1171,43 @@ struct AssembleIn<'a> {
 /// distinct `&mut` arguments (no aliasing), which lets the loop vectorise. Stores the
 /// `omega / diagonal` (`A11`, `A22` slots) so SOR multiplies instead of
 /// dividing.
+/// Dispatched at run time like [`sor_row`].
 #[inline(never)]
 fn assemble_row(
+    k: &AssembleConsts,
+    x: &AssembleIn,
+    inv_a11: &mut [f32],
+    a12: &mut [f32],
+    inv_a22: &mut [f32],
+    b1: &mut [f32],
+    b2: &mut [f32],
+) {
+    super::simd_arch().dispatch(AssembleOp {
+        k,
+        x,
+        out: [inv_a11, a12, inv_a22, b1, b2],
+    });
+}
+
+/// [`assemble_row_kernel`]'s arguments as a `pulp` operation (see [`SorOp`]).
+struct AssembleOp<'a, 'b> {
+    k: &'a AssembleConsts,
+    x: &'a AssembleIn<'b>,
+    out: [&'a mut [f32]; 5],
+}
+
+impl pulp::WithSimd for AssembleOp<'_, '_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let [inv_a11, a12, inv_a22, b1, b2] = self.out;
+        assemble_row_kernel(self.k, self.x, inv_a11, a12, inv_a22, b1, b2);
+    }
+}
+
+/// The body of [`assemble_row`].
+#[inline(always)]
+fn assemble_row_kernel(
     k: &AssembleConsts,
     x: &AssembleIn,
     inv_a11: &mut [f32],
@@ -1505,6 +1633,92 @@ mod tests {
     }
 
     #[test]
+    fn dispatched_assembly_and_weights_match_the_baseline_kernels_bit_for_bit() {
+        // As for the SOR row: `*_kernel` called here is compiled for the baseline,
+        // the dispatched function runs in the detected instruction set, and
+        // `Arch::Scalar` is the fallback path.
+        let mut state = 0x0123_4567_89ab_cdefu64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for n in [1usize, 4, 7, 8, 9, 17, 100, 481] {
+            let mut v = |scale: f32, len: usize| -> Vec<f32> {
+                (0..len).map(|_| scale * (2.0 * rnd() - 1.0)).collect()
+            };
+            let d: Vec<Vec<f32>> = (0..N_DERIV).map(|k| v(10.0 * (k + 1) as f32, n)).collect();
+            let (fu, fv, bu, bv) = (v(3.0, n), v(3.0, n), v(3.0, n), v(3.0, n));
+            let wv: Vec<Vec<f32>> = (0..4).map(|_| v(1.0, n)).collect();
+            let x = AssembleIn {
+                d: std::array::from_fn(|k| &d[k][..]),
+                fu: &fu,
+                fv: &fv,
+                bu: &bu,
+                bv: &bv,
+                w: std::array::from_fn(|k| &wv[k][..]),
+            };
+            let k = AssembleConsts {
+                z2: 1e-4,
+                e2: 1e-6,
+                d2: 4.0,
+                g2: 10.0,
+                omega: 1.6,
+            };
+            let run = |how: usize| -> Vec<Vec<f32>> {
+                let mut o: Vec<Vec<f32>> = (0..5).map(|_| vec![0.0f32; n]).collect();
+                let [a, b, c, e, f] = o.get_disjoint_mut([0, 1, 2, 3, 4]).expect("distinct");
+                match how {
+                    0 => assemble_row_kernel(&k, &x, a, b, c, e, f),
+                    1 => assemble_row(&k, &x, a, b, c, e, f),
+                    _ => pulp::Arch::Scalar.dispatch(AssembleOp {
+                        k: &k,
+                        x: &x,
+                        out: [a, b, c, e, f],
+                    }),
+                }
+                o
+            };
+            let want: Vec<_> = run(0).iter().map(|a| bits(a)).collect();
+            for how in [1, 2] {
+                let got: Vec<_> = run(how).iter().map(|a| bits(a)).collect();
+                assert_eq!(got, want, "assembly, n {n}, path {how}");
+            }
+            let (cu, cv, ru, rv, du, dv) = (
+                v(4.0, n),
+                v(4.0, n),
+                v(4.0, n),
+                v(4.0, n),
+                v(4.0, n),
+                v(4.0, n),
+            );
+            let wrun = |how: usize| -> (Vec<u32>, Vec<u32>) {
+                let (mut wr, mut wd) = (vec![0.0f32; n], vec![0.0f32; n]);
+                let (c, r, d) = ([&cu[..], &cv[..]], [&ru[..], &rv[..]], [&du[..], &dv[..]]);
+                match how {
+                    0 => weights_row_kernel(0.04, 1e-6, c, r, d, &mut wr, &mut wd),
+                    1 => weights_row(0.04, 1e-6, c, r, d, &mut wr, &mut wd),
+                    _ => pulp::Arch::Scalar.dispatch(WeightsOp {
+                        alpha2: 0.04,
+                        e2: 1e-6,
+                        c,
+                        r,
+                        d,
+                        wr: &mut wr,
+                        wd: &mut wd,
+                    }),
+                }
+                (bits(&wr), bits(&wd))
+            };
+            let want = wrun(0);
+            assert_eq!(wrun(1), want, "weights, n {n}");
+            assert_eq!(wrun(2), want, "weights, n {n}, scalar arch");
+        }
+    }
+
+    #[test]
     fn chunked_warp_matches_the_per_pixel_warp_bit_for_bit() {
         // Rows longer than a chunk, flows that leave the image on every side,
         // whole and fractional displacements.
@@ -1526,6 +1740,10 @@ mod tests {
                     warp_row_scalar(&i1, w, h, i, u, v, &mut want);
                     let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert_eq!(bits(&got), bits(&want), "{w}x{h} row {i}");
+                    // The dispatched warp against its kernel compiled for the baseline.
+                    let mut direct = vec![0.0f32; w];
+                    warp_row_kernel(&i1, w, h, i, u, v, &mut direct);
+                    assert_eq!(bits(&got), bits(&direct), "{w}x{h} row {i}");
                 }
                 // A zero flow reproduces the image exactly.
                 let mut out = vec![0.0f32; w];
