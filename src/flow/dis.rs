@@ -1390,54 +1390,124 @@ fn densify(lvl: &mut Level, psz: usize) {
         .zip(lvl.tmp.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, ((ur, vr), swr))| {
-            ur.fill(0.0);
-            vr.fill(0.0);
-            swr.fill(0.0);
-            let r0 = &i0[y * w..][..w];
-            for i in ilo[y] as usize..=ihi[y] as usize {
-                for j in 0..ws {
-                    let (pu, pv) = (sx[i * ws + j], sy[i * ws + j]);
-                    let x0 = px[j] as usize;
-                    let fx = x0 as f32 + pu;
-                    let fy = y as f32 + pv;
-                    let (ixf, iyf) = (fast_floor(fx), fast_floor(fy));
-                    let inside = fx.is_finite()
-                        && fy.is_finite()
-                        && ixf >= 0.0
-                        && iyf >= 0.0
-                        && ixf + (psz as f32) < w as f32
-                        && iyf + 1.0 < h as f32;
-                    let ref_row = &r0[x0..][..psz];
-                    let (u_acc, v_acc) = (&mut ur[x0..][..psz], &mut vr[x0..][..psz]);
-                    let w_acc = &mut swr[x0..][..psz];
-                    if inside {
-                        let (ax, ay) = (fx - ixf, fy - iyf);
-                        // In range (checked above): the i32 conversion is one
-                        // instruction, the saturating f32 -> usize one is not.
-                        let o = iyf as i32 as usize * w + ixf as i32 as usize;
-                        let rows = [&i1[o..][..psz + 1], &i1[o + w..][..psz + 1]];
-                        let acc = [u_acc, v_acc, w_acc];
-                        if psz == 8 {
-                            densify_patch_row8(rows, ref_row, [ax, ay], [pu, pv], acc);
-                        } else {
-                            densify_patch_row(psz, rows, ref_row, [ax, ay], [pu, pv], acc);
-                        }
-                    } else {
-                        for c in 0..psz {
-                            let s = pyramid::sample_clamped(i1, w, h, (x0 + c) as f32 + pu, fy);
-                            let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
-                            u_acc[c] += wgt * pu;
-                            v_acc[c] += wgt * pv;
-                            w_acc[c] += wgt;
-                        }
-                    }
+            let rows = DenseRows {
+                w,
+                h,
+                ws,
+                psz,
+                i0,
+                i1,
+                sx,
+                sy,
+                px,
+                ilo,
+                ihi,
+            };
+            // Dispatched at run time (see `flow::simd_arch`): same values on every path.
+            super::simd_arch().dispatch(DensifyRowOp {
+                d: &rows,
+                y,
+                out: [ur, vr, swr],
+            });
+        });
+}
+
+/// What [`densify`] reads, for [`densify_row`].
+struct DenseRows<'a> {
+    w: usize,
+    h: usize,
+    ws: usize,
+    psz: usize,
+    i0: &'a [f32],
+    i1: &'a [f32],
+    sx: &'a [f32],
+    sy: &'a [f32],
+    px: &'a [u32],
+    ilo: &'a [u32],
+    ihi: &'a [u32],
+}
+
+/// [`densify_row`] as a `pulp` operation (a `with_simd` method marked
+/// `#[inline(always)]` is compiled inside `pulp`'s AVX2 function; a closure's body
+/// is not).
+struct DensifyRowOp<'a, 'b> {
+    d: &'a DenseRows<'b>,
+    y: usize,
+    out: [&'a mut [f32]; 3],
+}
+
+impl pulp::WithSimd for DensifyRowOp<'_, '_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        densify_row(self.d, self.y, self.out);
+    }
+}
+
+/// Row `y` of [`densify`]: the flow sums `ur`, `vr` and the weight sums `swr`, then
+/// the weighted averages.
+#[inline(always)]
+fn densify_row(d: &DenseRows, y: usize, [ur, vr, swr]: [&mut [f32]; 3]) {
+    let DenseRows {
+        w,
+        h,
+        ws,
+        psz,
+        i0,
+        i1,
+        sx,
+        sy,
+        px,
+        ilo,
+        ihi,
+    } = *d;
+    ur.fill(0.0);
+    vr.fill(0.0);
+    swr.fill(0.0);
+    let r0 = &i0[y * w..][..w];
+    for i in ilo[y] as usize..=ihi[y] as usize {
+        for j in 0..ws {
+            let (pu, pv) = (sx[i * ws + j], sy[i * ws + j]);
+            let x0 = px[j] as usize;
+            let fx = x0 as f32 + pu;
+            let fy = y as f32 + pv;
+            let (ixf, iyf) = (fast_floor(fx), fast_floor(fy));
+            let inside = fx.is_finite()
+                && fy.is_finite()
+                && ixf >= 0.0
+                && iyf >= 0.0
+                && ixf + (psz as f32) < w as f32
+                && iyf + 1.0 < h as f32;
+            let ref_row = &r0[x0..][..psz];
+            let (u_acc, v_acc) = (&mut ur[x0..][..psz], &mut vr[x0..][..psz]);
+            let w_acc = &mut swr[x0..][..psz];
+            if inside {
+                let (ax, ay) = (fx - ixf, fy - iyf);
+                // In range (checked above): the i32 conversion is one
+                // instruction, the saturating f32 -> usize one is not.
+                let o = iyf as i32 as usize * w + ixf as i32 as usize;
+                let rows = [&i1[o..][..psz + 1], &i1[o + w..][..psz + 1]];
+                let acc = [u_acc, v_acc, w_acc];
+                if psz == 8 {
+                    densify_patch_row8(rows, ref_row, [ax, ay], [pu, pv], acc);
+                } else {
+                    densify_patch_row(psz, rows, ref_row, [ax, ay], [pu, pv], acc);
+                }
+            } else {
+                for c in 0..psz {
+                    let s = pyramid::sample_clamped(i1, w, h, (x0 + c) as f32 + pu, fy);
+                    let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
+                    u_acc[c] += wgt * pu;
+                    v_acc[c] += wgt * pv;
+                    w_acc[c] += wgt;
                 }
             }
-            for ((u, v), s) in ur.iter_mut().zip(vr.iter_mut()).zip(swr.iter()) {
-                *u /= s;
-                *v /= s;
-            }
-        });
+        }
+    }
+    for ((u, v), s) in ur.iter_mut().zip(vr.iter_mut()).zip(swr.iter()) {
+        *u /= s;
+        *v /= s;
+    }
 }
 
 /// [`densify_patch_row`] for 8-pixel patch rows (every preset), written so
@@ -1631,6 +1701,61 @@ mod tests {
             assert_eq!(f.to_bits(), fast_floor(x).to_bits(), "{x}");
             assert_eq!(f, x.floor(), "{x}");
             assert_eq!(i as f32, f, "{x}");
+        }
+    }
+
+    #[test]
+    fn dispatched_densify_row_matches_the_baseline_row_bit_for_bit() {
+        // `densify_row` called directly is compiled for the baseline target; through
+        // `simd_arch` it runs in the detected instruction set, through `Arch::Scalar`
+        // on the fallback path. Vectors up to +-10 px: patches inside and outside.
+        let mut state = 0x5851_f42d_4c95_7f2du64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (w, h, psz) = (45usize, 23usize, 8usize);
+        let px = patch_corners(w, psz, 3);
+        let py = patch_corners(h, psz, 3);
+        let (ilo, ihi) = coverage(h, psz, &py);
+        let ws = px.len();
+        let i0: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+        let i1: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+        let sx: Vec<f32> = (0..ws * py.len()).map(|_| 20.0 * rnd() - 10.0).collect();
+        let sy: Vec<f32> = (0..ws * py.len()).map(|_| 20.0 * rnd() - 10.0).collect();
+        let d = DenseRows {
+            w,
+            h,
+            ws,
+            psz,
+            i0: &i0,
+            i1: &i1,
+            sx: &sx,
+            sy: &sy,
+            px: &px,
+            ilo: &ilo,
+            ihi: &ihi,
+        };
+        let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for y in 0..h {
+            let mut want: Vec<Vec<f32>> = (0..3).map(|_| vec![0.0f32; w]).collect();
+            let [a, b, c] = want.get_disjoint_mut([0, 1, 2]).expect("distinct");
+            densify_row(&d, y, [a, b, c]);
+            assert!(want[2].iter().all(|&s| s > 0.0), "every pixel covered");
+            for arch in [super::super::simd_arch(), pulp::Arch::Scalar] {
+                let mut got: Vec<Vec<f32>> = (0..3).map(|_| vec![0.0f32; w]).collect();
+                let [a, b, c] = got.get_disjoint_mut([0, 1, 2]).expect("distinct");
+                arch.dispatch(DensifyRowOp {
+                    d: &d,
+                    y,
+                    out: [a, b, c],
+                });
+                for k in 0..3 {
+                    assert_eq!(bits(&got[k]), bits(&want[k]), "row {y}, plane {k}");
+                }
+            }
         }
     }
 

@@ -329,9 +329,13 @@ pub fn resize_bilinear(
         let r0 = &src[ys.i0[y] as usize * sw..][..sw];
         let r1 = &src[ys.i1[y] as usize * sw..][..sw];
         let wy = ys.w[y];
-        for x in 0..sw {
-            trow[x] = gain * (r0[x] + wy * (r1[x] - r0[x]));
-        }
+        super::simd_arch().dispatch(BlendRowOp {
+            r0,
+            r1,
+            wy,
+            gain,
+            out: trow,
+        });
     });
     let tmp = &*tmp;
     let exact = |f: usize| dw == sw * f;
@@ -340,12 +344,14 @@ pub fn resize_bilinear(
         // Integer power-of-two ratios (the pyramid's case) use fixed
         // weights instead of per-column taps: the same values bit for bit
         // (the weights are dyadic, exact in f32), without the gathers.
+        // Dispatched at run time (see `flow::simd_arch`): same values on every path.
+        let arch = super::simd_arch();
         if exact(2) {
-            upsample_row::<2>(t, drow);
+            arch.dispatch(UpsampleOp::<2> { t, out: drow });
         } else if exact(4) {
-            upsample_row::<4>(t, drow);
+            arch.dispatch(UpsampleOp::<4> { t, out: drow });
         } else if exact(8) {
-            upsample_row::<8>(t, drow);
+            arch.dispatch(UpsampleOp::<8> { t, out: drow });
         } else {
             for x in 0..dw {
                 let (a, b, wx) = (xs.i0[x] as usize, xs.i1[x] as usize, xs.w[x]);
@@ -354,6 +360,49 @@ pub fn resize_bilinear(
         }
     });
     Ok(())
+}
+
+/// The vertical pass of [`resize_bilinear`] on one row, as a `pulp` operation (a
+/// `with_simd` method marked `#[inline(always)]` is compiled inside `pulp`'s AVX2
+/// function; a closure's body is not).
+struct BlendRowOp<'a> {
+    r0: &'a [f32],
+    r1: &'a [f32],
+    wy: f32,
+    gain: f32,
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for BlendRowOp<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        blend_row(self.r0, self.r1, self.wy, self.gain, self.out);
+    }
+}
+
+/// `out = gain * (r0 + wy * (r1 - r0))`, elementwise.
+#[inline(always)]
+fn blend_row(r0: &[f32], r1: &[f32], wy: f32, gain: f32, out: &mut [f32]) {
+    let n = out.len();
+    let (r0, r1) = (&r0[..n], &r1[..n]);
+    for x in 0..n {
+        out[x] = gain * (r0[x] + wy * (r1[x] - r0[x]));
+    }
+}
+
+/// [`upsample_row`] as a `pulp` operation (see [`BlendRowOp`]).
+struct UpsampleOp<'a, const F: usize> {
+    t: &'a [f32],
+    out: &'a mut [f32],
+}
+
+impl<const F: usize> pulp::WithSimd for UpsampleOp<'_, F> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        upsample_row::<F>(self.t, self.out);
+    }
 }
 
 /// One row of an exact `F`x bilinear upsampling with half-pixel centres:
@@ -367,6 +416,7 @@ pub fn resize_bilinear(
 /// `a + c (b - a)` are those of the per-output form (exact for powers of two),
 /// so the values are identical; the `F/2` outputs at each end, beyond the first
 /// and last centre, are the edge value (border replication).
+#[inline(always)]
 fn upsample_row<const F: usize>(t: &[f32], out: &mut [f32]) {
     let n = t.len();
     if n == 0 {
@@ -410,6 +460,54 @@ pub fn sample_clamped(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dispatched_resize_rows_match_the_baseline_kernels_bit_for_bit() {
+        // The oracle for the runtime SIMD dispatch: the kernels called directly are
+        // compiled for the baseline target; through `simd_arch` they run in the
+        // detected instruction set (AVX2 on most x86-64), through `Arch::Scalar` on
+        // the fallback path.
+        let arch = crate::flow::simd_arch();
+        let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for n in [1usize, 3, 8, 9, 17, 480] {
+            let t: Vec<f32> = (0..n)
+                .map(|k| ((k * 37 % 101) as f32) * 2.5 - (k % 7) as f32 * 13.1)
+                .collect();
+            let r1: Vec<f32> = t.iter().map(|x| 0.3 * x + 1.7).collect();
+            let mut want = vec![0.0f32; n];
+            blend_row(&t, &r1, 0.3125, -2.0, &mut want);
+            for a in [arch, pulp::Arch::Scalar] {
+                let mut got = vec![0.0f32; n];
+                let (r0, r1, out) = (&t[..], &r1[..], &mut got[..]);
+                a.dispatch(BlendRowOp {
+                    r0,
+                    r1,
+                    wy: 0.3125,
+                    gain: -2.0,
+                    out,
+                });
+                assert_eq!(bits(&got), bits(&want));
+            }
+            let mut want = vec![0.0f32; 4 * n];
+            upsample_row::<4>(&t, &mut want);
+            for a in [arch, pulp::Arch::Scalar] {
+                let mut got = vec![0.0f32; 4 * n];
+                a.dispatch(UpsampleOp::<4> {
+                    t: &t,
+                    out: &mut got,
+                });
+                assert_eq!(bits(&got), bits(&want));
+            }
+            let mut want = vec![0.0f32; 2 * n];
+            upsample_row::<2>(&t, &mut want);
+            let mut got = vec![0.0f32; 2 * n];
+            arch.dispatch(UpsampleOp::<2> {
+                t: &t,
+                out: &mut got,
+            });
+            assert_eq!(bits(&got), bits(&want));
+        }
+    }
 
     /// The oracle: the plain mean of the `f x f` box of output pixel `(x, y)`.
     fn naive_box(src: &[f32], w: usize, f: usize, x: usize, y: usize) -> f64 {
