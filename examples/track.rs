@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release --example track -- [SEQ_DIR] [--calibration FILE] [--crop x,y,w,h]
 //!     [--thresholds low|mid|high] [--preset fast|accurate|...] [--filter on|off]
-//!     [--rereference on|off] [--out contacts.jsonl] [--debug DIR]
+//!     [--rereference on|off] [--hold N] [--out contacts.jsonl] [--debug DIR]
 //! ```
 //!
 //! With no arguments it runs on `fixtures/press` with
@@ -16,6 +16,10 @@
 //! thresholds from its `setup.thresholds`: the sensor then measures the raw
 //! quantities exactly as the calibration was fitted. `--preset` and
 //! `--thresholds` override them (the calibration's accuracy no longer holds).
+//!
+//! `--hold N` is how many frames a contact that is no longer detected is
+//! still reported with its last estimate (default 2; 0 for sequences whose
+//! frames are independent presses, such as `simulate presses`).
 //!
 //! `--out` writes JSON Lines per DATASET.md (one line per processed frame,
 //! with `latency_ms`), flushed line by line. `--debug DIR` writes the debug
@@ -44,7 +48,7 @@ use optical_tactile::viz;
 
 const USAGE: &str = "usage: track [SEQ_DIR (default fixtures/press)] [--calibration FILE (default fixtures/calibration.json)] \
 [--crop x,y,w,h] [--thresholds low|mid|high] [--preset ultrafast|fast|medium|accurate|balanced|fine] \
-[--filter on|off (default off)] [--rereference on|off (default on)] [--out contacts.jsonl] [--debug DIR] [--quiet]";
+[--filter on|off (default off)] [--rereference on|off (default on)] [--hold N (default 2)] [--out contacts.jsonl] [--debug DIR] [--quiet]";
 
 struct Args {
     seq: PathBuf,
@@ -54,6 +58,7 @@ struct Args {
     preset: Option<DisPreset>,
     filter: bool,
     rereference: bool,
+    hold: Option<u32>,
     out: Option<PathBuf>,
     debug: Option<PathBuf>,
     quiet: bool,
@@ -76,6 +81,7 @@ fn parse() -> Result<Option<Args>, String> {
         preset: None,
         filter: false,
         rereference: true,
+        hold: None,
         out: None,
         debug: None,
         quiet: false,
@@ -100,6 +106,13 @@ fn parse() -> Result<Option<Args>, String> {
             }
             "--filter" => a.filter = on_off("--filter", &val("--filter")?)?,
             "--rereference" => a.rereference = on_off("--rereference", &val("--rereference")?)?,
+            "--hold" => {
+                let v = val("--hold")?;
+                a.hold = Some(
+                    v.parse()
+                        .map_err(|_| format!("--hold: expected a number of frames, got `{v}`"))?,
+                )
+            }
             "--out" => a.out = Some(PathBuf::from(val("--out")?)),
             "--debug" => a.debug = Some(PathBuf::from(val("--debug")?)),
             "--quiet" => a.quiet = true,
@@ -140,6 +153,9 @@ fn sensor_config(a: &Args, cal: &Calibration) -> Result<SensorConfig, String> {
         ..SensorConfig::default()
     };
     config.tracker.filter = a.filter.then(FilterConfig::default);
+    if let Some(h) = a.hold {
+        config.tracker.max_missed = h;
+    }
     config.rereference = ReferencePolicy {
         enabled: a.rereference,
         ..ReferencePolicy::default()

@@ -8,7 +8,9 @@ use optical_tactile::sim::cli;
 use optical_tactile::sim::elastic::{
     QuadratureCache, RodLoad, line_segment_displacement, point_displacement,
 };
-use optical_tactile::sim::scenario::{self, Common, Mapping, Perches, Scenario, Single};
+use optical_tactile::sim::scenario::{
+    self, Common, Mapping, Perches, Presses, Scenario, Single, tilted_force,
+};
 use optical_tactile::sim::{
     Contact, MarkerConfig, Material, NoiseConfig, SimConfig, SyntheticSensor,
 };
@@ -500,6 +502,96 @@ fn characterization_subset_follows_the_protocol() {
     assert_eq!(rows, rows2);
     std::fs::remove_dir_all(&out).unwrap();
     std::fs::remove_dir_all(&out2).unwrap();
+}
+
+#[test]
+fn presses_land_anywhere_in_range_each_against_the_reference() {
+    let out = tmp("presses");
+    let mut c = Common::new(&out);
+    c.flow = false;
+    let o = Presses {
+        presses: 6,
+        x_max_mm: 90.0,
+        force_min_n: 1.0,
+        force_max_n: 2.0,
+        max_tilt_deg: 10.0,
+        indenters_mm: vec![2.0, 10.0],
+    };
+    let sum = scenario::run(&Scenario::Presses(o.clone()), &c).unwrap();
+    assert_eq!(sum.frames, 7);
+    let truth: Vec<FrameRecord> = io::read_jsonl(out.join("truth.jsonl")).unwrap();
+    assert_eq!(truth.len(), 7);
+    assert!(truth[0].contacts.is_empty());
+    let info: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("presses.json")).unwrap()).unwrap();
+    assert_eq!(info.len(), 6);
+    let mut xs = vec![];
+    for (t, i) in truth[1..].iter().zip(&info) {
+        assert_eq!(t.contacts.len(), 1);
+        assert_eq!(i["frame"].as_str().unwrap(), t.frame);
+        let ct = &t.contacts[0];
+        assert!(ct.x_mm.abs() <= 90.0, "{}", ct.x_mm);
+        let f = [ct.fx_n, ct.fy_n, ct.fz_n];
+        assert!((1.0..=2.0).contains(&norm(f)), "{f:?}");
+        // One tilt axis at a time, within the range, and the force is the
+        // tilted force that the record says.
+        let (yaw, pitch) = (
+            i["yaw_deg"].as_f64().unwrap(),
+            i["pitch_deg"].as_f64().unwrap(),
+        );
+        assert!(yaw == 0.0 || pitch == 0.0);
+        assert!(yaw.abs() <= 10.0 && pitch.abs() <= 10.0);
+        let want = tilted_force(norm(f), yaw, pitch);
+        assert!(f.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-9));
+        assert!([2.0, 10.0].contains(&i["indenter_mm"].as_f64().unwrap()));
+        xs.push(ct.x_mm);
+    }
+    // Spread out, not one place.
+    let spread =
+        xs.iter().cloned().fold(f64::MIN, f64::max) - xs.iter().cloned().fold(f64::MAX, f64::min);
+    assert!(spread > 20.0, "{xs:?}");
+    // The same seed draws the same presses.
+    let again = tmp("presses2");
+    c.out = again.clone();
+    scenario::run(&Scenario::Presses(o.clone()), &c).unwrap();
+    let truth2: Vec<FrameRecord> = io::read_jsonl(again.join("truth.jsonl")).unwrap();
+    assert_eq!(truth, truth2);
+    std::fs::remove_dir_all(&out).unwrap();
+    std::fs::remove_dir_all(&again).unwrap();
+    // Bad options fail before anything is written.
+    let bad = tmp("presses-bad");
+    c.out = bad.clone();
+    for o in [
+        Presses {
+            presses: 0,
+            ..Presses::default()
+        },
+        Presses {
+            force_min_n: 3.0,
+            force_max_n: 1.0,
+            ..Presses::default()
+        },
+        Presses {
+            x_max_mm: f64::NAN,
+            ..Presses::default()
+        },
+        Presses {
+            max_tilt_deg: 90.0,
+            ..Presses::default()
+        },
+        Presses {
+            indenters_mm: vec![],
+            ..Presses::default()
+        },
+        // Off the skin.
+        Presses {
+            x_max_mm: 400.0,
+            ..Presses::default()
+        },
+    ] {
+        assert!(scenario::run(&Scenario::Presses(o), &c).is_err());
+        assert!(!bad.join("truth.jsonl").exists());
+    }
 }
 
 #[test]

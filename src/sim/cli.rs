@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use super::scenario::{Characterization, Common, Mapping, Pair, Perches, Scenario, Single};
+use super::scenario::{
+    Characterization, Common, Mapping, Pair, Perches, Presses, Scenario, Single,
+};
 use crate::error::{Error, Result};
 
 /// The `--help` text: every scenario and option.
@@ -17,6 +19,9 @@ USAGE:
 SCENARIOS:
     single            one indenter, force ramp (frame 0 unloaded), optional tilt
     pair              two indenters at a given spacing, force ramps
+    presses           independent presses at random places, forces, tilts and
+                      rods, each frame against frame 0 (accuracy between the
+                      protocol's points)
     characterization  the characterization protocol (tests.csv + frames/), SPEC.md
     perches           two rods of different stiffness under a descending body
     mapping           touch, move, touch over rods at known world positions (poses.csv, rods.json)
@@ -53,6 +58,12 @@ pair:
     --force-n F          peak force of the left rod, N [2]
     --force2-n F         peak force of the right rod, N [1.5]
     --frames N           [10]     --indenter-mm D   [5]
+presses (independent presses anywhere, each against frame 0; presses.json):
+    --presses N          loaded frames [150]
+    --x-max-mm X         chord positions uniform in [-X, X], mm [110]
+    --force-min-n F --force-max-n F   force magnitude range, N [0.5, 3]
+    --max-tilt-deg T     pitch or yaw (even odds) uniform in [-T, T] [15]
+    --indenters-mm D,D   rod diameters drawn from, mm [2,5,10]
 characterization:
     --subset N           a random subset of N tests [all: 7200]
     --repeats R          repetitions [5]
@@ -96,6 +107,17 @@ fn value<T: std::str::FromStr>(name: &str, v: Option<&String>) -> Result<T> {
         .map_err(|_| Error::param(name, format!("cannot parse `{v}`")))
 }
 
+/// A comma-separated list of numbers.
+fn parse_list(name: &str, s: &str) -> Result<Vec<f64>> {
+    s.split(',')
+        .map(|t| {
+            t.trim()
+                .parse::<f64>()
+                .map_err(|_| Error::param(name, format!("cannot parse `{t}`")))
+        })
+        .collect()
+}
+
 /// Parses `args` (without the program name).
 pub fn parse(args: &[String]) -> Result<Command> {
     if args.is_empty() {
@@ -108,6 +130,7 @@ pub fn parse(args: &[String]) -> Result<Command> {
     let mut scenario = match name {
         "single" => Scenario::Single(Single::default()),
         "pair" => Scenario::Pair(Pair::default()),
+        "presses" => Scenario::Presses(Presses::default()),
         "characterization" => Scenario::Characterization(Characterization::default()),
         "perches" => Scenario::Perches(Perches::default()),
         "mapping" => Scenario::Mapping(Mapping::default()),
@@ -116,7 +139,7 @@ pub fn parse(args: &[String]) -> Result<Command> {
             return Err(Error::param(
                 "scenario",
                 format!(
-                    "unknown scenario `{other}` (single, pair, characterization, perches, mapping, fixtures)"
+                    "unknown scenario `{other}` (single, pair, presses, characterization, perches, mapping, fixtures)"
                 ),
             ));
         }
@@ -160,6 +183,15 @@ pub fn parse(args: &[String]) -> Result<Command> {
             ("--force2-n", Scenario::Pair(o)) => o.force2_n = value(key, v)?,
             ("--frames", Scenario::Pair(o)) => o.frames = value(key, v)?,
             ("--indenter-mm", Scenario::Pair(o)) => o.indenter_mm = value(key, v)?,
+            ("--presses", Scenario::Presses(o)) => o.presses = value(key, v)?,
+            ("--x-max-mm", Scenario::Presses(o)) => o.x_max_mm = value(key, v)?,
+            ("--force-min-n", Scenario::Presses(o)) => o.force_min_n = value(key, v)?,
+            ("--force-max-n", Scenario::Presses(o)) => o.force_max_n = value(key, v)?,
+            ("--max-tilt-deg", Scenario::Presses(o)) => o.max_tilt_deg = value(key, v)?,
+            ("--indenters-mm", Scenario::Presses(o)) => {
+                let s: String = value(key, v)?;
+                o.indenters_mm = parse_list(key, &s)?;
+            }
             ("--subset", Scenario::Characterization(o)) => o.subset = Some(value(key, v)?),
             ("--repeats", Scenario::Characterization(o)) => o.repeats = value(key, v)?,
             ("--load-cell-noise", Scenario::Characterization(o)) => {
@@ -174,14 +206,7 @@ pub fn parse(args: &[String]) -> Result<Command> {
             ("--indenter-mm", Scenario::Perches(o)) => o.indenter_mm = value(key, v)?,
             ("--rods", Scenario::Mapping(o)) => {
                 let s: String = value(key, v)?;
-                o.rods_x_m = s
-                    .split(',')
-                    .map(|t| {
-                        t.trim()
-                            .parse::<f64>()
-                            .map_err(|_| Error::param(key, format!("cannot parse `{t}`")))
-                    })
-                    .collect::<Result<_>>()?;
+                o.rods_x_m = parse_list(key, &s)?;
             }
             ("--rods-top-m", Scenario::Mapping(o)) => o.rods_top_m = value(key, v)?,
             ("--touches", Scenario::Mapping(o)) => o.touches = value(key, v)?,
@@ -238,6 +263,22 @@ mod tests {
         assert!(parse(&args("single --out x --force-n")).is_err()); // no value
         assert!(parse(&args("single --out x --force-n abc")).is_err());
         assert!(parse(&[]).is_err());
+        match parse(&args(
+            "presses --out /tmp/x --presses 5 --indenters-mm 2,5 --force-min-n 1 --max-tilt-deg 7",
+        ))
+        .unwrap()
+        {
+            Command::Run(b) => {
+                let (Scenario::Presses(o), _) = *b else {
+                    panic!("not presses")
+                };
+                assert_eq!((o.presses, o.force_min_n, o.max_tilt_deg), (5, 1.0, 7.0));
+                assert_eq!(o.indenters_mm, vec![2.0, 5.0]);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&args("presses --out x --indenters-mm 2,x")).is_err());
+        assert!(parse(&args("presses --out x --x-mm 3")).is_err()); // single-only
         match parse(&args("characterization --out d --subset 12")).unwrap() {
             Command::Run(b) => match *b {
                 (Scenario::Characterization(o), c) => assert!(o.subset == Some(12) && !c.flow),

@@ -2,7 +2,7 @@
 //! DATASET.md formats.
 //!
 //! Every scenario writes its frames as 8-bit grey PNG. Sequences (`single`,
-//! `pair`, `perches`, `mapping`) write `000000.png, 000001.png, ...` (frame 0
+//! `pair`, `presses`, `perches`, `mapping`) write `000000.png, 000001.png, ...` (frame 0
 //! is the unloaded reference), `truth.jsonl` (one line per frame with the true
 //! contacts) and, unless disabled, the true dense motion of each frame as
 //! `flow/000000.flo`. `characterization` writes `tests.csv` and
@@ -131,6 +131,42 @@ impl Default for Characterization {
     }
 }
 
+/// Independent single presses anywhere on the skin, each frame against the
+/// one unloaded reference (frame 0): position, force, tilt and rod drawn at
+/// random. The characterization protocol presses on 13 marked points only;
+/// this scenario measures what a calibration does between them, where a
+/// user's contacts land. Also writes `presses.json` (per loaded frame: the
+/// rod's diameter and the tilt).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Presses {
+    /// Number of loaded frames (one press each).
+    pub presses: usize,
+    /// Presses land uniformly in `[-x_max_mm, x_max_mm]` along the chord, mm.
+    pub x_max_mm: f64,
+    /// Smallest force magnitude, N.
+    pub force_min_n: f64,
+    /// Largest force magnitude, N.
+    pub force_max_n: f64,
+    /// Largest tilt, degrees: each press tilts about one axis (pitch or
+    /// yaw, even odds, as the protocol does), uniformly within +-this.
+    pub max_tilt_deg: f64,
+    /// Rod diameters drawn from, mm (even odds).
+    pub indenters_mm: Vec<f64>,
+}
+
+impl Default for Presses {
+    fn default() -> Self {
+        Presses {
+            presses: 150,
+            x_max_mm: 110.0,
+            force_min_n: 0.5,
+            force_max_n: 3.0,
+            max_tilt_deg: 15.0,
+            indenters_mm: vec![2.0, 5.0, 10.0],
+        }
+    }
+}
+
 /// Two perches of different stiffness under a descending body.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Perches {
@@ -192,6 +228,8 @@ pub enum Scenario {
     Single(Single),
     /// Two indenters at a given spacing.
     Pair(Pair),
+    /// Independent presses at random places, forces and tilts.
+    Presses(Presses),
     /// The characterization protocol in the `tests.csv` format.
     Characterization(Characterization),
     /// Two perches of different stiffness.
@@ -365,6 +403,28 @@ pub fn run(scenario: &Scenario, common: &Common) -> Result<Summary> {
                 ));
             }
         }
+        Scenario::Presses(o) => {
+            if o.presses == 0 {
+                return Err(Error::param("presses", "need at least 1"));
+            }
+            check_force("force_min_n", o.force_min_n)?;
+            check_force("force_max_n", o.force_max_n)?;
+            if o.force_min_n > o.force_max_n {
+                return Err(Error::param(
+                    "force_min_n",
+                    format!("{} is above force_max_n {}", o.force_min_n, o.force_max_n),
+                ));
+            }
+            if !(o.x_max_mm.is_finite() && o.x_max_mm >= 0.0) {
+                return Err(Error::param("x_max_mm", "must be finite and >= 0"));
+            }
+            if !(o.max_tilt_deg.is_finite() && (0.0..=60.0).contains(&o.max_tilt_deg)) {
+                return Err(Error::param("max_tilt_deg", "must be within 0..=60"));
+            }
+            if o.indenters_mm.is_empty() {
+                return Err(Error::param("indenters_mm", "need at least one rod"));
+            }
+        }
         Scenario::Characterization(o) => {
             if o.repeats == 0 {
                 return Err(Error::param("repeats", "need at least 1"));
@@ -405,6 +465,7 @@ pub fn run(scenario: &Scenario, common: &Common) -> Result<Summary> {
     match scenario {
         Scenario::Single(o) => single(&sensor, common, o),
         Scenario::Pair(o) => pair(&sensor, common, o),
+        Scenario::Presses(o) => presses(&sensor, common, o),
         Scenario::Characterization(o) => characterization(&sensor, common, o),
         Scenario::Perches(o) => perches(&sensor, common, o),
         Scenario::Mapping(o) => mapping(&sensor, common, o),
@@ -430,6 +491,53 @@ fn single(sensor: &SyntheticSensor, c: &Common, o: &Single) -> Result<Summary> {
         };
         w.frame(sensor, &contacts)?;
     }
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
+/// What `presses.json` records of one loaded frame.
+#[derive(Serialize)]
+struct PressInfo {
+    frame: String,
+    indenter_mm: f64,
+    yaw_deg: f64,
+    pitch_deg: f64,
+}
+
+fn presses(sensor: &SyntheticSensor, c: &Common, o: &Presses) -> Result<Summary> {
+    // All draws first, from their own stream, so that the presses depend on
+    // the seed alone; every rod is checked before anything is written.
+    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7072_6573_7365_7321));
+    let mut plan = Vec::with_capacity(o.presses);
+    for _ in 0..o.presses {
+        let x = rng.uniform(-o.x_max_mm, o.x_max_mm);
+        let f = rng.uniform(o.force_min_n, o.force_max_n);
+        let tilt = rng.uniform(-o.max_tilt_deg, o.max_tilt_deg);
+        let (yaw, pitch) = if rng.below(2) == 0 {
+            (0.0, tilt)
+        } else {
+            (tilt, 0.0)
+        };
+        let d = o.indenters_mm[rng.below(o.indenters_mm.len() as u64) as usize];
+        let contact = Contact::rod(x, tilted_force(f, yaw, pitch), d);
+        sensor.loads(std::slice::from_ref(&contact))?;
+        plan.push((contact, d, yaw, pitch));
+    }
+    let mut w = SequenceWriter::new(c)?;
+    w.frame(sensor, &[])?;
+    let mut info = Vec::with_capacity(plan.len());
+    for (contact, d, yaw, pitch) in plan {
+        let frame = w.frame(sensor, std::slice::from_ref(&contact))?;
+        info.push(PressInfo {
+            frame,
+            indenter_mm: d,
+            yaw_deg: yaw,
+            pitch_deg: pitch,
+        });
+    }
+    write_json(&c.out.join("presses.json"), &info)?;
     Ok(Summary {
         out: c.out.clone(),
         frames: w.n,
