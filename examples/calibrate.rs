@@ -23,6 +23,10 @@
 //! spelling of `centroid:PX` (0 = argmin). `--shear-order N` the largest order of the shear ratio in `g1`
 //! (default 2; 0 = the paper's `g1(x2d)`). `y2d` stays out of the force maps
 //! unless `--force-y2d` is given (the rods span the width: it only carries noise).
+//! `--force-order N` is the force maps' largest displacement order (default 5),
+//! `--dpf-order N` their largest `d_pf` order (default 2, 0 leaves it out) and
+//! `--shear-order-force N` caps the shear displacements `dx, dy` at order N
+//! inside that (default 0: no cap; see `FitOptions::shear_max_order`).
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -40,7 +44,7 @@ use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
 const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
-[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 5)] [--force-y2d] \
+[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 5)] [--dpf-order N (default 2)] [--shear-order-force N (default 0: one displacement group)] [--force-y2d] \
 [--preset ultrafast|fast|medium|accurate|balanced|fine (default fine, the sensor's)] [--crop x,y,w,h] [--predictions FILE]";
 
 struct Args {
@@ -51,6 +55,8 @@ struct Args {
     contact_point: ContactPointMethod,
     shear_order: u32,
     force_order: u32,
+    dpf_order: u32,
+    shear_force_order: Option<u32>,
     force_y2d: bool,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
@@ -102,6 +108,8 @@ fn parse() -> Result<Option<Args>, String> {
     let mut contact_point = ContactPointMethod::DEFAULT;
     let mut shear_order = FitOptions::default().location_shear_order;
     let mut force_order = FitOptions::default().displacement_max_order;
+    let mut dpf_order = FitOptions::default().d_pf_max_order;
+    let mut shear_force_order = FitOptions::default().shear_max_order;
     // The characterization rods span the skin's width, so y2d carries only
     // noise into the force maps (measured: Fx 0.082 -> 0.063 N, Fz 0.30 ->
     // 0.24 N test MAE without it): off unless asked for.
@@ -173,6 +181,23 @@ fn parse() -> Result<Option<Args>, String> {
                     .filter(|n: &u32| (1..=6).contains(n))
                     .ok_or(format!("--force-order: expected 1..=6, got `{v}`"))?;
             }
+            "--dpf-order" => {
+                let v = val("--dpf-order")?;
+                dpf_order = v
+                    .parse()
+                    .ok()
+                    .filter(|&n: &u32| n <= 4)
+                    .ok_or(format!("--dpf-order: expected 0..=4, got `{v}`"))?;
+            }
+            "--shear-order-force" => {
+                let v = val("--shear-order-force")?;
+                let n: u32 = v
+                    .parse()
+                    .ok()
+                    .filter(|&n: &u32| n <= 6)
+                    .ok_or(format!("--shear-order-force: expected 0..=6, got `{v}`"))?;
+                shear_force_order = (n > 0).then_some(n);
+            }
             "--preset" => {
                 flow = Some(DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?)
             }
@@ -191,6 +216,8 @@ fn parse() -> Result<Option<Args>, String> {
         contact_point,
         shear_order,
         force_order,
+        dpf_order,
+        shear_force_order,
         force_y2d,
         flow,
         crop,
@@ -276,6 +303,8 @@ fn run() -> Result<(), String> {
         let options = FitOptions {
             location_shear_order: args.shear_order,
             displacement_max_order: args.force_order,
+            d_pf_max_order: args.dpf_order,
+            shear_max_order: args.shear_force_order,
             force_use_y2d: args.force_y2d,
             ..FitOptions::default()
         };

@@ -759,3 +759,29 @@ fn the_shipped_fixture_loads_with_its_settings() {
     let [x, _, z] = cal.location_sheared(799.5, 100.0, 0.0).unwrap();
     assert!(x.abs() < 3.0 && z > 0.0, "{x} {z}");
 }
+
+#[test]
+fn shear_cap_splits_the_displacement_group() {
+    // One group {dx, dy, dz} by default: dx^5 is a term.
+    let one = calibration::force_spec(&FitOptions::default()).unwrap();
+    let terms = one.terms().unwrap();
+    assert!(terms.iter().any(|t| t[0] == 5));
+    // Capped: dx and dy together at most order 2, dz still up to 5.
+    let capped = calibration::force_spec(&FitOptions {
+        shear_max_order: Some(2),
+        ..FitOptions::default()
+    })
+    .unwrap();
+    assert_eq!(capped.orders().len(), one.orders().len() + 1);
+    let terms = capped.terms().unwrap();
+    assert!(terms.iter().all(|t| t[0] + t[1] <= 2));
+    assert!(terms.iter().any(|t| t[2] == 5));
+    assert!(terms.iter().any(|t| t[0] == 2 && t[2] >= 1));
+    // A cap at or above the displacement order changes nothing.
+    let same = calibration::force_spec(&FitOptions {
+        shear_max_order: Some(5),
+        ..FitOptions::default()
+    })
+    .unwrap();
+    assert_eq!(same.terms().unwrap(), one.terms().unwrap());
+}
