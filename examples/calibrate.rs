@@ -97,6 +97,15 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
     }
 }
 
+/// A polynomial order option's value, within `range`.
+fn order(name: &str, v: &str, range: std::ops::RangeInclusive<u32>) -> Result<u32, String> {
+    v.parse().ok().filter(|n| range.contains(n)).ok_or(format!(
+        "{name}: expected {}..={}, got `{v}`",
+        range.start(),
+        range.end()
+    ))
+}
+
 fn parse() -> Result<Option<Args>, String> {
     let mut dir = None;
     let mut out = None;
@@ -165,37 +174,11 @@ fn parse() -> Result<Option<Args>, String> {
                 };
             }
             "--contact-point" => contact_point = parse_contact_point(&val("--contact-point")?)?,
-            "--shear-order" => {
-                let v = val("--shear-order")?;
-                shear_order = v
-                    .parse()
-                    .ok()
-                    .filter(|&n: &u32| n <= 5)
-                    .ok_or(format!("--shear-order: expected 0..=5, got `{v}`"))?;
-            }
-            "--force-order" => {
-                let v = val("--force-order")?;
-                force_order = v
-                    .parse()
-                    .ok()
-                    .filter(|n: &u32| (1..=6).contains(n))
-                    .ok_or(format!("--force-order: expected 1..=6, got `{v}`"))?;
-            }
-            "--dpf-order" => {
-                let v = val("--dpf-order")?;
-                dpf_order = v
-                    .parse()
-                    .ok()
-                    .filter(|&n: &u32| n <= 4)
-                    .ok_or(format!("--dpf-order: expected 0..=4, got `{v}`"))?;
-            }
+            "--shear-order" => shear_order = order("--shear-order", &val("--shear-order")?, 0..=5)?,
+            "--force-order" => force_order = order("--force-order", &val("--force-order")?, 1..=6)?,
+            "--dpf-order" => dpf_order = order("--dpf-order", &val("--dpf-order")?, 0..=4)?,
             "--shear-order-force" => {
-                let v = val("--shear-order-force")?;
-                let n: u32 = v
-                    .parse()
-                    .ok()
-                    .filter(|&n: &u32| n <= 6)
-                    .ok_or(format!("--shear-order-force: expected 0..=6, got `{v}`"))?;
+                let n = order("--shear-order-force", &val("--shear-order-force")?, 0..=6)?;
                 shear_force_order = (n > 0).then_some(n);
             }
             "--preset" => {

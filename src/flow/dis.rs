@@ -1709,13 +1709,7 @@ mod tests {
         // `densify_row` called directly is compiled for the baseline target; through
         // `simd_arch` it runs in the detected instruction set, through `Arch::Scalar`
         // on the fallback path. Vectors up to +-10 px: patches inside and outside.
-        let mut state = 0x5851_f42d_4c95_7f2du64;
-        let mut rnd = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rnd = crate::flow::unit_stream(0x5851_f42d_4c95_7f2du64);
         let (w, h, psz) = (45usize, 23usize, 8usize);
         let px = patch_corners(w, psz, 3);
         let py = patch_corners(h, psz, 3);
@@ -1766,13 +1760,7 @@ mod tests {
         // instruction set `simd_arch` found (AVX2 on most x86-64), and the explicit
         // scalar-arch dispatch is the fallback path. Values spanning several orders of
         // magnitude, so that any reordering or FMA contraction would change the bits.
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut rnd = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rnd = crate::flow::unit_stream(0x9e37_79b9_7f4a_7c15u64);
         for stride in [9usize, 13, 40] {
             for _ in 0..100 {
                 let win: Vec<f32> = (0..8 * stride + 9)
@@ -1803,13 +1791,7 @@ mod tests {
 
     #[test]
     fn vectorised_densify_row_matches_the_per_pixel_row_bit_for_bit() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut rnd = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rnd = crate::flow::unit_stream(0x2545_f491_4f6c_dd1du64);
         for _ in 0..200 {
             let top: Vec<f32> = (0..9).map(|_| 255.0 * rnd()).collect();
             let bot: Vec<f32> = (0..9).map(|_| 255.0 * rnd()).collect();

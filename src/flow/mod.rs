@@ -165,6 +165,19 @@ impl FlowField {
     }
 }
 
+/// A seeded xorshift64 stream of values uniform in `[0, 1)` (24-bit), for
+/// the flow kernels' bit-for-bit tests: cheap, reproducible, no dependency.
+#[cfg(test)]
+pub(crate) fn unit_stream(seed: u64) -> impl FnMut() -> f32 {
+    let mut state = seed;
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

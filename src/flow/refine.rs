@@ -1591,13 +1591,7 @@ mod tests {
         // is compiled for the baseline target, `sor_row` runs it in the instruction set
         // `simd_arch` found (AVX2 on most x86-64), `Arch::Scalar` is the fallback.
         // Lengths around the 4- and 8-lane boundaries (remainders on every path).
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut rnd = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rnd = crate::flow::unit_stream(0x2545_f491_4f6c_dd1du64);
         for n in [1usize, 3, 4, 7, 8, 9, 15, 16, 17, 100, 481] {
             let mut v = |scale: f32, len: usize| -> Vec<f32> {
                 (0..len).map(|_| scale * (2.0 * rnd() - 1.0)).collect()
@@ -1637,13 +1631,7 @@ mod tests {
         // As for the SOR row: `*_kernel` called here is compiled for the baseline,
         // the dispatched function runs in the detected instruction set, and
         // `Arch::Scalar` is the fallback path.
-        let mut state = 0x0123_4567_89ab_cdefu64;
-        let mut rnd = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rnd = crate::flow::unit_stream(0x0123_4567_89ab_cdefu64);
         let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         for n in [1usize, 4, 7, 8, 9, 17, 100, 481] {
             let mut v = |scale: f32, len: usize| -> Vec<f32> {
