@@ -1385,24 +1385,24 @@ fn densify(lvl: &mut Level, psz: usize) {
     let (px, ilo, ihi) = (&lvl.px, &lvl.ilo, &lvl.ihi);
     let fu = lvl.flow.u.as_slice_mut().expect("standard layout");
     let fv = lvl.flow.v.as_slice_mut().expect("standard layout");
+    let rows = DenseRows {
+        w,
+        h,
+        ws,
+        psz,
+        i0,
+        i1,
+        sx,
+        sy,
+        px,
+        ilo,
+        ihi,
+    };
     fu.par_chunks_mut(w)
         .zip(fv.par_chunks_mut(w))
         .zip(lvl.tmp.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, ((ur, vr), swr))| {
-            let rows = DenseRows {
-                w,
-                h,
-                ws,
-                psz,
-                i0,
-                i1,
-                sx,
-                sy,
-                px,
-                ilo,
-                ihi,
-            };
             // Dispatched at run time (see `flow::simd_arch`): same values on every path.
             super::simd_arch().dispatch(DensifyRowOp {
                 d: &rows,
