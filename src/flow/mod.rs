@@ -15,10 +15,12 @@ use crate::error::{Error, Result};
 
 /// The instruction set the hot loops are dispatched to, detected once per process.
 ///
-/// `pulp` compiles a closure passed to `Arch::dispatch` with AVX2 (+FMA) enabled when
-/// the CPU has it, so the plain loops inside run 8 lanes wide instead of the baseline
-/// target's 4, without `unsafe` in this crate and without a build flag. Kernels called
-/// this way are `#[inline(always)]` so that they are compiled inside the closure.
+/// `pulp` compiles the `with_simd` method of an operation passed to `Arch::dispatch`
+/// with AVX2 (+FMA) enabled when the CPU has it, so the plain loops inside run 8 lanes
+/// wide instead of the baseline target's 4, without `unsafe` in this crate and without
+/// a build flag. Each hot loop is a small `pulp::WithSimd` struct whose `with_simd`
+/// and kernel are `#[inline(always)]`, so that the kernel is compiled inside that
+/// method; a closure passed to `dispatch` is not (its body stays baseline code).
 pub(crate) fn simd_arch() -> pulp::Arch {
     static ARCH: std::sync::OnceLock<pulp::Arch> = std::sync::OnceLock::new();
     *ARCH.get_or_init(pulp::Arch::new)
