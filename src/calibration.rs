@@ -855,12 +855,13 @@ pub struct FitOptions {
     /// and `normal {dz}` of `displacement_max_order`. Why: the protocol tilts
     /// the force to three levels per axis only (-15, 0, +15 degrees), which
     /// pins a polynomial in the shear down to order 2; higher shear orders are
-    /// free between the levels, and a press tilted by 8 degrees read tens of
-    /// newtons. Measured (simulator, 2500-test subset, 150 random presses of
-    /// `simulate presses`): order 2 took the worst reading between the
-    /// protocol's levels from tens of newtons off to 0.85 N off, and the
-    /// presses' Fz MAE to 0.14 N, but the protocol's own test Fz MAE from
-    /// 0.046 to 0.062 N; so the default is `None`, one displacement group.
+    /// free between the levels. Measured on the simulator (fitted on the
+    /// 2500-test subset, scored on 150 random presses of `simulate presses`):
+    /// without the cap, 11 presses read more than 1 N off in Fz (the worst
+    /// 66 N, at yaw -15 deg between two training points); with order 2 none
+    /// did (worst 0.73 N off) and the presses' Fz MAE fell from 0.75 to 0.14 N,
+    /// but the protocol's own test MAE rose (Fz 0.053 -> 0.059 N, Fx 0.014 ->
+    /// 0.019 N); so the default is `None`, one displacement group.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shear_max_order: Option<u32>,
     /// Largest order of the location group `{x2d, y2d}` in the force maps.
