@@ -27,13 +27,16 @@
 //! `--dpf-order N` their largest `d_pf` order (default 2, 0 leaves it out) and
 //! `--shear-order-force N` caps the shear displacements `dx, dy` at order N
 //! inside that (default 0: no cap; see `FitOptions::shear_max_order`).
+//! `--guard-shear-order N` is the shear order of the fallback force maps that
+//! take over where the full maps are not trusted (default 2; 0 fits no guard;
+//! see `calibration::ForceGuard`).
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use optical_tactile::calibration::{self, FitOptions, ThresholdRow};
+use optical_tactile::calibration::{self, FitOptions, GuardOptions, ThresholdRow};
 use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
@@ -44,7 +47,7 @@ use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
 const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
-[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 5)] [--dpf-order N (default 2)] [--shear-order-force N (default 0: one displacement group)] [--force-y2d] \
+[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 5)] [--dpf-order N (default 2)] [--shear-order-force N (default 0: one displacement group)] [--guard-shear-order N (default 2, 0: no guard)] [--force-y2d] \
 [--preset ultrafast|fast|medium|accurate|balanced|fine (default fine, the sensor's)] [--crop x,y,w,h] [--predictions FILE]";
 
 struct Args {
@@ -57,6 +60,7 @@ struct Args {
     force_order: u32,
     dpf_order: u32,
     shear_force_order: Option<u32>,
+    guard: Option<GuardOptions>,
     force_y2d: bool,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
@@ -119,6 +123,7 @@ fn parse() -> Result<Option<Args>, String> {
     let mut force_order = FitOptions::default().displacement_max_order;
     let mut dpf_order = FitOptions::default().d_pf_max_order;
     let mut shear_force_order = FitOptions::default().shear_max_order;
+    let mut guard = FitOptions::default().guard;
     // The characterization rods span the skin's width, so y2d carries only
     // noise into the force maps (measured: Fx 0.082 -> 0.063 N, Fz 0.30 ->
     // 0.24 N test MAE without it): off unless asked for.
@@ -181,6 +186,13 @@ fn parse() -> Result<Option<Args>, String> {
                 let n = order("--shear-order-force", &val("--shear-order-force")?, 0..=6)?;
                 shear_force_order = (n > 0).then_some(n);
             }
+            "--guard-shear-order" => {
+                let n = order("--guard-shear-order", &val("--guard-shear-order")?, 0..=6)?;
+                guard = (n > 0).then(|| GuardOptions {
+                    shear_order: n,
+                    ..GuardOptions::default()
+                });
+            }
             "--preset" => {
                 flow = Some(DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?)
             }
@@ -201,6 +213,7 @@ fn parse() -> Result<Option<Args>, String> {
         force_order,
         dpf_order,
         shear_force_order,
+        guard,
         force_y2d,
         flow,
         crop,
@@ -288,6 +301,7 @@ fn run() -> Result<(), String> {
             displacement_max_order: args.force_order,
             d_pf_max_order: args.dpf_order,
             shear_max_order: args.shear_force_order,
+            guard: args.guard,
             force_use_y2d: args.force_y2d,
             ..FitOptions::default()
         };
@@ -308,6 +322,25 @@ fn run() -> Result<(), String> {
             fit.misses[1],
             fit.misses[2]
         );
+        if let Some(g) = &fit.calibration.guard {
+            let test: Vec<_> = fit
+                .samples
+                .iter()
+                .flatten()
+                .filter(|s| s.split == Split::Test)
+                .collect();
+            let mut fallback = 0;
+            for s in &test {
+                let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
+                fallback += usize::from(fit.calibration.force_checked(&v).map_err(err)?.1);
+            }
+            let [tx, ty, tz] = g.tolerance_n;
+            eprintln!(
+                "[{preset}] force guard: tolerance Fx {tx:.3}, Fy {ty:.3}, Fz {tz:.3} N; \
+                 {fallback} of {} test rows read by the fallback maps",
+                test.len()
+            );
+        }
         let path = if k == 0 {
             args.out.clone()
         } else {

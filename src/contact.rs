@@ -68,6 +68,12 @@ pub struct Contact {
     pub raw: RawContact,
     /// Frames in a row this contact has been held without a detection (hysteresis).
     pub missed: u32,
+    /// Whether the force came from the calibration's low-order fallback maps
+    /// because the full maps were not trusted for these inputs
+    /// ([`crate::calibration::ForceGuard`]): a contact unlike any of the
+    /// training data; its force is the robust estimate, not the finest.
+    #[serde(default)]
+    pub fallback: bool,
 }
 
 impl Contact {

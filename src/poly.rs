@@ -579,6 +579,13 @@ impl Polynomial {
         &self.exponents[k * n..(k + 1) * n]
     }
 
+    /// The largest exponent of variable `j` over the terms (0: the
+    /// polynomial does not depend on it). Panics if `j` is not a variable
+    /// index, like slice indexing.
+    pub fn max_exponent(&self, j: usize) -> u32 {
+        self.max_exp[j]
+    }
+
     /// The coefficients, in the normalized variables `t_j`.
     pub fn coefficients(&self) -> &[f64] {
         &self.coefficients

@@ -5,8 +5,9 @@ use std::path::PathBuf;
 
 use optical_tactile::Error;
 use optical_tactile::calibration::{
-    self, Calibration, DetectionLimit, FitOptions, Sample, SegmentationThresholds, SensorSetup,
-    ThresholdRow, evaluate, min_detectable_force, table_i_markdown, table_ii_markdown,
+    self, Calibration, DetectionLimit, FitOptions, ForceGuard, GUARD_BOX_MARGIN, GuardOptions,
+    Sample, SegmentationThresholds, SensorSetup, ThresholdRow, evaluate, min_detectable_force,
+    table_i_markdown, table_ii_markdown,
 };
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
@@ -210,8 +211,14 @@ fn location_and_force_evaluate_the_maps() {
         assert!((z - zz).abs() < 1e-12);
         let f = cal.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf).unwrap();
         let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
-        assert_eq!(f[0], cal.gx().evaluate(&v).unwrap());
-        assert_eq!(f[2], cal.gz().evaluate(&v).unwrap());
+        let (checked, fallback) = cal.force_checked(&v).unwrap();
+        assert_eq!(f, checked);
+        let maps = match (&cal.guard, fallback) {
+            (Some(g), true) => [&g.maps[0], &g.maps[1], &g.maps[2]],
+            _ => [cal.gx(), cal.gy(), cal.gz()],
+        };
+        assert_eq!(f[0], maps[0].evaluate(&v).unwrap());
+        assert_eq!(f[2], maps[2].evaluate(&v).unwrap());
         let p = cal.predict(s).unwrap();
         assert_eq!(
             [p.x_mm, p.y_mm, p.z_mm, p.fx, p.fy, p.fz],
@@ -606,9 +613,9 @@ fn y2d_can_be_kept_out_of_the_force_maps() {
     let s = samples[0];
     let a = cal.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf).unwrap();
     let b = cal
-        .force(s.dx, s.dy, s.dz, s.x2d, s.y2d + 80.0, s.d_pf)
+        .force_checked(&[s.dx, s.dy, s.dz, s.x2d, s.y2d + 80.0, s.d_pf])
         .unwrap();
-    assert_eq!(a, b);
+    assert_eq!((a, false), b, "nor trips the guard");
     // Still accurate on this data (y2d carries only noise here).
     let t = rep.test.as_ref().unwrap().total;
     assert!(t.fx < 0.04 && t.fy < 0.04 && t.fz < 0.04, "{t:?}");
@@ -784,4 +791,230 @@ fn shear_cap_splits_the_displacement_group() {
     })
     .unwrap();
     assert_eq!(same.terms().unwrap(), one.terms().unwrap());
+}
+
+/// A linear force map `c * variable k` of the force inputs.
+fn linear_force(k: usize, c: f64) -> Polynomial {
+    let mut e = vec![0u32; 6];
+    e[k] = 1;
+    Polynomial::raw(&calibration::FORCE_VARIABLES, vec![e], vec![c]).unwrap()
+}
+
+/// A hand-made calibration whose full Fz map is `-0.01 dz + 1e-6 dx^3`
+/// (wild for large shear) and whose guard's Fz map is `-0.01 dz`.
+fn guarded_calibration() -> Calibration {
+    let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25]).unwrap();
+    let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
+    let wild = Polynomial::raw(
+        &calibration::FORCE_VARIABLES,
+        vec![vec![0, 0, 1, 0, 0, 0], vec![3, 0, 0, 0, 0, 0]],
+        vec![-0.01, 1e-6],
+    )
+    .unwrap();
+    let maps = [g1, g2, linear_force(0, 0.01), linear_force(1, 0.01), wild];
+    let mut cal = Calibration::new(setup(), maps, None).unwrap();
+    cal.guard = Some(ForceGuard {
+        maps: [
+            linear_force(0, 0.01),
+            linear_force(1, 0.01),
+            linear_force(2, -0.01),
+        ],
+        input_min: [-100.0, -100.0, -400.0, 0.0, 0.0, 0.0],
+        input_max: [100.0, 100.0, 0.0, 1600.0, 200.0, 10.0],
+        tolerance_n: [0.05, 0.05, 0.1],
+        report: None,
+    });
+    cal
+}
+
+#[test]
+fn the_guard_hands_untrusted_inputs_to_the_fallback_maps() {
+    let cal = guarded_calibration();
+    // Small shear: the maps agree (1e-6 * 20^3 = 0.008 N), the full one answers.
+    let (f, fb) = cal
+        .force_checked(&[20.0, 0.0, -200.0, 800.0, 100.0, 3.0])
+        .unwrap();
+    assert!(!fb);
+    assert_eq!(f, [0.2, 0.0, 2.0 + 0.008]);
+    // Large shear inside the box: 1e-6 * 90^3 = 0.73 N of disagreement > 0.1.
+    let (f, fb) = cal
+        .force_checked(&[90.0, 0.0, -200.0, 800.0, 100.0, 3.0])
+        .unwrap();
+    assert!(fb);
+    assert_eq!(f, [0.9, 0.0, 2.0]);
+    // Outside the box (dz far beyond its range), even where the maps agree.
+    let (f, fb) = cal
+        .force_checked(&[0.0, 0.0, -1000.0, 800.0, 100.0, 3.0])
+        .unwrap();
+    assert!(fb);
+    assert_eq!(f, [0.0, 0.0, 10.0]);
+    // Just inside the margin is still trusted, just outside it is not.
+    let edge = -400.0 * (1.0 + GUARD_BOX_MARGIN);
+    let at = |dz: f64| {
+        cal.force_checked(&[0.0, 0.0, dz, 800.0, 100.0, 3.0])
+            .unwrap()
+            .1
+    };
+    assert!(!at(edge + 1e-9));
+    assert!(at(edge - 1e-9));
+    // d_pf, which no fallback map uses, is not checked.
+    assert!(
+        !cal.force_checked(&[0.0, 0.0, -200.0, 800.0, 100.0, 50.0])
+            .unwrap()
+            .1
+    );
+    // A contact carries the flag; without a guard nothing falls back.
+    let mut raw = optical_tactile::contact::RawContact {
+        x_px: 800.0,
+        y_px: 100.0,
+        d_sensor: [90.0, 0.0, -200.0],
+        d_pf: 3.0,
+        ..Default::default()
+    };
+    let c = cal.contact(&raw).unwrap();
+    assert!(c.fallback);
+    assert_eq!(c.force_n, [0.9, 0.0, 2.0]);
+    raw.d_sensor = [20.0, 0.0, -200.0];
+    assert!(!cal.contact(&raw).unwrap().fallback);
+    let mut bare = cal.clone();
+    bare.guard = None;
+    let (f, fb) = bare
+        .force_checked(&[90.0, 0.0, -200.0, 800.0, 100.0, 3.0])
+        .unwrap();
+    assert!(!fb);
+    assert!((f[2] - (2.0 + 0.729)).abs() < 1e-12);
+}
+
+#[test]
+fn a_guarded_force_never_strays_beyond_the_tolerance_from_the_fallback() {
+    // Random inputs, many far outside anything trained: whichever maps answer,
+    // each component is within the tolerance of the fallback's.
+    let cal = guarded_calibration();
+    let g = cal.guard.as_ref().unwrap();
+    let mut rng = Rng::new(20261121);
+    for _ in 0..2000 {
+        let v: [f64; 6] = std::array::from_fn(|j| {
+            let (lo, hi) = (g.input_min[j], g.input_max[j]);
+            let w = hi - lo;
+            rng.uniform(lo - w, hi + w)
+        });
+        let (f, _) = cal.force_checked(&v).unwrap();
+        for k in 0..3 {
+            let safe = g.maps[k].evaluate(&v).unwrap();
+            assert!((f[k] - safe).abs() <= g.tolerance_n[k], "{v:?} {k}");
+        }
+    }
+}
+
+#[test]
+fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
+    let samples = protocol_samples(0.1, 5);
+    let opts = FitOptions {
+        guard: Some(GuardOptions {
+            shear_order: 1,
+            quantile: 1.0,
+            ..GuardOptions::default()
+        }),
+        ..small_options()
+    };
+    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let g = cal.guard.as_ref().expect("a guard");
+    assert_eq!(g.report.as_ref().unwrap().len(), 3);
+    // The fallback maps are linear in the shear displacements.
+    for m in &g.maps {
+        assert!((0..m.n_terms()).all(|k| m.exponents(k)[0] + m.exponents(k)[1] <= 1));
+    }
+    for s in samples.iter().filter(|s| s.split != Split::Test) {
+        let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
+        assert!(g.contains(&v, 0.0));
+        assert!(!cal.force_checked(&v).unwrap().1, "{s:?}");
+    }
+    assert!(
+        g.tolerance_n
+            .iter()
+            .all(|t| *t >= GuardOptions::default().tolerance_floor_n)
+    );
+    // Shear far beyond any training tilt: the fallback answers.
+    let s = samples.iter().find(|s| s.split == Split::Train).unwrap();
+    let far = [
+        s.dx + 10.0 * (g.input_max[0] - g.input_min[0]),
+        s.dy,
+        s.dz,
+        s.x2d,
+        s.y2d,
+        s.d_pf,
+    ];
+    assert!(cal.force_checked(&far).unwrap().1);
+    // Saved and loaded, the guard is the same.
+    let back = Calibration::from_json_str(&cal.to_json_string()).unwrap();
+    let bg = back.guard.as_ref().unwrap();
+    assert_eq!(
+        (&bg.maps, bg.input_min, bg.input_max, bg.tolerance_n),
+        (&g.maps, g.input_min, g.input_max, g.tolerance_n)
+    );
+    // With the default rule (1.5 times the 99th percentile) at most 1% of
+    // the training and validation rows fall back.
+    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let seen: Vec<_> = samples.iter().filter(|s| s.split != Split::Test).collect();
+    let fell = seen
+        .iter()
+        .filter(|s| {
+            cal.force_checked(&[s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf])
+                .unwrap()
+                .1
+        })
+        .count();
+    assert!(fell * 100 <= seen.len(), "{fell} of {}", seen.len());
+    // Bad guard options are a clear error, not a panic.
+    for bad in [
+        GuardOptions {
+            quantile: 0.0,
+            ..GuardOptions::default()
+        },
+        GuardOptions {
+            tolerance_factor: f64::NAN,
+            ..GuardOptions::default()
+        },
+        GuardOptions {
+            tolerance_floor_n: -1.0,
+            ..GuardOptions::default()
+        },
+    ] {
+        let opts = FitOptions {
+            guard: Some(bad),
+            ..small_options()
+        };
+        let e = calibration::fit(&samples, &setup(), &opts).unwrap_err();
+        assert!(e.to_string().contains("guard"), "{e}");
+    }
+    // Without guard options, no guard.
+    let opts = FitOptions {
+        guard: None,
+        ..small_options()
+    };
+    assert!(
+        calibration::fit(&samples, &setup(), &opts)
+            .unwrap()
+            .guard
+            .is_none()
+    );
+}
+
+#[test]
+fn a_malformed_guard_is_rejected_with_its_name() {
+    let text = guarded_calibration().to_json_string();
+    assert!(Calibration::from_json_str(&text).is_ok());
+    let swapped = text
+        .replacen("\"input_min\"", "\"input_tmp\"", 1)
+        .replacen("\"input_max\"", "\"input_min\"", 1)
+        .replacen("\"input_tmp\"", "\"input_max\"", 1);
+    let e = load_text("guard_box.json", &swapped);
+    assert!(e.to_string().contains("guard"), "{e}");
+    let negative = text.replacen("\"tolerance_n\": [0.05", "\"tolerance_n\": [-0.05", 1);
+    assert_ne!(negative, text);
+    let e = load_text("guard_tol.json", &negative);
+    assert!(e.to_string().contains("tolerance"), "{e}");
+    let missing = text.replacen("\"maps\"", "\"mapz\"", 1);
+    let e = load_text("guard_maps.json", &missing);
+    assert!(e.to_string().contains("maps"), "{e}");
 }
