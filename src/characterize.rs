@@ -236,19 +236,36 @@ pub fn fit_dataset(
     // Pass 2: rotate at the predicted location (the true one for the
     // training tests of an anchored profile model, see `match_position`),
     // fit everything.
-    let second = samples(extractions, &geometry, &local, |e, raw| match &profile {
+    let mut second = samples(extractions, &geometry, &local, |e, raw| match &profile {
         Some(model) => Ok(match_position(model, e, raw, &pass1)?.0),
         None => Ok(pass1.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0]),
     })?;
+    // The press test a sensor applies (`Calibration::is_press`): a test
+    // whose strongest patch fails it counts as a miss, as it would at run time.
+    let min_normal_n = match &profile {
+        Some(_) => press_threshold(extractions, &local),
+        None => None,
+    };
+    let pressed = |i: usize| match (min_normal_n, local.get(i).copied().flatten()) {
+        (Some(min), Some(f)) => -f[2] >= min,
+        _ => true,
+    };
+    for (i, s) in second.iter_mut().enumerate() {
+        if !pressed(i) {
+            *s = None;
+        }
+    }
     let mut cal = calibration::fit(&detected(&second), &setup, options)?;
     cal.profile = profile;
+    cal.min_normal_n = min_normal_n;
     let mut misses = [0usize; 3];
     let mut detections = Vec::with_capacity(extractions.len());
-    for e in extractions {
-        if e.raw.is_none() {
+    for (i, e) in extractions.iter().enumerate() {
+        let found = second[i].is_some();
+        if !found {
             misses[split_index(e.row.split)] += 1;
         }
-        detections.push((e.row.force_n, e.raw.is_some()));
+        detections.push((e.row.force_n, found));
     }
     let min_force = calibration::min_detectable_force(&detections, 0.95)?;
     let test_table = calibration::evaluate(&cal, &detected(&second), Split::Test)?;
@@ -259,6 +276,38 @@ pub fn fit_dataset(
         min_force,
         test_table,
     })
+}
+
+/// Fraction of the weakest training presses' matched normal force below
+/// which a patch is not a press ([`Calibration::min_normal_n`]).
+pub const PRESS_FRACTION: f64 = 0.5;
+
+/// The press threshold of a dataset: [`PRESS_FRACTION`] of the 1st percentile
+/// of the matched inward normal force over the detected training tests at
+/// the smallest commanded force; `None` if there is no such test or that
+/// percentile is not positive.
+fn press_threshold(extractions: &[Extraction], local: &[Option<[f64; 3]>]) -> Option<f64> {
+    let tests: Vec<(f64, f64)> = extractions
+        .iter()
+        .zip(local)
+        .filter(|(e, _)| e.row.split == Split::Train)
+        .filter_map(|(e, f)| f.map(|f| (e.row.force_n, -f[2])))
+        .collect();
+    weakest_press_threshold(&tests)
+}
+
+/// [`press_threshold`] of `(commanded force, matched inward normal force)`
+/// pairs.
+fn weakest_press_threshold(tests: &[(f64, f64)]) -> Option<f64> {
+    let lowest = tests.iter().map(|t| t.0).min_by(f64::total_cmp)?;
+    let mut normals: Vec<f64> = tests
+        .iter()
+        .filter(|t| t.0 <= lowest * (1.0 + 1e-9))
+        .map(|t| t.1)
+        .collect();
+    normals.sort_by(f64::total_cmp);
+    let q = *normals.get(normals.len() / 100)?;
+    (q.is_finite() && q > 0.0).then_some(PRESS_FRACTION * q)
 }
 
 /// Where a detected test's force is matched and rotated: its chord position
@@ -452,4 +501,23 @@ pub fn preset_name(config: &ExtractorConfig) -> String {
         .iter()
         .find(|p| DisParams::preset(**p) == config.flow)
         .map_or_else(|| "custom".to_string(), |p| p.name().to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_press_threshold_is_half_the_weakest_presses_normal() {
+        // 200 presses at 0.5 N matching 0.40..0.60 N, and stronger ones.
+        let mut t: Vec<(f64, f64)> = (0..200).map(|i| (0.5, 0.40 + 0.001 * i as f64)).collect();
+        t.extend((0..50).map(|i| (1.0, 0.9 + 0.001 * i as f64)));
+        // 1st percentile of the 0.5 N ones: the 3rd smallest, 0.402.
+        let th = weakest_press_threshold(&t).unwrap();
+        assert!((th - 0.5 * 0.402).abs() < 1e-12, "{th}");
+        // Nothing to go on, or a non-positive normal: no threshold.
+        assert_eq!(weakest_press_threshold(&[]), None);
+        assert_eq!(weakest_press_threshold(&[(0.5, -0.1)]), None);
+        assert_eq!(weakest_press_threshold(&[(0.5, f64::NAN)]), None);
+    }
 }

@@ -690,6 +690,9 @@ impl TactileSensor {
             flow.v.view(),
             scale as f64,
         )?;
+        // Patches with motion but no press (far-field motion) are dropped.
+        let cal = &self.calibration;
+        self.raws.retain(|r| cal.is_press(r));
         for raw in &mut self.raws {
             let loc = self
                 .calibration

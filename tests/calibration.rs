@@ -1018,3 +1018,32 @@ fn a_malformed_guard_is_rejected_with_its_name() {
     let e = load_text("guard_maps.json", &missing);
     assert!(e.to_string().contains("maps"), "{e}");
 }
+
+#[test]
+fn is_press_drops_patches_without_a_normal_push() {
+    let mut cal = guarded_calibration();
+    let raw = |f: Option<[f64; 3]>| optical_tactile::contact::RawContact {
+        local_force: f,
+        ..Default::default()
+    };
+    // No threshold: every patch is a press.
+    assert!(cal.is_press(&raw(Some([0.0, 0.0, 0.1]))));
+    cal.min_normal_n = Some(0.25);
+    // The outward normal is negative for a press.
+    assert!(cal.is_press(&raw(Some([0.0, 0.0, -0.3]))));
+    assert!(cal.is_press(&raw(Some([0.0, 0.0, -0.25]))));
+    assert!(!cal.is_press(&raw(Some([0.4, 0.0, -0.1]))));
+    assert!(!cal.is_press(&raw(Some([0.0, 0.0, 0.3]))));
+    // Without a matched force (no profile model) nothing is dropped.
+    assert!(cal.is_press(&raw(None)));
+    // Saved and loaded with it; a negative or non-finite one is refused.
+    let text = cal.to_json_string();
+    assert!(text.contains("\"min_normal_n\": 0.25"));
+    assert_eq!(
+        Calibration::from_json_str(&text).unwrap().min_normal_n,
+        Some(0.25)
+    );
+    let bad = text.replacen("\"min_normal_n\": 0.25", "\"min_normal_n\": -1.0", 1);
+    let e = load_text("min_normal.json", &bad);
+    assert!(e.to_string().contains("min_normal_n"), "{e}");
+}
