@@ -759,9 +759,18 @@ fn the_shipped_fixture_loads_with_its_settings() {
     let t = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
     // The figures docs/results/calibration.md reports for this file.
     assert!(
-        t.n > 1300 && t.x_mm < 0.2 && t.fx < 0.015 && t.fy < 0.009 && t.fz < 0.045,
+        t.n > 1300 && t.x_mm < 0.2 && t.fx < 0.0151 && t.fy < 0.0085 && t.fz < 0.0452,
         "{t:?}"
     );
+    // Session 6: the force guard and the press test are in the file.
+    let g = cal.guard.as_ref().expect("a force guard");
+    assert!(
+        g.tolerance_n.iter().all(|t| *t > 0.0 && *t < 0.5),
+        "{:?}",
+        g.tolerance_n
+    );
+    let m = cal.min_normal_n.expect("a press threshold");
+    assert!(m > 0.1 && m < 0.25, "{m}");
     // A central straight press lands near the centre line.
     let [x, _, z] = cal.location_sheared(799.5, 100.0, 0.0).unwrap();
     assert!(x.abs() < 3.0 && z > 0.0, "{x} {z}");
