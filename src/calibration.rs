@@ -1090,6 +1090,26 @@ pub struct GuardOptions {
     pub tolerance_floor_n: f64,
 }
 
+impl GuardOptions {
+    /// Errors ([`Error::InvalidParameter`] named `guard`) unless the factor
+    /// and floor are finite and non-negative and the quantile is in (0, 1].
+    pub fn validate(&self) -> Result<()> {
+        let non_negative = |v: f64| v.is_finite() && v >= 0.0;
+        if non_negative(self.tolerance_factor)
+            && non_negative(self.tolerance_floor_n)
+            && self.quantile > 0.0
+            && self.quantile <= 1.0
+        {
+            Ok(())
+        } else {
+            Err(Error::param(
+                "guard",
+                "the tolerance factor and floor must be finite and non-negative, the quantile in (0, 1]",
+            ))
+        }
+    }
+}
+
 impl Default for GuardOptions {
     /// Shear order 2, tolerance 1.5 times the 99th percentile, at least
     /// 0.05 N. Measured on the simulator (full protocol; 150 random presses
@@ -1198,6 +1218,9 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         .thresholds
         .validate()
         .map_err(|m| Error::param("thresholds", m))?;
+    if let Some(g) = &options.guard {
+        g.validate()?;
+    }
     for (row, s) in samples.iter().enumerate() {
         if let Some(col) = s.fields().iter().position(|(_, v)| !v.is_finite()) {
             return Err(Error::NonFinite {
@@ -1344,7 +1367,8 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
 
 /// The guard of the full force maps `full` with fallback maps `safe`: the box
 /// of the inputs `sets` (rows of force inputs) and, per component, the
-/// tolerance `max(floor, factor * quantile of |full - safe| over the sets)`.
+/// tolerance `max(floor, factor * quantile of |full - safe| over the sets)`
+/// (`options` already checked by [`fit`]).
 fn fit_guard(
     full: [&Polynomial; 3],
     safe: [Polynomial; 3],
@@ -1352,28 +1376,17 @@ fn fit_guard(
     sets: [&Array2<f64>; 2],
     options: &GuardOptions,
 ) -> Result<ForceGuard> {
-    let non_negative = |v: f64| v.is_finite() && v >= 0.0;
-    if !(non_negative(options.tolerance_factor)
-        && non_negative(options.tolerance_floor_n)
-        && options.quantile > 0.0
-        && options.quantile <= 1.0)
-    {
-        return Err(Error::param(
-            "guard",
-            "the tolerance factor and floor must be finite and non-negative, the quantile in (0, 1]",
-        ));
-    }
     let mut lo = [f64::INFINITY; 6];
     let mut hi = [f64::NEG_INFINITY; 6];
     let mut gaps: [Vec<f64>; 3] = Default::default();
-    for row in sets.iter().flat_map(|m| m.rows()) {
-        let v: [f64; 6] = std::array::from_fn(|j| row[j]);
-        for j in 0..6 {
-            lo[j] = lo[j].min(v[j]);
-            hi[j] = hi[j].max(v[j]);
+    for m in sets {
+        for (j, col) in m.columns().into_iter().enumerate() {
+            lo[j] = col.fold(lo[j], |a, &x| a.min(x));
+            hi[j] = col.fold(hi[j], |a, &x| a.max(x));
         }
         for (k, g) in gaps.iter_mut().enumerate() {
-            g.push((full[k].evaluate(&v)? - safe[k].evaluate(&v)?).abs());
+            let d = full[k].evaluate_rows(m.view())? - safe[k].evaluate_rows(m.view())?;
+            g.extend(d.iter().map(|x| x.abs()));
         }
     }
     let tolerance_n = gaps.map(|mut g| {
