@@ -334,6 +334,17 @@ pub struct Calibration {
     pub min_normal_n: Option<f64>,
 }
 
+/// The press test of [`Calibration::is_press`] for a threshold `min_normal_n`
+/// and a profile-matched local force (tangential, across, outward normal):
+/// passes unless both are given and the inward normal `-local_force[2]` is
+/// below the threshold.
+pub fn passes_press_test(min_normal_n: Option<f64>, local_force: Option<[f64; 3]>) -> bool {
+    match (min_normal_n, local_force) {
+        (Some(min), Some(f)) => -f[2] >= min,
+        _ => true,
+    }
+}
+
 /// A safety net for the force maps away from the training data.
 ///
 /// The full force maps are high-order polynomials fitted on a protocol that
@@ -653,10 +664,7 @@ impl Calibration {
     /// below 0.2 N, while 99% of the training presses at 0.5 N match at least
     /// 0.37 N (the fitted threshold is half of that).
     pub fn is_press(&self, raw: &RawContact) -> bool {
-        match (self.min_normal_n, raw.local_force) {
-            (Some(min), Some(f)) => -f[2] >= min,
-            _ => true,
-        }
+        passes_press_test(self.min_normal_n, raw.local_force)
     }
 
     /// The column at which `model` matches a contact's profile: the model's

@@ -246,12 +246,8 @@ pub fn fit_dataset(
         Some(_) => press_threshold(extractions, &local),
         None => None,
     };
-    let pressed = |i: usize| match (min_normal_n, local.get(i).copied().flatten()) {
-        (Some(min), Some(f)) => -f[2] >= min,
-        _ => true,
-    };
     for (i, s) in second.iter_mut().enumerate() {
-        if !pressed(i) {
+        if !calibration::passes_press_test(min_normal_n, local.get(i).copied().flatten()) {
             *s = None;
         }
     }
@@ -260,8 +256,8 @@ pub fn fit_dataset(
     cal.min_normal_n = min_normal_n;
     let mut misses = [0usize; 3];
     let mut detections = Vec::with_capacity(extractions.len());
-    for (i, e) in extractions.iter().enumerate() {
-        let found = second[i].is_some();
+    for (e, s) in extractions.iter().zip(&second) {
+        let found = s.is_some();
         if !found {
             misses[split_index(e.row.split)] += 1;
         }
