@@ -331,7 +331,7 @@ fn run() -> Result<(), String> {
                 .collect();
             let mut fallback = 0;
             for s in &test {
-                let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
+                let v = s.force_inputs();
                 fallback += usize::from(fit.calibration.force_checked(&v).map_err(err)?.1);
             }
             let [tx, ty, tz] = g.tolerance_n;

@@ -234,7 +234,9 @@ impl Sample {
         ]
     }
 
-    fn force_inputs(&self) -> [f64; 6] {
+    /// The force maps' inputs, in [`FORCE_VARIABLES`] order (what
+    /// [`Calibration::force_checked`] takes).
+    pub fn force_inputs(&self) -> [f64; 6] {
         [self.dx, self.dy, self.dz, self.x2d, self.y2d, self.d_pf]
     }
 }

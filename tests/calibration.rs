@@ -210,7 +210,7 @@ fn location_and_force_evaluate_the_maps() {
         let zz = (g.radius_mm * g.radius_mm - x * x).sqrt() - g.d_mm;
         assert!((z - zz).abs() < 1e-12);
         let f = cal.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf).unwrap();
-        let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
+        let v = s.force_inputs();
         let (checked, fallback) = cal.force_checked(&v).unwrap();
         assert_eq!(f, checked);
         let maps = match (&cal.guard, fallback) {
@@ -934,7 +934,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
         assert!((0..m.n_terms()).all(|k| m.exponents(k)[0] + m.exponents(k)[1] <= 1));
     }
     for s in samples.iter().filter(|s| s.split != Split::Test) {
-        let v = [s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf];
+        let v = s.force_inputs();
         assert!(g.contains(&v, 0.0));
         assert!(!cal.force_checked(&v).unwrap().1, "{s:?}");
     }
@@ -967,11 +967,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
     let seen: Vec<_> = samples.iter().filter(|s| s.split != Split::Test).collect();
     let fell = seen
         .iter()
-        .filter(|s| {
-            cal.force_checked(&[s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf])
-                .unwrap()
-                .1
-        })
+        .filter(|s| cal.force_checked(&s.force_inputs()).unwrap().1)
         .count();
     assert!(fell * 100 <= seen.len(), "{fell} of {}", seen.len());
     // Bad guard options are a clear error, not a panic.
