@@ -37,7 +37,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use optical_tactile::calibration::{self, FitOptions, GuardOptions, ThresholdRow};
-use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::characterize::{extract_dataset, fit_dataset, load_cell_spread, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::geometry::SensorGeometry;
@@ -394,6 +394,17 @@ fn run() -> Result<(), String> {
     }
     println!("## Table I: test-set errors per threshold preset\n");
     println!("{}", calibration::table_i_markdown(&table_i));
+    if let Some(s) = load_cell_spread(&rows) {
+        let [sx, sy, sz] = s.sigma_n;
+        let [mx, my, mz] = s.mae_floor_n();
+        println!(
+            "Load cell: its readings scatter by Fx {sx:.4}, Fy {sy:.4}, Fz {sz:.4} N (standard \
+             deviation) between repetitions of the same test ({} groups). A sensor that read the \
+             applied force exactly would score about Fx {mx:.4}, Fy {my:.4}, Fz {mz:.4} N MAE \
+             against these recordings: the floor under the force columns above.\n",
+            s.groups
+        );
+    }
     for (preset, t) in &table_ii {
         println!("## Table II: test-set errors per point ({preset} thresholds)\n");
         println!("{}", calibration::table_ii_markdown(t));

@@ -33,7 +33,9 @@ use serde::Serialize;
 use optical_tactile::calibration::{
     Calibration, DetectionLimit, FitOptions, PointTable, QuantityMae,
 };
-use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::characterize::{
+    LoadCellSpread, extract_dataset, fit_dataset, load_cell_spread, read_dataset,
+};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::image::Roi;
@@ -202,6 +204,9 @@ struct Report {
     seed: u64,
     characterization_tests: usize,
     characterization: Vec<PresetFit>,
+    /// The load cell's scatter between repetitions of a test (`None`: no
+    /// repetitions in the subset).
+    load_cell: Option<LoadCellSpread>,
     rest: RestResult,
     mdf: MdfResult,
     spacing: SpacingResult,
@@ -233,7 +238,7 @@ fn characterization(
     a: &Args,
     plan: &Plan,
     t0: Instant,
-) -> optical_tactile::Result<(usize, Vec<PresetFit>)> {
+) -> optical_tactile::Result<(usize, Vec<PresetFit>, Option<LoadCellSpread>)> {
     let dir = a.out.join("characterization");
     let mut common = Common::new(&dir);
     common.seed = a.seed;
@@ -294,7 +299,7 @@ fn characterization(
             seconds: t.elapsed().as_secs_f64(),
         });
     }
-    Ok((rows.len(), fits))
+    Ok((rows.len(), fits, load_cell_spread(&rows)))
 }
 
 fn print_table_i(fits: &[PresetFit], tests: usize) {
@@ -522,6 +527,7 @@ fn print_spacing(sp: &SpacingResult) {
 
 fn print_summary(
     fits: &[PresetFit],
+    load_cell: Option<&LoadCellSpread>,
     rest: &RestResult,
     mdf: &MdfResult,
     sp: &SpacingResult,
@@ -548,6 +554,15 @@ fn print_summary(
                 .map(|(i, n)| format!("{n} {}", met(m[i + 1] <= bar::TARGET[i + 1])))
                 .collect::<Vec<_>>()
                 .join(", ")
+        );
+    }
+    if let Some(s) = load_cell {
+        let [x, y, z] = s.mae_floor_n();
+        println!(
+            "| the load cell's floor: an exact sensor's Fx / Fy / Fz MAE against its readings | | | | {} / {} / {} N | |",
+            fmt4(x),
+            fmt4(y),
+            fmt4(z)
         );
     }
     let low = mdf.min_force(0, None, 0.95);
@@ -699,7 +714,7 @@ fn run() -> Result<(), String> {
         rayon::current_num_threads(),
         a.out.display()
     );
-    let (tests, fits) = characterization(&a, &plan, t0).map_err(err)?;
+    let (tests, fits, load_cell) = characterization(&a, &plan, t0).map_err(err)?;
     let sensor = SyntheticSensor::new(SimConfig::default(), a.seed).map_err(err)?;
     let o = SweepOptions::default();
     let progress = progress_printer(t0);
@@ -733,7 +748,7 @@ fn run() -> Result<(), String> {
         wall,
         rayon::current_num_threads()
     );
-    print_summary(&fits, &rest, &mdf, &spacing, &mapping);
+    print_summary(&fits, load_cell.as_ref(), &rest, &mdf, &spacing, &mapping);
     print_table_i(&fits, tests);
     if let Some(high) = fits.iter().find(|f| f.preset == "high") {
         print_table_ii(high);
@@ -758,6 +773,7 @@ fn run() -> Result<(), String> {
             seed: a.seed,
             characterization_tests: tests,
             characterization: fits,
+            load_cell,
             rest,
             mdf,
             spacing,

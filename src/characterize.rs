@@ -15,6 +15,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use ndarray::Array2;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use crate::calibration::{
     self, Calibration, DetectionLimit, FitOptions, PipelineSettings, PointTable, Sample,
@@ -486,6 +487,79 @@ fn validation_force_mae(
 }
 
 /// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).
+/// How much the load cell's readings scatter between repetitions of the same
+/// test, and what that costs any sensor scored against them.
+///
+/// The protocol repeats every test (same point, indenter, tilt and commanded
+/// force) several times. Whatever the recorded force does between those
+/// repetitions, the images cannot follow if the press itself was the same:
+/// on the simulator it is the load cell's noise alone; on a real rig it also
+/// holds the rig's own repeatability, so it is then an upper bound on the
+/// noise. A sensor that read the applied force exactly would still score a
+/// test MAE of about [`LoadCellSpread::mae_floor_n`] against the recordings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoadCellSpread {
+    /// Pooled standard deviation of the recorded force within repetition
+    /// groups, per axis (x, y, z), N.
+    pub sigma_n: [f64; 3],
+    /// Repetition groups with at least two tests.
+    pub groups: usize,
+    /// Degrees of freedom of the pooled estimate (tests minus groups).
+    pub dof: usize,
+}
+
+impl LoadCellSpread {
+    /// The expected absolute error of an exact sensor against the recorded
+    /// force, per axis: `sigma * sqrt(2 / pi)` (Gaussian noise), N.
+    pub fn mae_floor_n(&self) -> [f64; 3] {
+        let k = (2.0 / std::f64::consts::PI).sqrt();
+        self.sigma_n.map(|s| s * k)
+    }
+}
+
+/// The [`LoadCellSpread`] of a dataset's rows: tests are grouped by split,
+/// point, indenter, yaw, pitch and commanded force, and the recorded force's
+/// variance within each group is pooled. `None` if no group holds two tests
+/// (a dataset without repetitions says nothing about its load cell). Rows
+/// with a non-finite recorded force are left out.
+pub fn load_cell_spread(rows: &[TestRow]) -> Option<LoadCellSpread> {
+    use std::collections::BTreeMap;
+    // Exact keys: the values of one protocol come from one writer, so the
+    // repetitions of a test carry the same decimal text.
+    type Key = (usize, u32, u64, u64, u64, u64);
+    let mut groups: BTreeMap<Key, Vec<[f64; 3]>> = BTreeMap::new();
+    for r in rows {
+        let f = [r.fx_n, r.fy_n, r.fz_n];
+        if f.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        let key = (
+            split_index(r.split),
+            r.point,
+            r.indenter_mm.to_bits(),
+            r.yaw_deg.to_bits(),
+            r.pitch_deg.to_bits(),
+            r.force_n.to_bits(),
+        );
+        groups.entry(key).or_default().push(f);
+    }
+    let (mut sum_sq, mut n_groups, mut dof) = ([0.0f64; 3], 0usize, 0usize);
+    for g in groups.values().filter(|g| g.len() >= 2) {
+        let n = g.len() as f64;
+        for (a, s) in sum_sq.iter_mut().enumerate() {
+            let mean = g.iter().map(|f| f[a]).sum::<f64>() / n;
+            *s += g.iter().map(|f| (f[a] - mean).powi(2)).sum::<f64>();
+        }
+        n_groups += 1;
+        dof += g.len() - 1;
+    }
+    (dof > 0).then(|| LoadCellSpread {
+        sigma_n: sum_sq.map(|s| (s / dof as f64).sqrt()),
+        groups: n_groups,
+        dof,
+    })
+}
+
 fn f32_to_f64(x: f32) -> f64 {
     x.to_string().parse().unwrap_or(f64::from(x))
 }
@@ -515,5 +589,83 @@ mod tests {
         assert_eq!(weakest_press_threshold(&[]), None);
         assert_eq!(weakest_press_threshold(&[(0.5, -0.1)]), None);
         assert_eq!(weakest_press_threshold(&[(0.5, f64::NAN)]), None);
+    }
+    fn row(point: u32, force_n: f64, repeat: u32, f: [f64; 3]) -> TestRow {
+        TestRow {
+            test: 0,
+            frame: String::new(),
+            reference: String::new(),
+            point,
+            indenter_mm: 5.0,
+            yaw_deg: 0.0,
+            pitch_deg: 15.0,
+            repeat,
+            force_n,
+            split: Split::Train,
+            x_mm: 0.0,
+            y_mm: 0.0,
+            fx_n: f[0],
+            fy_n: f[1],
+            fz_n: f[2],
+        }
+    }
+
+    #[test]
+    fn load_cell_spread_pools_the_repetitions_variance() {
+        // Two groups of repetitions around different forces; within each,
+        // Fy is the group's mean +-0.01 N, Fx +-0.02, Fz exact.
+        let rows = vec![
+            row(2, 1.0, 1, [0.12, -0.01, -1.0]),
+            row(2, 1.0, 2, [0.08, 0.01, -1.0]),
+            row(3, 2.0, 1, [0.52, 0.29, -2.0]),
+            row(3, 2.0, 2, [0.48, 0.31, -2.0]),
+            // A test alone in its group says nothing; nor does a NaN reading.
+            row(4, 2.0, 1, [9.0, 9.0, 9.0]),
+            row(3, 2.0, 3, [f64::NAN, 0.0, 0.0]),
+        ];
+        let s = load_cell_spread(&rows).unwrap();
+        assert_eq!((s.groups, s.dof), (2, 2));
+        // Per group sum of squares 2 * d^2, over 2 degrees of freedom.
+        let want = [0.02f64 * 2f64.sqrt(), 0.01 * 2f64.sqrt(), 0.0];
+        for a in 0..3 {
+            assert!((s.sigma_n[a] - want[a]).abs() < 1e-12, "{:?}", s.sigma_n);
+        }
+        let floor = s.mae_floor_n();
+        assert!((floor[1] - want[1] * (2.0 / std::f64::consts::PI).sqrt()).abs() < 1e-12);
+        // Other splits, tilts or forces are other groups.
+        let mut other = rows[1].clone();
+        other.split = Split::Test;
+        assert_eq!(load_cell_spread(&[rows[0].clone(), other]), None);
+        assert_eq!(load_cell_spread(&[]), None);
+    }
+
+    #[test]
+    fn load_cell_spread_finds_the_noise_it_was_given() {
+        // 200 groups of 5 repetitions with Gaussian noise of 0.01 N per axis
+        // (Box-Muller on a fixed LCG): the estimate is within 10%.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let mut rows = Vec::new();
+        for g in 0..200u32 {
+            for rep in 0..5 {
+                let mut f = [0.0; 3];
+                for v in &mut f {
+                    let (a, b) = (uniform(), uniform());
+                    *v = -0.1 * g as f64
+                        + 0.01 * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos();
+                }
+                rows.push(row(g, 0.5 + g as f64, rep, f));
+            }
+        }
+        let s = load_cell_spread(&rows).unwrap();
+        assert_eq!((s.groups, s.dof), (200, 800));
+        for sigma in s.sigma_n {
+            assert!((sigma - 0.01).abs() < 0.001, "{:?}", s.sigma_n);
+        }
     }
 }
