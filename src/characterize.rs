@@ -486,7 +486,6 @@ fn validation_force_mae(
     })
 }
 
-/// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).
 /// How much the load cell's readings scatter between repetitions of the same
 /// test, and what that costs any sensor scored against them.
 ///
@@ -560,6 +559,7 @@ pub fn load_cell_spread(rows: &[TestRow]) -> Option<LoadCellSpread> {
     })
 }
 
+/// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).
 fn f32_to_f64(x: f32) -> f64 {
     x.to_string().parse().unwrap_or(f64::from(x))
 }
