@@ -10,7 +10,10 @@
 //! Runs the pipeline on every test (each frame against its own reference) on
 //! all cores, fits the five polynomial maps with the paper's order search and
 //! prints, in markdown, Table I (per threshold preset: minimum detectable force,
-//! test MAE of x, Fx, Fy, Fz) and Table II (test MAE per point). With
+//! test MAE of x, Fx, Fy, Fz) and Table II (test MAE per point), and between
+//! them the load cell's floor: how much the recorded force scatters between
+//! repetitions of a test, and the MAE a sensor reading the applied force
+//! exactly would score against it (`characterize::load_cell_spread`). With
 //! `--thresholds all` the presets are fitted in turn; `--out` gets the `high`
 //! one (the paper's flight setting) and the others are written beside it as
 //! `NAME.low.json` and `NAME.mid.json`. `--thresholds-custom M,S` fits with
