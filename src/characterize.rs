@@ -243,10 +243,9 @@ pub fn fit_dataset(
     })?;
     // The press test a sensor applies (`Calibration::is_press`): a test
     // whose strongest patch fails it counts as a miss, as it would at run time.
-    let min_normal_n = match &profile {
-        Some(_) => press_threshold(extractions, &local),
-        None => None,
-    };
+    // Without a profile model nothing was matched (`local` is empty), so
+    // there is no threshold.
+    let min_normal_n = press_threshold(extractions, &local);
     for (i, s) in second.iter_mut().enumerate() {
         if !calibration::passes_press_test(min_normal_n, local.get(i).copied().flatten()) {
             *s = None;
@@ -642,23 +641,12 @@ mod tests {
     #[test]
     fn load_cell_spread_finds_the_noise_it_was_given() {
         // 200 groups of 5 repetitions with Gaussian noise of 0.01 N per axis
-        // (Box-Muller on a fixed LCG): the estimate is within 10%.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
+        // (the simulator's generator, fixed seed): the estimate is within 10%.
+        let mut rng = crate::sim::rng::SplitMix64::new(0x2545_f491_4f6c_dd1d);
         let mut rows = Vec::new();
         for g in 0..200u32 {
             for rep in 0..5 {
-                let mut f = [0.0; 3];
-                for v in &mut f {
-                    let (a, b) = (uniform(), uniform());
-                    *v = -0.1 * g as f64
-                        + 0.01 * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos();
-                }
+                let f = [(); 3].map(|_| -0.1 * g as f64 + 0.01 * rng.normal());
                 rows.push(row(g, 0.5 + g as f64, rep, f));
             }
         }
