@@ -420,6 +420,15 @@ impl ForceGuard {
     }
 }
 
+/// The error of a calibration built in memory (no file to name) that fails
+/// its checks.
+fn in_memory(message: String) -> Error {
+    Error::Calibration {
+        path: None,
+        message,
+    }
+}
+
 /// Checks a polynomial's variables against the expected list.
 fn check_vars(name: &str, p: &Polynomial, expected: &[&str]) -> std::result::Result<(), String> {
     if p.variables()
@@ -459,10 +468,7 @@ impl Calibration {
             guard: None,
             min_normal_n: None,
         };
-        c.check().map_err(|message| Error::Calibration {
-            path: None,
-            message,
-        })?;
+        c.check().map_err(in_memory)?;
         Ok(c)
     }
 
@@ -1361,11 +1367,11 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
             test: None,
         }),
     )?;
+    // `new` checked the rest; only the guard is new here.
+    if let Some(g) = &guard {
+        g.validate().map_err(in_memory)?;
+    }
     cal.guard = guard;
-    cal.check().map_err(|message| Error::Calibration {
-        path: None,
-        message,
-    })?;
     if has_test {
         let table = evaluate(&cal, samples, Split::Test)?;
         if let Some(r) = cal.report.as_mut() {
