@@ -43,6 +43,7 @@ fn bench(c: &mut Criterion) {
         (1024, 1024),
         (60, 200),
         (50, 400),
+        (100, 800),
     ];
     for (ny, nx) in shapes {
         let (u, v) = field(ny, nx);
@@ -67,7 +68,7 @@ fn bench(c: &mut Criterion) {
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(2))
         .sample_size(20);
-    for (ny, nx) in [(128, 128), (256, 256)] {
+    for (ny, nx) in [(128, 128), (256, 256), (100, 800)] {
         let (u, v) = field(ny, nx);
         let mut hhd = NaturalHhd::new();
         let mut out = Decomposition::zeros(ny, nx);
@@ -100,7 +101,8 @@ fn bench(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(2))
         .sample_size(10);
     let mut planner = rustfft::FftPlanner::new();
-    for (ny, nx) in [(60, 200), (128, 128), (256, 256)] {
+    // 100x800: a patch as tall and as wide as the strip at the analysis scale.
+    for (ny, nx) in [(60, 200), (128, 128), (256, 256), (100, 800)] {
         group.bench_function(BenchmarkId::from_parameter(format!("{ny}x{nx}")), |b| {
             b.iter(|| black_box(GreenConvolver::new(&mut planner, ny, nx, 1.0, 1.0).unwrap()))
         });

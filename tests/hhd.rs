@@ -348,6 +348,21 @@ fn larger_unequal_grid_matches_direct_sum() {
 }
 
 #[test]
+fn a_torus_split_over_two_threads_matches_direct_sum() {
+    // 60x300 pads to 120x600: past PARALLEL_MIN_CELLS, so every FFT pass of
+    // this decomposition runs in two halves.
+    let (u, v) = random_field(60, 300, 11);
+    let mut hhd = NaturalHhd::new();
+    let conv = hhd.prepare(60, 300, 2.0, 2.0).unwrap();
+    let (py, px) = conv.padded_shape();
+    assert!(py * px >= optical_tactile::hhd::fft::PARALLEL_MIN_CELLS);
+    let fast = hhd.decompose(u.view(), v.view(), 2.0, 2.0).unwrap();
+    let slow = direct::decompose(u.view(), v.view(), 2.0, 2.0).unwrap();
+    let e = dec_rel_diff(&fast, &slow, field_scale(u.view(), v.view()));
+    assert!(e < 1e-10, "{e:e}");
+}
+
+#[test]
 fn strided_views_and_reuse_give_the_same_result() {
     let (big_u, big_v) = random_field(60, 90, 3);
     // A strided, offset window such as a segmenter hands over.

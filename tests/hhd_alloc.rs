@@ -14,14 +14,18 @@ static ALLOCS: AtomicUsize = AtomicUsize::new(0);
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        if COUNTED.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, Ordering::SeqCst);
+        }
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        if COUNTED.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, Ordering::SeqCst);
+        }
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -29,8 +33,24 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+thread_local! {
+    /// Whether this thread's allocations are counted: only the tests' own
+    /// threads and their pool's workers, not the test harness reporting
+    /// another test meanwhile.
+    static COUNTED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+fn count_this_thread() {
+    COUNTED.with(|c| c.set(true));
+}
+
+/// The counter is shared: the tests of this file take turns.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn planned_decompositions_do_not_allocate() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    count_this_thread();
     let big_u = Array2::from_shape_fn((80, 120), |(i, j)| ((i * 7 + j * 3) % 11) as f32 * 0.1);
     let big_v = Array2::from_shape_fn((80, 120), |(i, j)| ((i * 5 + j * 2) % 13) as f32 * 0.1);
     // Two patch sizes, strided windows of a bigger flow.
@@ -56,4 +76,36 @@ fn planned_decompositions_do_not_allocate() {
     let probe = std::hint::black_box(vec![0u8; 64]);
     assert!(ALLOCS.load(Ordering::SeqCst) > after);
     drop(probe);
+}
+
+#[test]
+fn a_torus_split_over_two_threads_does_not_allocate_either() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    count_this_thread();
+    // 60x300 pads to 120x600, past PARALLEL_MIN_CELLS: the FFT passes are
+    // cut in halves by rayon::join. Run on a pool worker, as the sensor does
+    // (a join from outside the pool hands the job over through a queue).
+    // The global pool, whose workers never exit: a private pool's would
+    // wind down, and allocate, while the next test counts.
+    let u = Array2::from_shape_fn((60, 300), |(i, j)| ((i * 7 + j * 3) % 11) as f32 * 0.1);
+    let v = Array2::from_shape_fn((60, 300), |(i, j)| ((i * 5 + j * 2) % 13) as f32 * 0.1);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .start_handler(|_| count_this_thread())
+        .build_global()
+        .expect("only this test sets up the global pool");
+    let ((before, after), ()) = rayon::join(
+        || {
+            let mut hhd = NaturalHhd::new();
+            let mut out = hhd.decompose(u.view(), v.view(), 2.0, 2.0).unwrap();
+            let before = ALLOCS.load(Ordering::SeqCst);
+            for _ in 0..20 {
+                hhd.decompose_into(u.view(), v.view(), 2.0, 2.0, &mut out)
+                    .unwrap();
+            }
+            (before, ALLOCS.load(Ordering::SeqCst))
+        },
+        || (),
+    );
+    assert_eq!(after - before, 0, "allocations in split decompositions");
 }
