@@ -67,7 +67,7 @@ presses (independent presses anywhere, each against frame 0; presses.json):
 characterization:
     --subset N           a random subset of N tests [all: 7200]
     --repeats R          repetitions [5]
-    --load-cell-noise F  load-cell noise per axis, N [0.01]
+    --load-cell-noise F  load-cell noise per axis, N [0.003]
 perches:
     --x1-mm X --x2-mm X  rod positions, mm [-60, 50]
     --k1 K --k2 K        rod stiffness, N/mm [1, 2]
