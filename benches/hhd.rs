@@ -1,5 +1,7 @@
 //! Natural HHD by FFT: one decomposition per iteration on a planned size
-//! (plans cached, buffers reused), one thread.
+//! (plans cached, buffers reused), on a rayon pool of one thread (`t1`) and
+//! of two (`t2`): tori of `PARALLEL_MIN_CELLS` or more split their FFT
+//! passes over both; smaller ones run on one thread either way.
 //!
 //! `cargo bench --bench hhd` (add `-- 256x256` to run one size).
 
@@ -45,19 +47,36 @@ fn bench(c: &mut Criterion) {
         (50, 400),
         (100, 800),
     ];
+    let pools = [1, 2].map(|n| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .expect("thread pool")
+    });
     for (ny, nx) in shapes {
         let (u, v) = field(ny, nx);
         let mut hhd = NaturalHhd::new();
         let mut out = Decomposition::zeros(ny, nx);
         hhd.decompose_into(u.view(), v.view(), 1.0, 1.0, &mut out)
             .unwrap();
-        group.bench_function(BenchmarkId::from_parameter(format!("{ny}x{nx}")), |b| {
-            b.iter(|| {
-                hhd.decompose_into(black_box(u.view()), black_box(v.view()), 1.0, 1.0, &mut out)
-                    .unwrap();
-                black_box(&out);
-            })
-        });
+        for pool in &pools {
+            let id = format!("{ny}x{nx}_t{}", pool.current_num_threads());
+            group.bench_function(BenchmarkId::from_parameter(id), |b| {
+                pool.install(|| {
+                    b.iter(|| {
+                        hhd.decompose_into(
+                            black_box(u.view()),
+                            black_box(v.view()),
+                            1.0,
+                            1.0,
+                            &mut out,
+                        )
+                        .unwrap();
+                        black_box(&out);
+                    })
+                })
+            });
+        }
     }
     group.finish();
 

@@ -9,6 +9,11 @@
 //! two-rod press (2.0 N and 1.5 N: two patches per frame) against a fixed
 //! reference. Frames per second = 1000 / (median ms per call).
 //!
+//! `sensor_heavy_press`: the strip with one 10 mm rod pressing 3 N at the
+//! centre, `fine` preset, the shipped calibration's 0.2 px threshold: the
+//! motion spreads along most of the strip and so does its one patch, the
+//! nHHD's largest case.
+//!
 //! `cargo bench --bench sensor` (short measurement times; on a shared machine
 //! compare ratios within one run).
 
@@ -54,6 +59,17 @@ fn calibration(crop: Roi) -> Calibration {
 
 /// Reference and pressed frame, and the strip's crop in them.
 fn frames(full_frame: bool) -> (Array2<f32>, Array2<f32>, Roi) {
+    frames_of(
+        full_frame,
+        &[
+            Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
+            Contact::rod(20.0, [0.0, 0.0, -1.5], 5.0),
+        ],
+    )
+}
+
+/// Reference and a frame pressed by `press`, and the strip's crop in them.
+fn frames_of(full_frame: bool, press: &[Contact]) -> (Array2<f32>, Array2<f32>, Roi) {
     let config = SimConfig {
         full_frame,
         ..SimConfig::default()
@@ -66,11 +82,7 @@ fn frames(full_frame: bool) -> (Array2<f32>, Array2<f32>, Roi) {
     };
     let mut sim = SyntheticSensor::new(config, 1).expect("simulator");
     let (reference, _) = sim.render(&[]).expect("reference");
-    let press = [
-        Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
-        Contact::rod(20.0, [0.0, 0.0, -1.5], 5.0),
-    ];
-    let (pressed, _) = sim.render(&press).expect("press");
+    let (pressed, _) = sim.render(press).expect("press");
     (reference, pressed, crop)
 }
 
@@ -87,24 +99,7 @@ fn bench_process(c: &mut Criterion) {
         let (reference, pressed, crop) = frames(full_frame);
         let size = format!("{}x{}", reference.ncols(), reference.nrows());
         for preset in [DisPreset::Fast, DisPreset::Accurate, DisPreset::Fine] {
-            let config = SensorConfig {
-                crop: Some(crop),
-                extractor: ExtractorConfig {
-                    flow: DisParams::preset(preset),
-                    thresholds: Thresholds {
-                        magnitude: 0.5,
-                        sum: 600.0,
-                        ..Thresholds::LOW
-                    },
-                    ..ExtractorConfig::default()
-                },
-                ..SensorConfig::default()
-            };
-            let mut sensor = TactileSensor::new(config, calibration(crop)).expect("sensor");
-            sensor.set_reference(&reference).expect("reference");
-            let n = sensor.process(&pressed, 0.02).expect("process").len();
-            assert!(n >= 1, "{size} {}: the press should be seen", preset.name());
-            let mut t = 0.02;
+            let (mut sensor, mut t) = ready(preset, 0.5, crop, &reference, &pressed, &size);
             g.bench_function(BenchmarkId::new(preset.name(), &size), |b| {
                 pool.install(|| {
                     b.iter(|| {
@@ -116,6 +111,61 @@ fn bench_process(c: &mut Criterion) {
         }
     }
     g.finish();
+
+    let mut g = c.benchmark_group("sensor_heavy_press");
+    g.sample_size(20)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(3));
+    let (reference, pressed, crop) = frames_of(false, &[Contact::rod(0.0, [0.8, 0.0, -2.9], 10.0)]);
+    let size = format!("{}x{}", reference.ncols(), reference.nrows());
+    // The shipped calibration's 0.2 px threshold, at which such a press's
+    // patch spreads along most of the strip.
+    let (mut sensor, mut t) = ready(DisPreset::Fine, 0.2, crop, &reference, &pressed, &size);
+    let b = sensor.extractor().patches()[0].bbox;
+    eprintln!(
+        "heavy press: largest patch {}x{} flow px",
+        b.width, b.height
+    );
+    g.bench_function(BenchmarkId::new("fine", &size), |bch| {
+        pool.install(|| {
+            bch.iter(|| {
+                t += 0.02;
+                sensor.process(&pressed, t).expect("process").len()
+            })
+        })
+    });
+    g.finish();
+}
+
+/// A sensor with `preset` and a flow threshold of `magnitude` px on `crop`,
+/// its reference set and `pressed` processed once (the press must be seen),
+/// and the time of that frame.
+fn ready(
+    preset: DisPreset,
+    magnitude: f32,
+    crop: Roi,
+    reference: &Array2<f32>,
+    pressed: &Array2<f32>,
+    size: &str,
+) -> (TactileSensor, f64) {
+    let config = SensorConfig {
+        crop: Some(crop),
+        extractor: ExtractorConfig {
+            flow: DisParams::preset(preset),
+            thresholds: Thresholds {
+                magnitude,
+                sum: 600.0,
+                ..Thresholds::LOW
+            },
+            ..ExtractorConfig::default()
+        },
+        ..SensorConfig::default()
+    };
+    let mut sensor = TactileSensor::new(config, calibration(crop)).expect("sensor");
+    sensor.set_reference(reference).expect("reference");
+    let n = sensor.process(pressed, 0.02).expect("process").len();
+    assert!(n >= 1, "{size} {}: the press should be seen", preset.name());
+    (sensor, 0.02)
 }
 
 criterion_group!(benches, bench_process);
