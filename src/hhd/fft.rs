@@ -364,7 +364,7 @@ impl GreenConvolver {
             scratch2,
         } = ws;
         let s1 = &mut scratch[..self.scratch_len];
-        let s2 = &mut scratch2[..if par { self.scratch_len } else { 0 }];
+        let s2 = &mut scratch2[..self.scratch_len];
         let rows = &mut rows[..ny * px];
         let cols = &mut cols[..px * py];
         let row_cut = if par { ny / 2 * px } else { 0 };
