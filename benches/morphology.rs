@@ -2,7 +2,7 @@
 //! size 3..31: the cost should be (nearly) flat in the kernel size.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use optical_tactile::morphology::{Mask, Morphology, StructuringElement};
+use optical_tactile::segment::morphology::{Mask, Morphology, StructuringElement};
 use std::hint::black_box;
 use std::time::Duration;
 

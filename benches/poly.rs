@@ -10,8 +10,8 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use ndarray::{Array1, Array2};
 use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
-use optical_tactile::poly::{CrossTerms, FitOptions, PolySpec, Polynomial, VarGroup, fit};
+use optical_tactile::frame::Roi;
+use optical_tactile::calibration::poly::{CrossTerms, FitOptions, PolySpec, Polynomial, VarGroup, fit};
 
 /// Deterministic pseudo-random numbers in [-1, 1).
 fn lcg(state: &mut u64) -> f64 {

@@ -24,11 +24,11 @@ use ndarray::Array2;
 use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
-use optical_tactile::poly::Polynomial;
+use optical_tactile::frame::Roi;
+use optical_tactile::calibration::poly::Polynomial;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 
 /// A linear calibration for the strip `crop` (x = (x_px - 799.5) / 5 mm,
 /// F = 1e-4 D): the maps' cost is what matters here, not their accuracy.

@@ -40,11 +40,11 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use optical_tactile::calibration::{self, FitOptions, GuardOptions, ThresholdRow};
-use optical_tactile::characterize::{extract_dataset, fit_dataset, load_cell_spread, read_dataset};
+use optical_tactile::calibration::fit::{extract_dataset, fit_dataset, load_cell_spread, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io::{self, FrameRecord, JsonlWriter, Split};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;

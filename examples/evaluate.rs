@@ -8,7 +8,7 @@
 
 use std::process::ExitCode;
 
-use optical_tactile::evaluate::score;
+use optical_tactile_sim::evaluate::score;
 use optical_tactile::io::{FrameRecord, read_jsonl};
 
 const USAGE: &str =

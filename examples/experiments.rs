@@ -12,7 +12,7 @@
 //!   false contacts on rest frames (`mdf_sweep`, `rest_sweep`);
 //! - the touch-mapping error per rod over 5 runs with different seeds
 //!   (`mapping_run`: the `mapping` scenario, a `TactileSensor` with the
-//!   `high` calibration fitted here, `optical_tactile::mapping`'s clustering).
+//!   `high` calibration fitted here, `optical_tactile_sim::mapping`'s clustering).
 //!
 //! ```text
 //! cargo run --release --example experiments -- [--out DIR] [--quick] [--json FILE]
@@ -33,21 +33,21 @@ use serde::Serialize;
 use optical_tactile::calibration::{
     Calibration, DetectionLimit, FitOptions, PointTable, QuantityMae,
 };
-use optical_tactile::characterize::{
+use optical_tactile::calibration::fit::{
     LoadCellSpread, extract_dataset, fit_dataset, load_cell_spread, read_dataset,
 };
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
-use optical_tactile::sim::experiments::{
+use optical_tactile_sim::experiments::{
     INDENTERS_MM, MappingOptions, MappingRun, MdfPlan, MdfResult, RestResult, SpacingPlan,
     SpacingResult, SweepOptions, TILTS_DEG, mapping_run, mdf_sweep, rest_sweep, spacing_sweep,
 };
-use optical_tactile::sim::scenario::{self, Characterization, Common, Scenario};
-use optical_tactile::sim::{SimConfig, SyntheticSensor};
+use optical_tactile_sim::scenario::{self, Characterization, Common, Scenario};
+use optical_tactile_sim::{SimConfig, SyntheticSensor};
 
 const USAGE: &str = "usage: experiments [--out DIR (default: $TMPDIR/optical-tactile-experiments)] \
 [--quick] [--json FILE] [--seed N (default 1)] [--subset N (characterization tests; default 2500, 300 with --quick)]";
@@ -743,7 +743,7 @@ fn run() -> Result<(), String> {
     println!(
         "Simulator defaults (1600 x 200 px strip, 5 px/mm), `{}` DIS flow (the sensor's default), \
          extractor margin {} px. Wall time {:.0} s on {} threads.\n",
-        optical_tactile::characterize::preset_name(&ExtractorConfig::default()),
+        optical_tactile::calibration::fit::preset_name(&ExtractorConfig::default()),
         o.margin_px,
         wall,
         rayon::current_num_threads()

@@ -20,7 +20,7 @@ use std::time::Instant;
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::FrameSource;
 use optical_tactile::capture::v4l::{Camera, CameraConfig};
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io::{FrameRecord, JsonlWriter};
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
 

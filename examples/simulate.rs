@@ -11,9 +11,9 @@ use std::time::Instant;
 
 use ndarray::{Array2, s};
 use optical_tactile::Result;
-use optical_tactile::sim::cli::{self, Command};
-use optical_tactile::sim::scenario;
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::cli::{self, Command};
+use optical_tactile_sim::scenario;
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::viz::{Canvas, Rgb, colormap};
 
 fn main() -> ExitCode {

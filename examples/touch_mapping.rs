@@ -19,7 +19,7 @@
 //! calibration a faint ghost patch (~0.25 N) sometimes appears ~35 mm beside a
 //! real 1 N touch and would pull its cluster (the paper's drone filtered with
 //! thresholds above 1 N for the same reason). Touches are clustered
-//! by single linkage with `--radius-mm` (see `optical_tactile::mapping`);
+//! by single linkage with `--radius-mm` (see `optical_tactile_sim::mapping`);
 //! clusters of fewer than `--min-count` touches are dropped (a real obstacle
 //! is pressed over several frames; a ghost patch seldom is).
 //!
@@ -46,11 +46,11 @@ use std::process::ExitCode;
 
 use demo_support::*;
 use optical_tactile::io;
-use optical_tactile::mapping::{
+use optical_tactile_sim::mapping::{
     Cluster, ClusterSummary, MapOptions, Mounting, RodsTruth, TouchMap, map_touches, match_rods,
     poses_by_frame, read_rods_json,
 };
-use optical_tactile::sim::scenario::{Mapping, Scenario};
+use optical_tactile_sim::scenario::{Mapping, Scenario};
 use optical_tactile::viz::{Plot, Rgb, Series, Style};
 use serde::Serialize;
 

@@ -37,9 +37,9 @@ use std::time::Instant;
 
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::{FrameSource, SequenceSource};
-use optical_tactile::characterize::preset_name;
+use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io::{FrameRecord, JsonlWriter};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
-use crate::image::{Channel, gray_from_dynamic, to_u8};
+use crate::frame::{Channel, gray_from_dynamic, to_u8};
 
 /// The magic number at the start of a Middlebury `.flo` file ("PIEH" as a float).
 pub const FLO_MAGIC: f32 = 202021.25;

@@ -24,26 +24,18 @@
 
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
-pub mod calibration;
-pub mod capture;
-pub mod characterize;
-pub mod contact;
-pub mod contours;
 pub mod error;
-pub mod evaluate;
-pub mod flow;
-pub mod geometry;
-pub mod hhd;
-pub mod image;
+pub mod frame;
 pub mod io;
-pub mod mapping;
-pub mod morphology;
-pub mod poly;
-pub mod profile;
+pub mod capture;
+pub mod flow;
 pub mod segment;
-pub mod sensor;
-pub mod sim;
+pub mod hhd;
+pub mod contact;
+pub mod geometry;
+pub mod calibration;
 pub mod track;
+pub mod sensor;
 pub mod viz;
 
 pub use error::{Error, Result};

@@ -47,9 +47,9 @@ use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::hhd::{Decomposition, NaturalHhd};
-use crate::image::Roi;
-use crate::morphology::Shape;
-use crate::profile::ForceMatcher;
+use crate::frame::Roi;
+use crate::segment::morphology::Shape;
+use crate::contact::profile::ForceMatcher;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -154,7 +154,7 @@ pub const ANALYSIS_MIN_SCALE: usize = 2;
 /// native flow kept beside it. Shared by [`ContactExtractor`] and the
 /// simulator's segmentation sweeps, so that both see the same grid.
 #[derive(Debug)]
-pub(crate) struct AnalysisGrid {
+pub struct AnalysisGrid {
     /// Full-resolution pixels per native flow pixel.
     fine_scale: usize,
     /// Full-resolution pixels per analysis-grid pixel.
@@ -172,7 +172,7 @@ pub(crate) struct AnalysisGrid {
 impl AnalysisGrid {
     /// The grid for a DIS flow of finest scale `finest_scale` (a native
     /// pixel is `2^finest_scale` full-resolution pixels).
-    pub(crate) fn new(finest_scale: usize) -> Self {
+    pub fn new(finest_scale: usize) -> Self {
         let fine_scale = 1usize << finest_scale;
         AnalysisGrid {
             fine_scale,
@@ -184,14 +184,14 @@ impl AnalysisGrid {
     }
 
     /// Full-resolution pixels per analysis-grid pixel.
-    pub(crate) fn scale(&self) -> usize {
+    pub fn scale(&self) -> usize {
         self.scale
     }
 
     /// Takes a new native flow (in its own pixel units); returns the
     /// analysis-grid flow in the grid's own pixel units (what the segmenter
     /// reads). Errors on a non-finite flow.
-    pub(crate) fn update<'a>(&'a mut self, native: &'a FlowField) -> Result<&'a FlowField> {
+    pub fn update<'a>(&'a mut self, native: &'a FlowField) -> Result<&'a FlowField> {
         let factor = self.scale / self.fine_scale;
         if factor == 1 {
             scale_into(native, self.fine_scale as f32, &mut self.flow);
@@ -209,12 +209,12 @@ impl AnalysisGrid {
     }
 
     /// The analysis-grid flow (full-resolution units) and its scale.
-    pub(crate) fn flow(&self) -> (&FlowField, usize) {
+    pub fn flow(&self) -> (&FlowField, usize) {
         (&self.flow, self.scale)
     }
 
     /// The native flow (full-resolution units) and its scale.
-    pub(crate) fn finest(&self) -> (&FlowField, usize) {
+    pub fn finest(&self) -> (&FlowField, usize) {
         if self.fine_scale == self.scale {
             (&self.flow, self.scale)
         } else {

@@ -348,7 +348,7 @@ pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
         }
         let mask = ex.segmenter().mask();
         if mask.width() == flow.width() && mask.height() == flow.height() {
-            for contour in crate::contours::external_contours(mask) {
+            for contour in crate::segment::contours::external_contours(mask) {
                 let pts: Vec<(f64, f64)> = contour
                     .points
                     .iter()

@@ -10,12 +10,13 @@ use optical_tactile::calibration::{
     table_i_markdown, table_ii_markdown,
 };
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
-use optical_tactile::io::Split;
-use optical_tactile::poly::{CrossTerms, Polynomial};
+use optical_tactile::frame::Roi;
+use optical_tactile::calibration::fit::load_cell_spread;
+use optical_tactile::io::{Split, TestRow};
+use optical_tactile::calibration::poly::{CrossTerms, Polynomial};
 
 /// The library's deterministic generator (SplitMix64), so tests need no extra dependency.
-use optical_tactile::sim::rng::SplitMix64 as Rng;
+use optical_tactile_sim::rng::SplitMix64 as Rng;
 
 fn setup() -> SensorSetup {
     SensorSetup {
@@ -1051,4 +1052,44 @@ fn is_press_drops_patches_without_a_normal_push() {
     let bad = text.replacen("\"min_normal_n\": 0.25", "\"min_normal_n\": -1.0", 1);
     let e = load_text("min_normal.json", &bad);
     assert!(e.to_string().contains("min_normal_n"), "{e}");
+}
+
+/// A characterization row at `point` with the recorded force `f`.
+fn load_cell_row(point: u32, force_n: f64, repeat: u32, f: [f64; 3]) -> TestRow {
+    TestRow {
+        test: 0,
+        frame: String::new(),
+        reference: String::new(),
+        point,
+        indenter_mm: 5.0,
+        yaw_deg: 0.0,
+        pitch_deg: 15.0,
+        repeat,
+        force_n,
+        split: Split::Train,
+        x_mm: 0.0,
+        y_mm: 0.0,
+        fx_n: f[0],
+        fy_n: f[1],
+        fz_n: f[2],
+    }
+}
+
+#[test]
+fn load_cell_spread_finds_the_noise_it_was_given() {
+    // 200 groups of 5 repetitions with Gaussian noise of 0.01 N per axis
+    // (the simulator's generator, fixed seed): the estimate is within 10%.
+    let mut rng = Rng::new(0x2545_f491_4f6c_dd1d);
+    let mut rows = Vec::new();
+    for g in 0..200u32 {
+        for rep in 0..5 {
+            let f = [(); 3].map(|_| -0.1 * g as f64 + 0.01 * rng.normal());
+            rows.push(load_cell_row(g, 0.5 + g as f64, rep, f));
+        }
+    }
+    let s = load_cell_spread(&rows).unwrap();
+    assert_eq!((s.groups, s.dof), (200, 800));
+    for sigma in s.sigma_n {
+        assert!((sigma - 0.01).abs() < 0.001, "{:?}", s.sigma_n);
+    }
 }

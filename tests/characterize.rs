@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 
 use optical_tactile::Error;
 use optical_tactile::calibration::FitOptions;
-use optical_tactile::characterize::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::calibration::fit::{extract_dataset, fit_dataset, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 

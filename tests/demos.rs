@@ -17,7 +17,7 @@ mod touch_mapping;
 
 use std::path::{Path, PathBuf};
 
-use optical_tactile::sim::scenario::{self, Common, Mapping, Perches, Scenario};
+use optical_tactile_sim::scenario::{self, Common, Mapping, Perches, Scenario};
 use serde_json::Value;
 
 fn tmp(name: &str) -> PathBuf {

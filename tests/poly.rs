@@ -4,7 +4,7 @@
 
 use ndarray::{Array1, Array2, ArrayView2};
 use optical_tactile::Error;
-use optical_tactile::poly::{
+use optical_tactile::calibration::poly::{
     CrossTerms, FitData, FitOptions, PolySpec, Polynomial, VarGroup, candidate_orders, fit, mae,
     search_orders,
 };

@@ -11,7 +11,7 @@
 use optical_tactile::contact::{ContactLocator, ContactPointMethod};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 
 /// The reference 1600 x 200 strip: the presets were tuned on it, and a
 /// shorter skin responds differently (a 120 mm skin on a 600 px strip needs

@@ -4,10 +4,10 @@
 
 use nalgebra::{DMatrix, DVector};
 use optical_tactile::Error;
-use optical_tactile::profile::{
+use optical_tactile::contact::profile::{
     ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
 };
-use optical_tactile::sim::rng::SplitMix64;
+use optical_tactile_sim::rng::SplitMix64;
 
 const N: usize = 400; // profile cells
 const SCALE: f64 = 2.0; // full-resolution pixels per cell

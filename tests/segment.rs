@@ -5,9 +5,9 @@
 //! noise.
 
 use optical_tactile::Error;
-use optical_tactile::contours::BoundingBox;
+use optical_tactile::segment::contours::BoundingBox;
 use optical_tactile::flow::FlowField;
-use optical_tactile::morphology::{Mask, Shape, StructuringElement};
+use optical_tactile::segment::morphology::{Mask, Shape, StructuringElement};
 use optical_tactile::segment::{RestOptions, Segmenter, SegmenterConfig, Thresholds};
 
 /// A shear bump: `u = amp exp(-r^2 / 2 sigma^2)`; coordinates in full-res

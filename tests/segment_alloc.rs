@@ -57,7 +57,7 @@ fn no_allocation_per_frame_in_steady_state() {
     for thresholds in [
         Thresholds::MID,
         Thresholds {
-            shape: optical_tactile::morphology::Shape::Ellipse,
+            shape: optical_tactile::segment::morphology::Shape::Ellipse,
             ..Thresholds::HIGH
         },
     ] {

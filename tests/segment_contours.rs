@@ -2,8 +2,8 @@
 //! the box of one 8-connected component with its holes filled.
 
 use ndarray::Array2;
-use optical_tactile::contours::{BoundingBox, ContourFinder};
-use optical_tactile::morphology::Mask;
+use optical_tactile::segment::contours::{BoundingBox, ContourFinder};
+use optical_tactile::segment::morphology::Mask;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 

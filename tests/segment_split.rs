@@ -5,7 +5,7 @@
 //! is never cut.
 
 use optical_tactile::flow::FlowField;
-use optical_tactile::morphology::Shape;
+use optical_tactile::segment::morphology::Shape;
 use optical_tactile::segment::{
     Segmenter, SegmenterConfig, SplitRule, Thresholds, divergence_profile, find_cuts,
 };

@@ -6,7 +6,7 @@ use common::linear_calibration;
 use optical_tactile::Error;
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io::{FrameRecord, read_jsonl};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};

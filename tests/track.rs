@@ -11,11 +11,11 @@ use optical_tactile::Error;
 use optical_tactile::calibration::{Calibration, PipelineSettings};
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io::{self, FrameRecord, JsonlWriter, read_jsonl};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::track::ReferencePolicy;
 use optical_tactile::viz::{self, Rgb};
 

@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::{FrameSource, SequenceSource};
-use optical_tactile::image::Roi;
+use optical_tactile::frame::Roi;
 use optical_tactile::io::{self, FrameRecord};
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile::sim::scenario::{self, Common, Scenario};
+use optical_tactile_sim::scenario::{self, Common, Scenario};
 use optical_tactile::viz::{Canvas, Plot, Rgb, Series, Style};
 use serde::Serialize;
 

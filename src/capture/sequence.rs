@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use super::{Frame, FrameSource};
 use crate::error::{Error, Result};
-use crate::image::Channel;
+use crate::frame::Channel;
 use crate::io;
 
 /// Frames read one by one from a directory of PNG files in lexicographic order.

@@ -10,7 +10,7 @@ use ::v4l::{Device, FourCC};
 
 use super::{Frame, FrameSource};
 use crate::error::{Error, Result};
-use crate::image::{Channel, PixelLayout, gray_from_u8};
+use crate::frame::{Channel, PixelLayout, gray_from_u8};
 
 /// What to ask the camera for.
 #[derive(Debug, Clone)]

@@ -4,8 +4,8 @@ use optical_tactile::calibration::{
     Calibration, PipelineSettings, SegmentationThresholds, SensorSetup,
 };
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
-use optical_tactile::poly::Polynomial;
+use optical_tactile::frame::Roi;
+use optical_tactile::calibration::poly::Polynomial;
 
 /// A hand-made calibration: x = (x_px - 799.5) / 5 mm, y = 0, F = 1e-4 * D,
 /// recorded with thresholds 0.2 px / 600 and the given pipeline settings.

@@ -29,17 +29,17 @@ use serde::Serialize;
 
 use super::scenario::{self, Common, Mapping, Scenario, tilted_force};
 use super::sensor::{Contact, SyntheticSensor};
-use crate::calibration::Calibration;
-use crate::contact::{ContactLocator, ContactPointMethod};
-use crate::error::{Error, Result};
-use crate::flow::dis::Dis;
-use crate::io::{self, FrameRecord};
+use optical_tactile::calibration::Calibration;
+use optical_tactile::contact::{ContactLocator, ContactPointMethod};
+use optical_tactile::error::{Error, Result};
+use optical_tactile::flow::dis::Dis;
+use optical_tactile::io::{self, FrameRecord};
 pub use crate::mapping::ClusterSummary;
 use crate::mapping::{
     Cluster, MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json,
 };
-use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
-use crate::sensor::{
+use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
+use optical_tactile::sensor::{
     AnalysisGrid, ContactExtractor, ExtractorConfig, QUIET_MIN_TEXTURE, QUIET_TILE_PX,
     SensorConfig, TactileSensor, textured_tiles_into,
 };

@@ -19,8 +19,8 @@ use serde::Serialize;
 
 use super::rng::{SplitMix64, mix64};
 use super::sensor::{Contact, SimConfig, SyntheticSensor};
-use crate::error::{Error, Result};
-use crate::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
+use optical_tactile::error::{Error, Result};
+use optical_tactile::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
 
 /// Options shared by every scenario.
 #[derive(Debug, Clone, PartialEq)]
@@ -128,7 +128,7 @@ pub struct Characterization {
 ///
 /// It sets a floor under every force MAE scored against the recorded force:
 /// an exact sensor scores `sqrt(2 / pi) = 0.8` times it
-/// ([`crate::characterize::load_cell_spread`] measures it from a dataset's
+/// ([`optical_tactile::calibration::fit::load_cell_spread`] measures it from a dataset's
 /// repetitions). A 10 mN cell (`--load-cell-noise 0.01`, this simulator's
 /// earlier default) puts that floor at 8 mN: above the 5 mN Fy the project
 /// aims at, and equal to the Fy the paper's method reached in Python on

@@ -1,14 +1,16 @@
 //! Contacts: the raw quantities of a contact patch (SPEC.md step 7) and the
 //! calibrated contact a user acts on.
 
+pub mod profile;
+
 use ndarray::ArrayView2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
-use crate::image::Roi;
+use crate::frame::Roi;
 use crate::io::ContactRecord;
-use crate::profile::column_profile_into;
+use crate::contact::profile::column_profile_into;
 
 /// The raw, uncalibrated quantities of one contact patch (SPEC.md step 7), all
 /// in the pixels of the cropped full-resolution image.
@@ -35,7 +37,7 @@ pub struct RawContact {
     /// Summed flow magnitude of the patch: the detection strength.
     pub strength: f64,
     /// Local force components (tangential, across, outward normal) matched
-    /// from the frame's motion profile ([`crate::profile::ForceMatcher`]),
+    /// from the frame's motion profile ([`crate::contact::profile::ForceMatcher`]),
     /// when the calibration has a profile model; they then replace the sums
     /// as the force maps' raw displacements ([`sensor_displacements`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use super::scenario::{
     Characterization, Common, Mapping, Pair, Perches, Presses, Scenario, Single,
 };
-use crate::error::{Error, Result};
+use optical_tactile::error::{Error, Result};
 
 /// The `--help` text: every scenario and option.
 pub const HELP: &str = "\

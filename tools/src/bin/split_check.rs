@@ -27,8 +27,8 @@ use std::time::Instant;
 use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
 use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use optical_tactile::sensor::ExtractorConfig;
-use optical_tactile::sim::scenario::{INDENTERS_MM, TILTS_DEG, tilted_force};
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::scenario::{INDENTERS_MM, TILTS_DEG, tilted_force};
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::{Error, Result};
 
 struct Args {

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::rng::{SplitMix64, approx_normal_from_bits, hash64};
 use super::sensor::{Markers, Rendered, SimConfig};
-use crate::flow::FlowField;
+use optical_tactile::flow::FlowField;
 
 /// Sampling steps (strip px, along x and y) of the mean-depth motion field used
 /// between markers; coarser across, where the field of a rod changes only near

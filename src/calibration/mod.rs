@@ -20,8 +20,8 @@
 //! ```
 //! use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 //! use optical_tactile::geometry::SensorGeometry;
-//! use optical_tactile::image::Roi;
-//! use optical_tactile::poly::Polynomial;
+//! use optical_tactile::frame::Roi;
+//! use optical_tactile::calibration::poly::Polynomial;
 //!
 //! // A hand-made calibration: x = (x2d - 800) / 4 mm, y = 0, F = 0.01 * D.
 //! let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25])?;
@@ -48,6 +48,9 @@
 //! # Ok::<(), optical_tactile::Error>(())
 //! ```
 
+pub mod fit;
+pub mod poly;
+
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -58,10 +61,10 @@ use serde::{Deserialize, Serialize};
 use crate::contact::{Contact, ContactLocator, ContactPointMethod, RawContact};
 use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
-use crate::image::Roi;
+use crate::frame::Roi;
 use crate::io::{Split, TestRow};
-use crate::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
-use crate::profile::{ForceMatcher, ProfileModel};
+use poly::{CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
+use crate::contact::profile::{ForceMatcher, ProfileModel};
 
 /// How far, as a fraction of its width on each side, a force input may leave
 /// the [`ForceGuard`]'s training box before the fallback maps take over.
@@ -323,7 +326,7 @@ pub struct Calibration {
     gz: Polynomial,
     /// How the maps were fitted, if they were (absent for hand-made ones).
     pub report: Option<CalibrationReport>,
-    /// Response kernels of the motion profile ([`crate::profile`]); when
+    /// Response kernels of the motion profile ([`crate::contact::profile`]); when
     /// present, the force maps take the profile-matched local forces as their
     /// raw displacements instead of the patch sums.
     pub profile: Option<ProfileModel>,
@@ -676,7 +679,7 @@ impl Calibration {
     }
 
     /// The column at which `model` matches a contact's profile: the model's
-    /// anchor column ([`crate::profile::ColumnMap`]) of the contact's
+    /// anchor column ([`crate::contact::profile::ColumnMap`]) of the contact's
     /// calibrated location, or the measured column `x_px` for a model
     /// without one.
     pub fn match_column(&self, model: &ProfileModel, raw: &RawContact) -> Result<f64> {
@@ -1052,7 +1055,7 @@ pub struct FitOptions {
     pub force_use_y2d: bool,
     /// Cross-term rule of the force maps.
     pub cross: CrossTerms,
-    /// The profile model fitted for the forces ([`crate::profile`]); `None`
+    /// The profile model fitted for the forces ([`crate::contact::profile`]); `None`
     /// keeps the paper's patch sums as the force maps' raw displacements.
     #[serde(default)]
     pub profile: Option<ProfileFitOptions>,
@@ -1147,7 +1150,7 @@ fn max_of_groups() -> CrossTerms {
     CrossTerms::MaxOfGroups
 }
 
-/// How the profile model of the forces is fitted ([`crate::profile::ProfileModel::fit`]).
+/// How the profile model of the forces is fitted ([`crate::contact::profile::ProfileModel::fit`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ProfileFitOptions {
     /// How far each side of a contact the kernels reach, full-resolution pixels.
@@ -1155,7 +1158,7 @@ pub struct ProfileFitOptions {
     /// Degree of the kernels' polynomial in the contact's column.
     pub degree: usize,
     /// Largest degree of the kernels' anchor map
-    /// ([`crate::profile::ColumnMap`]): the fit tries the measured columns
+    /// ([`crate::contact::profile::ColumnMap`]): the fit tries the measured columns
     /// and every degree `1..=max`, and keeps the one whose matched forces
     /// have the lowest validation MAE. 0: measured columns only (files
     /// from before the anchor map).

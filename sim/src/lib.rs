@@ -22,7 +22,7 @@
 //! Images are `Array2<f32>` on the 8-bit scale; flows are in pixels.
 //!
 //! ```
-//! use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+//! use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 //! let sensor = SyntheticSensor::new(SimConfig::default(), 1)?;
 //! // A 5 mm rod pressing 1.5 N straight down, 30 mm left of centre.
 //! let rod = Contact::rod(-30.0, [0.0, 0.0, -1.5], 5.0);
@@ -35,7 +35,9 @@
 pub mod camera;
 pub mod cli;
 pub mod elastic;
+pub mod evaluate;
 pub mod experiments;
+pub mod mapping;
 mod render;
 pub mod rng;
 pub mod scenario;

@@ -4,14 +4,14 @@ use std::path::PathBuf;
 
 use optical_tactile::Error;
 use optical_tactile::io::{self, FrameRecord};
-use optical_tactile::sim::cli;
-use optical_tactile::sim::elastic::{
+use optical_tactile_sim::cli;
+use optical_tactile_sim::elastic::{
     QuadratureCache, RodLoad, line_segment_displacement, point_displacement,
 };
-use optical_tactile::sim::scenario::{
+use optical_tactile_sim::scenario::{
     self, Common, Mapping, Perches, Presses, Scenario, Single, tilted_force,
 };
-use optical_tactile::sim::{
+use optical_tactile_sim::{
     Contact, MarkerConfig, Material, NoiseConfig, SimConfig, SyntheticSensor,
 };
 use proptest::prelude::*;
@@ -653,7 +653,7 @@ fn committed_fixtures_are_what_the_simulator_makes() {
     // command in fixtures/README.md.
     let out = tmp("fixtures");
     scenario::fixtures(&out, 1).unwrap();
-    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../fixtures");
     for f in ["press/truth.jsonl", "characterization/tests.csv"] {
         let a = std::fs::read_to_string(out.join(f)).unwrap();
         let b = std::fs::read_to_string(repo.join(f)).unwrap();

@@ -7,8 +7,8 @@
 //! pixel-to-mm map really has to be calibrated, as with the real fisheye camera)
 //! and `y` linearly to image y.
 
-use crate::error::{Error, Result};
-use crate::geometry::SensorGeometry;
+use optical_tactile::error::{Error, Result};
+use optical_tactile::geometry::SensorGeometry;
 
 /// The curved sensing skin: the sensor geometry (SPEC.md reference by default)
 /// and the length of the sensing area along the arc.

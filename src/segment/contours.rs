@@ -22,7 +22,7 @@
 //! writes are cleared again from the list of traced pixels, so the cost is
 //! `O(words + border length)`, not `O(pixels)`.
 
-use crate::morphology::Mask;
+use crate::segment::morphology::Mask;
 
 /// An axis-aligned box of pixels: columns `x .. x + width`, rows `y .. y + height`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]

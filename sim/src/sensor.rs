@@ -1,7 +1,7 @@
 //! [`SyntheticSensor`]: configuration, markers, contacts -> marker motion.
 
-use crate::error::{Error, Result};
-use crate::flow::FlowField;
+use optical_tactile::error::{Error, Result};
+use optical_tactile::flow::FlowField;
 use ndarray::Array2;
 use rayon::prelude::*;
 
@@ -220,7 +220,7 @@ pub struct Rendered {
 /// seed (which fixes the marker layout), then render frames for any contacts.
 ///
 /// ```
-/// use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+/// use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 /// let mut sensor = SyntheticSensor::new(SimConfig::default(), 42)?;
 /// let reference = sensor.render(&[])?.0;
 /// let press = Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0);

@@ -69,14 +69,17 @@
 //! # Ok::<(), optical_tactile::Error>(())
 //! ```
 
+pub mod contours;
+pub mod morphology;
+
 use ndarray::ArrayView2;
 
 use crate::contact::PatchGrid;
-use crate::contours::{BoundingBox, ContourFinder};
+use crate::segment::contours::{BoundingBox, ContourFinder};
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
-use crate::image::Roi;
-use crate::morphology::{Mask, Morphology, Shape, StructuringElement};
+use crate::frame::Roi;
+use crate::segment::morphology::{Mask, Morphology, Shape, StructuringElement};
 
 /// Segmentation thresholds and kernels, in **full-resolution** pixels (see
 /// the module docs for how they scale).

@@ -20,7 +20,7 @@
 //!
 //! ```
 //! use ndarray::array;
-//! use optical_tactile::poly::{fit, CrossTerms, FitOptions, PolySpec, VarGroup};
+//! use optical_tactile::calibration::poly::{fit, CrossTerms, FitOptions, PolySpec, VarGroup};
 //!
 //! // y = 1 + 2x - 3x^2, fitted with a single group of order 2.
 //! let spec = PolySpec::new(vec![VarGroup::new("x", &["x"], 2)], CrossTerms::MaxOfGroups)?;

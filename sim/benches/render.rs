@@ -3,7 +3,7 @@
 //! truth flow.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -21,11 +21,11 @@ use ndarray::Array2;
 use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::image::Roi;
-use optical_tactile::poly::Polynomial;
+use optical_tactile::frame::Roi;
+use optical_tactile::calibration::poly::Polynomial;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile::sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 
 /// `VmRSS` and `VmHWM` in kB.
 fn memory_kb() -> Result<(u64, u64), String> {

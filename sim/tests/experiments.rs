@@ -10,11 +10,11 @@
 use optical_tactile::Error;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
-use optical_tactile::sim::experiments::{
+use optical_tactile_sim::experiments::{
     INDENTERS_MM, MdfPlan, MdfResult, SpacingPlan, SpacingResult, SweepOptions, ThresholdSet,
     mdf_sweep, no_progress, pair_told_apart, rest_sweep, spacing_sweep,
 };
-use optical_tactile::sim::{SimConfig, SyntheticSensor};
+use optical_tactile_sim::{SimConfig, SyntheticSensor};
 
 fn sensor(seed: u64) -> SyntheticSensor {
     SyntheticSensor::new(SimConfig::default(), seed).unwrap()
@@ -288,11 +288,11 @@ fn bad_input_is_a_parameter_error() {
 #[test]
 fn touch_mapping_finds_each_rod_within_a_few_mm() {
     use optical_tactile::calibration::Calibration;
-    use optical_tactile::sim::experiments::{MappingOptions, mapping_run};
-    use optical_tactile::sim::scenario::Mapping;
+    use optical_tactile_sim::experiments::{MappingOptions, mapping_run};
+    use optical_tactile_sim::scenario::Mapping;
     let cal = Calibration::load(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/fixtures/calibration.json"
+        "/../fixtures/calibration.json"
     ))
     .unwrap();
     let dir = std::env::temp_dir().join(format!("ot-experiments-mapping-{}", std::process::id()));

@@ -32,7 +32,7 @@
 //!
 //! ## Example
 //! ```
-//! use optical_tactile::morphology::{Mask, StructuringElement, dilate, erode};
+//! use optical_tactile::segment::morphology::{Mask, StructuringElement, dilate, erode};
 //! // A 3x3 square and a lone speck.
 //! let m = Mask::from_fn(8, 6, |x, y| (1..4).contains(&x) && (1..4).contains(&y) || (x, y) == (6, 4));
 //! let se = StructuringElement::rect(3, 3);

@@ -24,9 +24,9 @@ use crate::calibration::{
 use crate::contact::{ContactLocator, ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
 use crate::geometry::SensorGeometry;
-use crate::image::Roi;
+use crate::frame::Roi;
 use crate::io::{self, Split, TestRow};
-use crate::profile::{ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
+use crate::contact::profile::{ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
 use crate::sensor::{ContactExtractor, ExtractorConfig};
 
 /// One test of the dataset and what the pipeline found in it.
@@ -39,7 +39,7 @@ pub struct Extraction {
     /// How many patches were found.
     pub patches: usize,
     /// The frame's motion profiles along x and y
-    /// ([`crate::profile::column_profile_into`]; empty if nothing was detected).
+    /// ([`crate::contact::profile::column_profile_into`]; empty if nothing was detected).
     pub profiles: [Vec<f64>; 2],
     /// The flow grid's scale (full-resolution pixels per cell).
     pub scale: f64,
@@ -636,24 +636,5 @@ mod tests {
         other.split = Split::Test;
         assert_eq!(load_cell_spread(&[rows[0].clone(), other]), None);
         assert_eq!(load_cell_spread(&[]), None);
-    }
-
-    #[test]
-    fn load_cell_spread_finds_the_noise_it_was_given() {
-        // 200 groups of 5 repetitions with Gaussian noise of 0.01 N per axis
-        // (the simulator's generator, fixed seed): the estimate is within 10%.
-        let mut rng = crate::sim::rng::SplitMix64::new(0x2545_f491_4f6c_dd1d);
-        let mut rows = Vec::new();
-        for g in 0..200u32 {
-            for rep in 0..5 {
-                let f = [(); 3].map(|_| -0.1 * g as f64 + 0.01 * rng.normal());
-                rows.push(row(g, 0.5 + g as f64, rep, f));
-            }
-        }
-        let s = load_cell_spread(&rows).unwrap();
-        assert_eq!((s.groups, s.dof), (200, 800));
-        for sigma in s.sigma_n {
-            assert!((sigma - 0.01).abs() < 0.001, "{:?}", s.sigma_n);
-        }
     }
 }

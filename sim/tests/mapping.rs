@@ -6,7 +6,7 @@ use std::path::Path;
 
 use optical_tactile::Error;
 use optical_tactile::io::{ContactRecord, FrameRecord, PoseRow};
-use optical_tactile::mapping::{
+use optical_tactile_sim::mapping::{
     Cluster, MapOptions, Mounting, PerchReading, Pose, Rod, cluster, map_touches, match_rods,
     poses_by_frame, rank_perches, read_rods_json, sensor_to_world, world_contacts,
 };

@@ -8,7 +8,7 @@
 //! matched pairs.
 //!
 //! ```
-//! use optical_tactile::evaluate::{Evaluation, score};
+//! use optical_tactile_sim::evaluate::{Evaluation, score};
 //! use optical_tactile::io::{ContactRecord, FrameRecord};
 //! let c = |x, fz| ContactRecord { x_mm: x, fz_n: fz, ..Default::default() };
 //! let frame = |cs| FrameRecord { frame: "0.png".into(), t_s: 0.0, contacts: cs, latency_ms: None };
@@ -22,7 +22,7 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use crate::io::{ContactRecord, FrameRecord};
+use optical_tactile::io::{ContactRecord, FrameRecord};
 
 /// The scores of a prediction against the truth.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]

@@ -6,7 +6,7 @@
 //! (16-bit samples are divided by 257, so 65535 maps to 255).
 //!
 //! ```
-//! use optical_tactile::image::{Channel, PixelLayout, Roi, gray_from_u8};
+//! use optical_tactile::frame::{Channel, PixelLayout, Roi, gray_from_u8};
 //! // A 2x2 RGB frame: the green channel is taken.
 //! let rgb = [10, 20, 30, 11, 21, 31, 12, 22, 32, 13, 23, 33];
 //! let g = gray_from_u8(&rgb, 2, 2, 6, PixelLayout::Rgb, Channel::Green).unwrap();

@@ -18,7 +18,7 @@
 //!   the same depth, the one pushing back harder is stiffer.
 //!
 //! ```
-//! use optical_tactile::mapping::{cluster, sensor_to_world, Mounting, Pose, Rod};
+//! use optical_tactile_sim::mapping::{cluster, sensor_to_world, Mounting, Pose, Rod};
 //! // The body 1.2 m above the world origin, level; the sensor hangs under it
 //! // (the default mounting: skin facing down).
 //! let pose = Pose::new([0.5, 0.0, 1.2], [1.0, 0.0, 0.0, 0.0])?;
@@ -38,8 +38,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
-use crate::io::{FrameRecord, PoseRow};
+use optical_tactile::error::{Error, Result};
+use optical_tactile::io::{FrameRecord, PoseRow};
 
 /// A body pose in the world frame: the body frame's origin (m) and its
 /// orientation (a unit quaternion taking body vectors to world vectors).

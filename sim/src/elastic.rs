@@ -33,7 +33,7 @@
 
 use std::f64::consts::PI;
 
-use crate::error::{Error, Result};
+use optical_tactile::error::{Error, Result};
 
 /// Mechanical properties of the gel layer.
 #[derive(Debug, Clone, Copy, PartialEq)]
