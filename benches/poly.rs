@@ -8,10 +8,13 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use ndarray::{Array1, Array2};
-use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
-use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::calibration::poly::{
+    CrossTerms, LeastSquares, PolySpec, Polynomial, VarGroup, fit,
+};
+use optical_tactile::calibration::{Calibration, SensorSetup};
 use optical_tactile::frame::Roi;
-use optical_tactile::calibration::poly::{CrossTerms, FitOptions, PolySpec, Polynomial, VarGroup, fit};
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::segment::{Shape, Thresholds};
 
 /// Deterministic pseudo-random numbers in [-1, 1).
 fn lcg(state: &mut u64) -> f64 {
@@ -51,7 +54,7 @@ fn bench(c: &mut Criterion) {
         .sample_size(30);
     for (a, b, cc) in [(1, 1, 1), (3, 2, 2), (5, 2, 2)] {
         let spec = force_spec(a, b, cc);
-        let (p, _) = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap();
+        let (p, _) = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap();
         let id = format!("6var_{a}{b}{cc}_{}terms", p.n_terms());
         let row = [12.0, -3.0, -250.0, 512.4, 101.0, 3.1];
         g.bench_function(BenchmarkId::new("evaluate", &id), |bch| {
@@ -62,13 +65,21 @@ fn bench(c: &mut Criterion) {
             bch.iter(|| p.evaluate_rows_into(black_box(x.view()), &mut out).unwrap())
         });
         g.bench_function(BenchmarkId::new("fit_900_rows", &id), |bch| {
-            bch.iter(|| fit(&spec, black_box(x.view()), y.view(), &FitOptions::default()).unwrap())
+            bch.iter(|| {
+                fit(
+                    &spec,
+                    black_box(x.view()),
+                    y.view(),
+                    &LeastSquares::default(),
+                )
+                .unwrap()
+            })
         });
     }
 
     // A whole contact: location (g1, g2) and force (gx, gy, gz of orders 3, 2, 2).
     let spec = force_spec(3, 2, 2);
-    let (f, _) = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap();
+    let (f, _) = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap();
     let g1 = Polynomial::raw(
         &["x2d"],
         (0..6).map(|e| vec![e]).collect(),
@@ -79,12 +90,12 @@ fn bench(c: &mut Criterion) {
     let setup = SensorSetup {
         geometry: SensorGeometry::default(),
         crop: Roi::new(0, 0, 1600, 200),
-        thresholds: SegmentationThresholds {
-            preset: "high".into(),
+        thresholds: Thresholds {
             magnitude: 1.5,
             sum: 400.0,
             erode: 5,
             dilate: 9,
+            shape: Shape::Rect,
         },
         pipeline: None,
     };

@@ -4,8 +4,8 @@
 //! split rule cuts in two, with and without the rule.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use optical_tactile::segment::contours::ContourFinder;
 use optical_tactile::flow::FlowField;
+use optical_tactile::segment::contours::ContourFinder;
 use optical_tactile::segment::morphology::{Mask, Morphology};
 use optical_tactile::segment::{Segmenter, SegmenterConfig, Thresholds};
 use std::hint::black_box;

@@ -21,14 +21,14 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use ndarray::Array2;
-use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
-use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::frame::Roi;
 use optical_tactile::calibration::poly::Polynomial;
-use optical_tactile::segment::Thresholds;
+use optical_tactile::calibration::{Calibration, SensorSetup};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::segment::{Shape, Thresholds};
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 /// A linear calibration for the strip `crop` (x = (x_px - 799.5) / 5 mm,
 /// F = 1e-4 D): the maps' cost is what matters here, not their accuracy.
@@ -45,12 +45,12 @@ fn calibration(crop: Roi) -> Calibration {
     let setup = SensorSetup {
         geometry: SensorGeometry::default(),
         crop,
-        thresholds: SegmentationThresholds {
-            preset: "bench".into(),
+        thresholds: Thresholds {
             magnitude: 0.5,
             sum: 600.0,
             erode: 5,
             dilate: 15,
+            shape: Shape::Rect,
         },
         pipeline: None,
     };
@@ -62,14 +62,14 @@ fn frames(full_frame: bool) -> (Array2<f32>, Array2<f32>, Roi) {
     frames_of(
         full_frame,
         &[
-            Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
-            Contact::rod(20.0, [0.0, 0.0, -1.5], 5.0),
+            Press::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
+            Press::rod(20.0, [0.0, 0.0, -1.5], 5.0),
         ],
     )
 }
 
 /// Reference and a frame pressed by `press`, and the strip's crop in them.
-fn frames_of(full_frame: bool, press: &[Contact]) -> (Array2<f32>, Array2<f32>, Roi) {
+fn frames_of(full_frame: bool, press: &[Press]) -> (Array2<f32>, Array2<f32>, Roi) {
     let config = SimConfig {
         full_frame,
         ..SimConfig::default()
@@ -117,7 +117,7 @@ fn bench_process(c: &mut Criterion) {
     g.sample_size(20)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(3));
-    let (reference, pressed, crop) = frames_of(false, &[Contact::rod(0.0, [0.8, 0.0, -2.9], 10.0)]);
+    let (reference, pressed, crop) = frames_of(false, &[Press::rod(0.0, [0.8, 0.0, -2.9], 10.0)]);
     let size = format!("{}x{}", reference.ncols(), reference.nrows());
     // The shipped calibration's 0.2 px threshold, at which such a press's
     // patch spreads along most of the strip.

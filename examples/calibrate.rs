@@ -39,12 +39,14 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
+use optical_tactile::calibration::fit::{
+    extract_dataset, fit_dataset, load_cell_spread, read_dataset,
+};
 use optical_tactile::calibration::{self, FitOptions, GuardOptions, ThresholdRow};
-use optical_tactile::calibration::fit::{extract_dataset, fit_dataset, load_cell_spread, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::{self, FrameRecord, JsonlWriter, Split};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
@@ -312,7 +314,6 @@ fn run() -> Result<(), String> {
             &ex,
             &config,
             args.contact_point,
-            preset,
             crop,
             SensorGeometry::default(),
             &options,

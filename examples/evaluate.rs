@@ -8,8 +8,8 @@
 
 use std::process::ExitCode;
 
-use optical_tactile_sim::evaluate::score;
 use optical_tactile::io::{FrameRecord, read_jsonl};
+use optical_tactile_sim::evaluate::score;
 
 const USAGE: &str =
     "usage: evaluate CONTACTS.jsonl TRUTH.jsonl [--gate MM (default 10)] [--json FILE]";

@@ -30,15 +30,15 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use optical_tactile::calibration::{
-    Calibration, DetectionLimit, FitOptions, PointTable, QuantityMae,
-};
 use optical_tactile::calibration::fit::{
     LoadCellSpread, extract_dataset, fit_dataset, load_cell_spread, read_dataset,
 };
+use optical_tactile::calibration::{
+    Calibration, DetectionLimit, FitOptions, PointTable, QuantityMae,
+};
 use optical_tactile::contact::ContactPointMethod;
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
@@ -284,7 +284,6 @@ fn characterization(
             &ex,
             &config,
             ContactPointMethod::DEFAULT,
-            name,
             crop,
             SensorGeometry::default(),
             &options,

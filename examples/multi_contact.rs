@@ -28,8 +28,8 @@ use std::collections::BTreeMap;
 use std::process::ExitCode;
 
 use demo_support::*;
-use optical_tactile_sim::evaluate::match_contacts;
 use optical_tactile::io::FrameRecord;
+use optical_tactile_sim::evaluate::match_contacts;
 use optical_tactile_sim::scenario::{Pair, Scenario};
 use serde::Serialize;
 

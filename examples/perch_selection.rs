@@ -35,11 +35,11 @@ mod demo_support;
 use std::process::ExitCode;
 
 use demo_support::*;
-use optical_tactile_sim::evaluate::match_contacts;
 use optical_tactile::io::FrameRecord;
+use optical_tactile::viz::{Rgb, Series, Style};
+use optical_tactile_sim::evaluate::match_contacts;
 use optical_tactile_sim::mapping::{PerchReading, rank_perches};
 use optical_tactile_sim::scenario::{Perches, Scenario};
-use optical_tactile::viz::{Rgb, Series, Style};
 use serde::Serialize;
 
 fn usage() -> String {

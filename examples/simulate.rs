@@ -11,10 +11,10 @@ use std::time::Instant;
 
 use ndarray::{Array2, s};
 use optical_tactile::Result;
+use optical_tactile::viz::{Canvas, Rgb, colormap};
 use optical_tactile_sim::cli::{self, Command};
 use optical_tactile_sim::scenario;
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
-use optical_tactile::viz::{Canvas, Rgb, colormap};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -73,8 +73,8 @@ fn pictures(dir: &Path, seed: u64) -> Result<()> {
     c.save_png(dir.join("reference_frame.png"))?;
 
     let contacts = [
-        Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
-        Contact::rod(20.0, [0.0, 0.0, -1.5], 5.0),
+        Press::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
+        Press::rod(20.0, [0.0, 0.0, -1.5], 5.0),
     ];
     let (_, flow) = sensor.render(&contacts)?;
     let (x0, x1) = (560usize, 1040usize);

@@ -46,12 +46,12 @@ use std::process::ExitCode;
 
 use demo_support::*;
 use optical_tactile::io;
+use optical_tactile::viz::{Plot, Rgb, Series, Style};
 use optical_tactile_sim::mapping::{
     Cluster, ClusterSummary, MapOptions, Mounting, RodsTruth, TouchMap, map_touches, match_rods,
     poses_by_frame, read_rods_json,
 };
 use optical_tactile_sim::scenario::{Mapping, Scenario};
-use optical_tactile::viz::{Plot, Rgb, Series, Style};
 use serde::Serialize;
 
 fn usage() -> String {

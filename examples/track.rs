@@ -36,12 +36,12 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use optical_tactile::calibration::Calibration;
-use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::calibration::fit::preset_name;
+use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
 use optical_tactile::io::{FrameRecord, JsonlWriter};
-use optical_tactile::segment::Thresholds;
+use optical_tactile::segment::{ThresholdPreset, Thresholds};
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
 use optical_tactile::track::{FilterConfig, ReferencePolicy};
 use optical_tactile::viz;
@@ -98,8 +98,12 @@ fn parse() -> Result<Option<Args>, String> {
             "--calibration" => a.calibration = PathBuf::from(val("--calibration")?),
             "--crop" => a.crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
             "--thresholds" => {
-                a.thresholds =
-                    Some(Thresholds::preset(&val("--thresholds")?).map_err(|e| e.to_string())?)
+                a.thresholds = Some(
+                    val("--thresholds")?
+                        .parse::<ThresholdPreset>()
+                        .map_err(|e| e.to_string())?
+                        .thresholds(),
+                )
             }
             "--preset" => {
                 a.preset = Some(DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?)

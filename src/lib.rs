@@ -24,18 +24,18 @@
 
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
-pub mod error;
-pub mod frame;
-pub mod io;
-pub mod capture;
-pub mod flow;
-pub mod segment;
-pub mod hhd;
-pub mod contact;
-pub mod geometry;
 pub mod calibration;
-pub mod track;
+pub mod capture;
+pub mod contact;
+pub mod error;
+pub mod flow;
+pub mod frame;
+pub mod geometry;
+pub mod hhd;
+pub mod io;
+pub mod segment;
 pub mod sensor;
+pub mod track;
 pub mod viz;
 
 pub use error::{Error, Result};

@@ -38,7 +38,8 @@ use std::time::Instant;
 use ndarray::{Array2, ArrayRef2};
 use rayon::prelude::*;
 
-use crate::calibration::{Calibration, SegmentationThresholds, SensorSetup};
+use crate::calibration::{Calibration, SensorSetup};
+use crate::contact::profile::ForceMatcher;
 use crate::contact::{
     Contact, ContactLocator, PatchFields, PatchGrid, RawContact, raw_quantities,
     sensor_displacements,
@@ -46,10 +47,8 @@ use crate::contact::{
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
-use crate::hhd::{Decomposition, NaturalHhd};
 use crate::frame::Roi;
-use crate::segment::morphology::Shape;
-use crate::contact::profile::ForceMatcher;
+use crate::hhd::{Decomposition, NaturalHhd};
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -85,7 +84,7 @@ impl ExtractorConfig {
     /// `setup.pipeline` (otherwise the defaults).
     pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
         let mut config = ExtractorConfig {
-            thresholds: thresholds_from_setup(&setup.thresholds)?,
+            thresholds: setup.thresholds,
             ..ExtractorConfig::default()
         };
         if let Some(p) = &setup.pipeline {
@@ -95,21 +94,6 @@ impl ExtractorConfig {
         }
         Ok(config)
     }
-}
-
-/// The segmentation thresholds recorded in a calibration, as
-/// [`Thresholds`] (rectangular kernels, as the presets). Errors if they are
-/// not valid thresholds.
-pub fn thresholds_from_setup(t: &SegmentationThresholds) -> Result<Thresholds> {
-    let out = Thresholds {
-        magnitude: t.magnitude as f32,
-        sum: t.sum as f32,
-        erode: t.erode as usize,
-        dilate: t.dilate as usize,
-        shape: Shape::Rect,
-    };
-    out.validate()?;
-    Ok(out)
 }
 
 /// One patch's working set: its planner, decomposition and result.

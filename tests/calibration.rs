@@ -4,16 +4,17 @@
 use std::path::PathBuf;
 
 use optical_tactile::Error;
+use optical_tactile::calibration::fit::load_cell_spread;
+use optical_tactile::calibration::poly::{CrossTerms, Polynomial};
 use optical_tactile::calibration::{
     self, Calibration, DetectionLimit, FitOptions, ForceGuard, GUARD_BOX_MARGIN, GuardOptions,
-    Sample, SegmentationThresholds, SensorSetup, ThresholdRow, evaluate, min_detectable_force,
-    table_i_markdown, table_ii_markdown,
+    Sample, SensorSetup, ThresholdRow, evaluate, min_detectable_force, table_i_markdown,
+    table_ii_markdown,
 };
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::frame::Roi;
-use optical_tactile::calibration::fit::load_cell_spread;
+use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::{Split, TestRow};
-use optical_tactile::calibration::poly::{CrossTerms, Polynomial};
+use optical_tactile::segment::{Shape, Thresholds};
 
 /// The library's deterministic generator (SplitMix64), so tests need no extra dependency.
 use optical_tactile_sim::rng::SplitMix64 as Rng;
@@ -22,12 +23,12 @@ fn setup() -> SensorSetup {
     SensorSetup {
         geometry: SensorGeometry::default(),
         crop: Roi::new(160, 440, 1600, 200),
-        thresholds: SegmentationThresholds {
-            preset: "high".into(),
+        thresholds: Thresholds {
             magnitude: 1.5,
             sum: 400.0,
             erode: 5,
             dilate: 9,
+            shape: Shape::Rect,
         },
         pipeline: None,
     }
@@ -467,7 +468,7 @@ fn fit_rejects_bad_samples() {
     assert!(msg.contains("`gx`") && msg.contains("at least"), "{msg}");
     // Invalid setup.
     let mut s2 = setup();
-    s2.thresholds.magnitude = f64::NAN;
+    s2.thresholds.magnitude = f32::NAN;
     assert!(calibration::fit(&samples, &s2, &o).is_err());
     // An unsupported order.
     let o2 = FitOptions {

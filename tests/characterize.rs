@@ -7,8 +7,8 @@ use optical_tactile::Error;
 use optical_tactile::calibration::FitOptions;
 use optical_tactile::calibration::fit::{extract_dataset, fit_dataset, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
@@ -140,7 +140,6 @@ fn too_few_rows_to_fit_is_a_clear_error() {
         &ex,
         &config(),
         ContactPointMethod::DEFAULT,
-        "custom",
         Roi::full(1600, 200),
         SensorGeometry::default(),
         &FitOptions::default(),

@@ -2,7 +2,9 @@
 //! the algebraic properties of erosion and dilation.
 
 use ndarray::Array2;
-use optical_tactile::segment::morphology::{Mask, Morphology, Shape, StructuringElement, dilate, erode};
+use optical_tactile::segment::morphology::{
+    Mask, Morphology, Shape, StructuringElement, dilate, erode,
+};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 

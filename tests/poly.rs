@@ -5,7 +5,7 @@
 use ndarray::{Array1, Array2, ArrayView2};
 use optical_tactile::Error;
 use optical_tactile::calibration::poly::{
-    CrossTerms, FitData, FitOptions, PolySpec, Polynomial, VarGroup, candidate_orders, fit, mae,
+    CrossTerms, FitData, LeastSquares, PolySpec, Polynomial, VarGroup, candidate_orders, fit, mae,
     search_orders,
 };
 use proptest::prelude::*;
@@ -148,9 +148,9 @@ fn exact_polynomial_coefficients_are_recovered() {
         .outer_iter()
         .map(|r| naive_eval(&p_true, r.as_slice().unwrap()))
         .collect();
-    let opts = FitOptions {
+    let opts = LeastSquares {
         normalize: false,
-        ..FitOptions::default()
+        ..LeastSquares::default()
     };
     let (p, stats) = fit(&spec, x.view(), y.view(), &opts).unwrap();
     assert_eq!(stats.rank, terms.len());
@@ -161,7 +161,7 @@ fn exact_polynomial_coefficients_are_recovered() {
     assert!(stats.train_mae < 1e-12, "train MAE {}", stats.train_mae);
 
     // Normalized fit of the same data: other coefficients, same function.
-    let (q, _) = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap();
+    let (q, _) = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap();
     for _ in 0..50 {
         let pt: Vec<f64> = (0..6).map(|_| rng.uniform(-1.5, 1.5)).collect();
         let (a, b) = (q.evaluate(&pt).unwrap(), naive_eval(&p_true, &pt));
@@ -183,7 +183,7 @@ fn large_pixel_coordinates_are_handled_by_normalization() {
         &PolySpec::single("x2d", 5).unwrap(),
         x.view(),
         y.view(),
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap();
     assert_eq!(st.rank, 6);
@@ -244,9 +244,9 @@ fn noisy_fit_matches_the_normal_equations() {
             .product::<f64>()
     });
     let oracle = normal_equations(&a, &y);
-    let opts = FitOptions {
+    let opts = LeastSquares {
         normalize: false,
-        ..FitOptions::default()
+        ..LeastSquares::default()
     };
     let (p, _) = fit(&spec, x.view(), y.view(), &opts).unwrap();
     for (a, b) in p.coefficients().iter().zip(&oracle) {
@@ -281,7 +281,7 @@ fn order_search_picks_the_true_orders_on_noisy_data() {
         FitData::new(xt.view(), yt.view()),
         FitData::new(xv.view(), yv.view()),
         Some(FitData::new(xs.view(), ys.view())),
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap();
     assert_eq!(
@@ -324,7 +324,7 @@ fn order_search_single_variable_true_order() {
         FitData::new(xt.view(), yt.view()),
         FitData::new(xv.view(), yv.view()),
         None,
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap();
     assert_eq!(rep.orders, vec![3]);
@@ -343,7 +343,7 @@ fn order_search_is_deterministic() {
             FitData::new(xt.view(), yt.view()),
             FitData::new(xv.view(), yv.view()),
             None,
-            &FitOptions::default(),
+            &LeastSquares::default(),
         )
         .unwrap()
     };
@@ -371,7 +371,7 @@ fn candidates_too_big_for_the_data_are_skipped_and_reported() {
         FitData::new(xt.view(), yt.view()),
         FitData::new(xv.view(), yv.view()),
         None,
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap();
     let skipped: Vec<_> = rep
@@ -397,7 +397,7 @@ fn too_few_rows_says_how_many_are_needed() {
     let m = spec.n_terms().unwrap();
     let x = Array2::<f64>::zeros((m - 1, 6));
     let y = Array1::<f64>::zeros(m - 1);
-    let e = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap_err();
+    let e = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap_err();
     assert!(matches!(e, Error::Numerical { .. }), "{e}");
     let msg = e.to_string();
     assert!(msg.contains(&format!("at least {m} samples")), "{msg}");
@@ -408,7 +408,7 @@ fn too_few_rows_says_how_many_are_needed() {
         FitData::new(x.view(), y.view()),
         FitData::new(x.view(), y.view()),
         None,
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("no candidate"), "{e}");
@@ -421,34 +421,34 @@ fn bad_data_is_a_typed_error() {
     let y = Array1::from_shape_fn(10, |i| i as f64);
     // Mismatched variable count.
     let x2 = Array2::<f64>::zeros((10, 2));
-    let e = fit(&spec, x2.view(), y.view(), &FitOptions::default()).unwrap_err();
+    let e = fit(&spec, x2.view(), y.view(), &LeastSquares::default()).unwrap_err();
     assert!(matches!(e, Error::ShapeMismatch { .. }), "{e}");
     // Mismatched row count.
     let e = fit(
         &spec,
         x.view(),
         y.slice(ndarray::s![..9]),
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap_err();
     assert!(matches!(e, Error::ShapeMismatch { .. }), "{e}");
     // Non-finite input and target, with their positions.
     let mut xn = x.clone();
     xn[(4, 0)] = f64::NAN;
-    match fit(&spec, xn.view(), y.view(), &FitOptions::default()).unwrap_err() {
+    match fit(&spec, xn.view(), y.view(), &LeastSquares::default()).unwrap_err() {
         Error::NonFinite { row, col, .. } => assert_eq!((row, col), (4, 0)),
         e => panic!("{e}"),
     }
     let mut yn = y.clone();
     yn[7] = f64::INFINITY;
-    match fit(&spec, x.view(), yn.view(), &FitOptions::default()).unwrap_err() {
+    match fit(&spec, x.view(), yn.view(), &LeastSquares::default()).unwrap_err() {
         Error::NonFinite { row, .. } => assert_eq!(row, 7),
         e => panic!("{e}"),
     }
     // Bad rcond.
-    let opts = FitOptions {
+    let opts = LeastSquares {
         rcond: f64::NAN,
-        ..FitOptions::default()
+        ..LeastSquares::default()
     };
     assert!(matches!(
         fit(&spec, x.view(), y.view(), &opts).unwrap_err(),
@@ -462,13 +462,13 @@ fn rank_deficiency_is_reported() {
     let spec = PolySpec::new(vec![VarGroup::new("g", &["u", "v"], 1)], CrossTerms::None).unwrap();
     let x = Array2::from_shape_fn((20, 2), |(i, _)| i as f64);
     let y = Array1::from_shape_fn(20, |i| 3.0 + 2.0 * i as f64);
-    let e = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap_err();
+    let e = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap_err();
     let msg = e.to_string();
     assert!(msg.contains("rank 2 for 3 terms"), "{msg}");
     // Allowed: minimum-norm solution, rank in the stats, still exact.
-    let opts = FitOptions {
+    let opts = LeastSquares {
         allow_rank_deficient: true,
-        ..FitOptions::default()
+        ..LeastSquares::default()
     };
     let (p, st) = fit(&spec, x.view(), y.view(), &opts).unwrap();
     assert_eq!(st.rank, 2);
@@ -479,7 +479,7 @@ fn rank_deficiency_is_reported() {
         &PolySpec::single("c", 1).unwrap(),
         xc.view(),
         y.view(),
-        &FitOptions::default(),
+        &LeastSquares::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("rank 1 for 2 terms"), "{e}");
@@ -557,7 +557,7 @@ fn serde_round_trip_is_bit_exact_and_validated() {
     let mut rng = Rng(42);
     let spec = spec3(2, 1, 1, CrossTerms::MaxOfGroups);
     let (x, y) = noisy_force_data(100, &mut rng, 0.1);
-    let (p, _) = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap();
+    let (p, _) = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap();
     let json = serde_json::to_string_pretty(&p).unwrap();
     let q: Polynomial = serde_json::from_str(&json).unwrap();
     assert_eq!(p, q);
@@ -655,7 +655,7 @@ proptest! {
         let n = 3 * terms.len() + 5;
         let x = Array2::from_shape_fn((n, 2), |(_, j)| if j == 0 { rng.uniform(100.0, 900.0) } else { rng.uniform(20.0, 180.0) });
         let y = p.evaluate_rows(x.view()).unwrap();
-        let (q, st) = fit(&spec, x.view(), y.view(), &FitOptions::default()).unwrap();
+        let (q, st) = fit(&spec, x.view(), y.view(), &LeastSquares::default()).unwrap();
         prop_assert_eq!(st.rank, terms.len());
         for _ in 0..10 {
             let pt = [rng.uniform(100.0, 900.0), rng.uniform(20.0, 180.0)];
@@ -692,11 +692,11 @@ fn huber_fit_resists_gross_outliers() {
         y[i] += rng.uniform(5.0, 10.0);
     }
     let spec = PolySpec::single("x", 2).unwrap();
-    let plain = FitOptions {
+    let plain = LeastSquares {
         normalize: false,
-        ..FitOptions::default()
+        ..LeastSquares::default()
     };
-    let robust = FitOptions {
+    let robust = LeastSquares {
         huber: Some(1.345),
         ..plain.clone()
     };
@@ -716,7 +716,7 @@ fn huber_fit_resists_gross_outliers() {
     let (q, _) = fit(&spec, x.view(), ye.view(), &robust).unwrap();
     assert!(err(&q) < 1e-12);
     // Bad parameter.
-    let bad = FitOptions {
+    let bad = LeastSquares {
         huber: Some(-1.0),
         ..plain
     };

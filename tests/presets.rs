@@ -11,7 +11,7 @@
 use optical_tactile::contact::{ContactLocator, ContactPointMethod};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 /// The reference 1600 x 200 strip: the presets were tuned on it, and a
 /// shorter skin responds differently (a 120 mm skin on a 600 px strip needs
@@ -42,9 +42,9 @@ fn contacts(
     rods: &[(f64, f64, f64)],
 ) -> Vec<f64> {
     let skin = sensor.config().skin;
-    let rods: Vec<Contact> = rods
+    let rods: Vec<Press> = rods
         .iter()
-        .map(|&(s, f, d)| Contact::rod(skin.arc_to_chord(s), [0.0, 0.0, -f], d))
+        .map(|&(s, f, d)| Press::rod(skin.arc_to_chord(s), [0.0, 0.0, -f], d))
         .collect();
     let r = sensor.render_indexed(2 * index, &[], false).unwrap();
     let o = sensor.render_indexed(2 * index + 1, &rods, false).unwrap();

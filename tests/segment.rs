@@ -5,8 +5,8 @@
 //! noise.
 
 use optical_tactile::Error;
-use optical_tactile::segment::contours::BoundingBox;
 use optical_tactile::flow::FlowField;
+use optical_tactile::segment::contours::BoundingBox;
 use optical_tactile::segment::morphology::{Mask, Shape, StructuringElement};
 use optical_tactile::segment::{RestOptions, Segmenter, SegmenterConfig, Thresholds};
 

@@ -15,9 +15,9 @@ use optical_tactile::frame::Roi;
 use optical_tactile::io::{self, FrameRecord, JsonlWriter, read_jsonl};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::track::ReferencePolicy;
 use optical_tactile::viz::{self, Rgb};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 /// The fast preset (cheap enough for hundreds of frames in a test) with
 /// thresholds above its rest noise.
@@ -60,8 +60,8 @@ fn renders() -> (Array2<f32>, Vec<Array2<f32>>, Array2<f32>) {
     let rest = (0..3).map(|_| sim.render(&[]).unwrap().0).collect();
     let press = sim
         .render(&[
-            Contact::rod(-20.0, [0.0, 0.0, -3.0], 5.0),
-            Contact::rod(20.0, [0.0, 0.0, -2.5], 5.0),
+            Press::rod(-20.0, [0.0, 0.0, -3.0], 5.0),
+            Press::rod(20.0, [0.0, 0.0, -2.5], 5.0),
         ])
         .unwrap()
         .0;

@@ -11,8 +11,8 @@ use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::frame::Roi;
 use optical_tactile::io::{self, FrameRecord};
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile_sim::scenario::{self, Common, Scenario};
 use optical_tactile::viz::{Canvas, Plot, Rgb, Series, Style};
+use optical_tactile_sim::scenario::{self, Common, Scenario};
 use serde::Serialize;
 
 /// The options every demo takes.

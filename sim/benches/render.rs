@@ -3,14 +3,14 @@
 //! truth flow.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 use std::hint::black_box;
 use std::time::Duration;
 
 fn bench(c: &mut Criterion) {
     let contacts = [
-        Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
-        Contact::rod(20.0, [0.3, 0.0, -1.5], 5.0),
+        Press::rod(-20.0, [0.0, 0.0, -2.0], 5.0),
+        Press::rod(20.0, [0.3, 0.0, -1.5], 5.0),
     ];
     let mut g = c.benchmark_group("sim_render");
     g.measurement_time(Duration::from_secs(3))

@@ -94,7 +94,7 @@ impl Skin {
 /// Camera model: unrolled skin (mm) to pixels of the sensing-strip image, and the
 /// strip's place in the full camera frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Camera {
+pub struct CameraModel {
     /// Width of the sensing-strip image, px (1600).
     pub strip_width: usize,
     /// Height of the sensing-strip image, px (200).
@@ -113,9 +113,9 @@ pub struct Camera {
     pub strip_origin: (usize, usize),
 }
 
-impl Default for Camera {
+impl Default for CameraModel {
     fn default() -> Self {
-        Camera {
+        CameraModel {
             strip_width: 1600,
             strip_height: 200,
             px_per_mm_s: 5.0,
@@ -127,7 +127,7 @@ impl Default for Camera {
     }
 }
 
-impl Camera {
+impl CameraModel {
     /// Checks the camera against the skin: sizes, scales, monotonic mapping, and
     /// that the strip fits in the full frame.
     pub fn validate(&self, skin: &Skin) -> Result<()> {
@@ -208,7 +208,7 @@ impl Camera {
         0.5 * (self.strip_height as f64 - 1.0) + self.px_per_mm_y * y
     }
 
-    /// Arc length of image x (inverse of [`Camera::s_to_px`], by Newton steps;
+    /// Arc length of image x (inverse of [`CameraModel::s_to_px`], by Newton steps;
     /// the map is monotonic because `|cubic| < 0.3`).
     pub fn px_to_s(&self, skin: &Skin, x_px: f64) -> f64 {
         let h = skin.half_length();
@@ -293,7 +293,7 @@ mod tests {
     #[test]
     fn camera_maps_the_skin_inside_the_strip_and_inverts() {
         let skin = Skin::default();
-        let cam = Camera::default();
+        let cam = CameraModel::default();
         cam.validate(&skin).unwrap();
         for s in [-160.0, -77.7, 0.0, 12.5, 160.0] {
             let x = cam.s_to_px(&skin, s);
@@ -303,9 +303,9 @@ mod tests {
         let d0 = cam.s_to_px(&skin, 1.0) - cam.s_to_px(&skin, 0.0);
         let d1 = cam.s_to_px(&skin, 160.0) - cam.s_to_px(&skin, 159.0);
         assert!(d1 < 0.9 * d0);
-        let bad = Camera { cubic: 0.5, ..cam };
+        let bad = CameraModel { cubic: 0.5, ..cam };
         assert!(bad.validate(&skin).is_err());
-        let bad = Camera {
+        let bad = CameraModel {
             strip_origin: (400, 0),
             ..cam
         };

@@ -28,16 +28,16 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::scenario::{self, Common, Mapping, Scenario, tilted_force};
-use super::sensor::{Contact, SyntheticSensor};
+use super::sensor::{Press, SyntheticSensor};
+pub use crate::mapping::ClusterSummary;
+use crate::mapping::{
+    Cluster, MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json,
+};
 use optical_tactile::calibration::Calibration;
 use optical_tactile::contact::{ContactLocator, ContactPointMethod};
 use optical_tactile::error::{Error, Result};
 use optical_tactile::flow::dis::Dis;
 use optical_tactile::io::{self, FrameRecord};
-pub use crate::mapping::ClusterSummary;
-use crate::mapping::{
-    Cluster, MapOptions, map_touches, match_rods, poses_by_frame, read_rods_json,
-};
 use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
 use optical_tactile::sensor::{
     AnalysisGrid, ContactExtractor, ExtractorConfig, QUIET_MIN_TEXTURE, QUIET_TILE_PX,
@@ -437,7 +437,7 @@ pub fn mdf_sweep(
                 let mut stray = vec![0usize; n];
                 let scale = bench.scale();
                 for (fi, &f) in plan.forces_n.iter().enumerate() {
-                    let rod = Contact::rod(x, tilted_force(f, yaw, pitch), d);
+                    let rod = Press::rod(x, tilted_force(f, yaw, pitch), d);
                     let fr = sensor.render_indexed(idx, &[rod], false)?;
                     idx += 1;
                     bench.each(&fr.frame, |k, p, _| {
@@ -593,8 +593,8 @@ pub fn pair_told_apart(
         return Err(Error::param("tol_mm", format!("must be > 0, got {tol_mm}")));
     }
     let rods = [
-        Contact::rod(skin.arc_to_chord(s1), [0.0, 0.0, -force_n], indenter_mm),
-        Contact::rod(skin.arc_to_chord(s2), [0.0, 0.0, -force_n], indenter_mm),
+        Press::rod(skin.arc_to_chord(s1), [0.0, 0.0, -force_n], indenter_mm),
+        Press::rod(skin.arc_to_chord(s2), [0.0, 0.0, -force_n], indenter_mm),
     ];
     let (p1, p2) = (rod_px(sensor, s1), rod_px(sensor, s2));
     let tol = tol_mm * sensor.config().camera.px_per_mm_s;

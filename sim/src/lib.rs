@@ -2,7 +2,7 @@
 //! scenarios.
 //!
 //! A [`SyntheticSensor`] is built from a [`SimConfig`] and a seed (which fixes
-//! the random marker layout). For any set of rod [`Contact`]s given in the
+//! the random marker layout). For any set of rod [`Press`]es given in the
 //! sensor frame it computes each marker's displacement from linear elasticity
 //! ([`elastic`]: Boussinesq and Cerruti solutions integrated over the rod's
 //! Hertz footprint, with a rigid-base correction for the layer), maps it through
@@ -22,10 +22,10 @@
 //! Images are `Array2<f32>` on the 8-bit scale; flows are in pixels.
 //!
 //! ```
-//! use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
+//! use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 //! let sensor = SyntheticSensor::new(SimConfig::default(), 1)?;
 //! // A 5 mm rod pressing 1.5 N straight down, 30 mm left of centre.
-//! let rod = Contact::rod(-30.0, [0.0, 0.0, -1.5], 5.0);
+//! let rod = Press::rod(-30.0, [0.0, 0.0, -1.5], 5.0);
 //! let loaded = sensor.render_indexed(1, &[rod], true)?;
 //! let truth = loaded.flow.expect("asked for the flow");
 //! assert_eq!(truth.size(), (1600, 200));
@@ -43,6 +43,6 @@ pub mod rng;
 pub mod scenario;
 mod sensor;
 
-pub use camera::{Camera, Skin};
+pub use camera::{CameraModel, Skin};
 pub use elastic::Material;
-pub use sensor::{Contact, MarkerConfig, NoiseConfig, Rendered, SimConfig, SyntheticSensor};
+pub use sensor::{MarkerConfig, NoiseConfig, Press, Rendered, SimConfig, SyntheticSensor};

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::rng::{SplitMix64, mix64};
-use super::sensor::{Contact, SimConfig, SyntheticSensor};
+use super::sensor::{Press, SimConfig, SyntheticSensor};
 use optical_tactile::error::{Error, Result};
 use optical_tactile::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
 
@@ -353,7 +353,7 @@ impl SequenceWriter {
         format!("{:06}.png", self.n)
     }
 
-    fn frame(&mut self, sensor: &SyntheticSensor, contacts: &[Contact]) -> Result<String> {
+    fn frame(&mut self, sensor: &SyntheticSensor, contacts: &[Press]) -> Result<String> {
         let name = self.name();
         let r = sensor.render_indexed(self.n as u64, contacts, self.flow)?;
         io::write_gray_png(self.out.join(&name), &r.frame)?;
@@ -376,7 +376,7 @@ impl SequenceWriter {
 }
 
 /// The DATASET.md record of a true contact (pixel position in the strip image).
-pub fn truth_record(sensor: &SyntheticSensor, c: &Contact) -> ContactRecord {
+pub fn truth_record(sensor: &SyntheticSensor, c: &Press) -> ContactRecord {
     let cfg = sensor.config();
     let s = cfg.skin.geometry.chord_to_arc(c.x_mm);
     ContactRecord {
@@ -494,14 +494,14 @@ fn ramp(k: usize, n: usize) -> f64 {
 fn single(sensor: &SyntheticSensor, c: &Common, o: &Single) -> Result<Summary> {
     let f = tilted_force(1.0, o.yaw_deg, o.pitch_deg);
     // Reject a bad contact before writing anything.
-    sensor.loads(&[Contact::rod(o.x_mm, f, o.indenter_mm)])?;
+    sensor.loads(&[Press::rod(o.x_mm, f, o.indenter_mm)])?;
     let mut w = SequenceWriter::new(c)?;
     for k in 0..o.frames {
         let a = o.force_n * ramp(k, o.frames);
         let contacts = if k == 0 {
             vec![]
         } else {
-            vec![Contact::rod(o.x_mm, f.map(|v| v * a), o.indenter_mm)]
+            vec![Press::rod(o.x_mm, f.map(|v| v * a), o.indenter_mm)]
         };
         w.frame(sensor, &contacts)?;
     }
@@ -535,7 +535,7 @@ fn presses(sensor: &SyntheticSensor, c: &Common, o: &Presses) -> Result<Summary>
             (tilt, 0.0)
         };
         let d = o.indenters_mm[rng.below(o.indenters_mm.len() as u64) as usize];
-        let contact = Contact::rod(x, tilted_force(f, yaw, pitch), d);
+        let contact = Press::rod(x, tilted_force(f, yaw, pitch), d);
         sensor.loads(std::slice::from_ref(&contact))?;
         plan.push((contact, d, yaw, pitch));
     }
@@ -566,13 +566,13 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair) -> Result<Summary> {
         skin.arc_to_chord(s_mid + 0.5 * o.spacing_mm),
     ];
     let peaks = [o.force_n, o.force2_n];
-    let at = |k: usize| -> Vec<Contact> {
+    let at = |k: usize| -> Vec<Press> {
         if k == 0 {
             return vec![];
         }
         (0..2)
             .map(|i| {
-                Contact::rod(
+                Press::rod(
                     xs[i],
                     [0.0, 0.0, -peaks[i] * ramp(k, o.frames)],
                     o.indenter_mm,
@@ -688,7 +688,7 @@ fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) 
             let p = all[id];
             let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
             let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
-            let contact = Contact::rod(x, f, p.indenter);
+            let contact = Press::rod(x, f, p.indenter);
             // Fresh noise and flicker for each image: frame indices from the test id.
             let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
             let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
@@ -740,12 +740,12 @@ struct PerchInfo {
 }
 
 fn perches(sensor: &SyntheticSensor, c: &Common, o: &Perches) -> Result<Summary> {
-    let at = |k: usize| -> Vec<Contact> {
+    let at = |k: usize| -> Vec<Press> {
         let pen = o.max_penetration_mm * ramp(k, o.frames);
         (0..2)
             .filter(|_| k > 0)
             .map(|i| {
-                Contact::rod(
+                Press::rod(
                     o.x_mm[i],
                     [0.0, 0.0, -o.stiffness_n_per_mm[i] * pen],
                     o.indenter_mm,
@@ -805,7 +805,7 @@ fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary>
     let mut w = SequenceWriter::new(c)?;
     let mut poses = Vec::new();
     let hover = 0.05; // m above the touching height while travelling
-    let mut push = |w: &mut SequenceWriter, pose: [f64; 3], contacts: &[Contact]| -> Result<()> {
+    let mut push = |w: &mut SequenceWriter, pose: [f64; 3], contacts: &[Press]| -> Result<()> {
         let name = w.frame(sensor, contacts)?;
         poses.push(PoseRow {
             frame: name,
@@ -838,7 +838,7 @@ fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary>
                 push(
                     &mut w,
                     [px, 0.0, z],
-                    &[Contact::rod(x_mm, [0.0, 0.0, -f], o.indenter_mm)],
+                    &[Press::rod(x_mm, [0.0, 0.0, -f], o.indenter_mm)],
                 )?;
             }
             push(&mut w, [px, 0.0, touch_z + hover], &[])?;

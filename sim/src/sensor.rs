@@ -1,11 +1,11 @@
 //! [`SyntheticSensor`]: configuration, markers, contacts -> marker motion.
 
+use ndarray::Array2;
 use optical_tactile::error::{Error, Result};
 use optical_tactile::flow::FlowField;
-use ndarray::Array2;
 use rayon::prelude::*;
 
-use super::camera::{Camera, Skin};
+use super::camera::{CameraModel, Skin};
 use super::elastic::{Material, QuadratureCache, RodLoad, hertz_half_width};
 use super::render;
 use super::rng::{SplitMix64, mix64};
@@ -13,7 +13,7 @@ use super::rng::{SplitMix64, mix64};
 /// One rod contact, given in the sensor frame (SPEC.md): the rod lies across the
 /// whole width of the skin at chord position `x_mm`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Contact {
+pub struct Press {
     /// Chord position of the rod's axis, mm (sensor x).
     pub x_mm: f64,
     /// Force the rod applies on the skin, sensor frame, N: `[Fx, Fy, Fz]`; a
@@ -23,10 +23,10 @@ pub struct Contact {
     pub diameter_mm: f64,
 }
 
-impl Contact {
+impl Press {
     /// A rod of `diameter_mm` at chord `x_mm` applying `force_n` (sensor frame).
     pub fn rod(x_mm: f64, force_n: [f64; 3], diameter_mm: f64) -> Self {
-        Contact {
+        Press {
             x_mm,
             force_n,
             diameter_mm,
@@ -98,7 +98,7 @@ pub struct SimConfig {
     /// Skin geometry.
     pub skin: Skin,
     /// Camera mapping and image sizes.
-    pub camera: Camera,
+    pub camera: CameraModel,
     /// Gel material.
     pub material: Material,
     /// Marker layout and look.
@@ -106,7 +106,7 @@ pub struct SimConfig {
     /// Noise and lighting.
     pub noise: NoiseConfig,
     /// Render the full camera frame (e.g. 1920x1080) with the strip inside it,
-    /// instead of the strip alone; [`Camera::crop`] gives the strip's rectangle.
+    /// instead of the strip alone; [`CameraModel::crop`] gives the strip's rectangle.
     pub full_frame: bool,
 }
 
@@ -220,10 +220,10 @@ pub struct Rendered {
 /// seed (which fixes the marker layout), then render frames for any contacts.
 ///
 /// ```
-/// use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
+/// use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 /// let mut sensor = SyntheticSensor::new(SimConfig::default(), 42)?;
 /// let reference = sensor.render(&[])?.0;
-/// let press = Contact::rod(-20.0, [0.0, 0.0, -2.0], 5.0);
+/// let press = Press::rod(-20.0, [0.0, 0.0, -2.0], 5.0);
 /// let (frame, truth) = sensor.render(&[press])?;
 /// assert_eq!(frame.dim(), reference.dim());
 /// assert!(truth.magnitude().iter().cloned().fold(0.0, f32::max) > 0.3);
@@ -277,7 +277,7 @@ impl SyntheticSensor {
     }
 
     /// Turns contacts into rod loads on the unrolled skin, checking them.
-    pub fn loads(&self, contacts: &[Contact]) -> Result<Vec<RodLoad>> {
+    pub fn loads(&self, contacts: &[Press]) -> Result<Vec<RodLoad>> {
         let skin = &self.config.skin;
         let mat = &self.config.material;
         contacts
@@ -335,7 +335,7 @@ impl SyntheticSensor {
     }
 
     /// Every marker's displacement (mm, local frame) under `contacts`.
-    pub fn marker_displacements(&self, contacts: &[Contact]) -> Result<Vec<[f64; 3]>> {
+    pub fn marker_displacements(&self, contacts: &[Press]) -> Result<Vec<[f64; 3]>> {
         let loads = self.loads(contacts)?;
         let m = &self.markers;
         Ok((0..m.s.len())
@@ -417,7 +417,7 @@ impl SyntheticSensor {
     /// with the motion field at the markers' mean depth, which is what remains
     /// between markers. It is the motion from the unloaded skin, i.e. what a
     /// flow from an unloaded reference frame should find.
-    pub fn render(&mut self, contacts: &[Contact]) -> Result<(Array2<f32>, FlowField)> {
+    pub fn render(&mut self, contacts: &[Press]) -> Result<(Array2<f32>, FlowField)> {
         let r = self.render_indexed(self.next_index, contacts, true)?;
         self.next_index += 1;
         let flow = r.flow.expect("flow requested");
@@ -429,7 +429,7 @@ impl SyntheticSensor {
     pub fn render_indexed(
         &self,
         index: u64,
-        contacts: &[Contact],
+        contacts: &[Press],
         with_flow: bool,
     ) -> Result<Rendered> {
         let loads = self.loads(contacts)?;
@@ -500,7 +500,7 @@ mod tests {
         cfg.noise.read = 0.0;
         cfg.noise.flicker = 0.0;
         let s = SyntheticSensor::new(cfg, 5).unwrap();
-        let contacts = [Contact::rod(10.0, [0.2, 0.0, -2.5], 5.0)];
+        let contacts = [Press::rod(10.0, [0.2, 0.0, -2.5], 5.0)];
         let r = s.render_indexed(3, &contacts, true).unwrap();
         let loads = s.loads(&contacts).unwrap();
         let motion = s.marker_pixel_motion(&loads);

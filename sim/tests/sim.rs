@@ -11,17 +11,15 @@ use optical_tactile_sim::elastic::{
 use optical_tactile_sim::scenario::{
     self, Common, Mapping, Perches, Presses, Scenario, Single, tilted_force,
 };
-use optical_tactile_sim::{
-    Contact, MarkerConfig, Material, NoiseConfig, SimConfig, SyntheticSensor,
-};
+use optical_tactile_sim::{MarkerConfig, Material, NoiseConfig, Press, SimConfig, SyntheticSensor};
 use proptest::prelude::*;
 
 fn sensor() -> SyntheticSensor {
     SyntheticSensor::new(SimConfig::default(), 7).unwrap()
 }
 
-fn press(x: f64, f: f64) -> Contact {
-    Contact::rod(x, [0.0, 0.0, -f], 5.0)
+fn press(x: f64, f: f64) -> Press {
+    Press::rod(x, [0.0, 0.0, -f], 5.0)
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -89,10 +87,7 @@ fn linear_in_force_at_a_fixed_footprint() {
 #[test]
 fn contacts_superpose() {
     let s = sensor();
-    let (a, b) = (
-        press(-30.0, 1.5),
-        Contact::rod(10.0, [0.3, -0.2, -2.0], 10.0),
-    );
+    let (a, b) = (press(-30.0, 1.5), Press::rod(10.0, [0.3, -0.2, -2.0], 10.0));
     let la = s.loads(&[a]).unwrap();
     let lb = s.loads(&[b]).unwrap();
     let lab = s.loads(&[a, b]).unwrap();
@@ -113,7 +108,7 @@ fn markers_spread_outward_below_a_normal_press() {
     let s_c = SimConfig::default().skin.chord_to_arc(x_c).unwrap();
     // Press along the local normal (a vertical press here would add shear).
     let th = (x_c / 220.0f64).asin();
-    let normal = Contact::rod(x_c, [-2.0 * th.sin(), 0.0, -2.0 * th.cos()], 5.0);
+    let normal = Press::rod(x_c, [-2.0 * th.sin(), 0.0, -2.0 * th.cos()], 5.0);
     let d = s.marker_displacements(&[normal]).unwrap();
     let mut checked = 0;
     for (p, u) in s.marker_positions().iter().zip(&d) {
@@ -138,7 +133,7 @@ fn markers_spread_outward_below_a_normal_press() {
     assert!(checked > 500, "{checked}");
 }
 
-fn max_marker_px(s: &SyntheticSensor, c: Contact) -> f64 {
+fn max_marker_px(s: &SyntheticSensor, c: Press) -> f64 {
     let cfg = s.config();
     let d = s.marker_displacements(&[c]).unwrap();
     s.marker_positions()
@@ -160,7 +155,7 @@ fn press_magnitudes_match_the_reference_range() {
     assert!((0.15..0.6).contains(&lo), "0.5 N: {lo} px");
     assert!((0.9..2.5).contains(&hi), "3 N: {hi} px");
     // A 15 deg tilt adds a larger, translation-like shear.
-    let tilted = Contact::rod(0.0, scenario::tilted_force(1.5, 0.0, 15.0), 5.0);
+    let tilted = Press::rod(0.0, scenario::tilted_force(1.5, 0.0, 15.0), 5.0);
     let straight = max_marker_px(&s, press(0.0, 1.5));
     let t = max_marker_px(&s, tilted);
     println!(
@@ -180,7 +175,7 @@ fn shear_moves_markers_along_the_force() {
         (15.0, 0.0, 1, 1.0),
         (-15.0, 0.0, 1, -1.0),
     ] {
-        let c = Contact::rod(0.0, scenario::tilted_force(2.0, yaw, pitch), 5.0);
+        let c = Press::rod(0.0, scenario::tilted_force(2.0, yaw, pitch), 5.0);
         let d = s.marker_displacements(&[c]).unwrap();
         let near: Vec<f64> = s
             .marker_positions()
@@ -200,7 +195,7 @@ fn shear_moves_markers_along_the_force() {
 #[test]
 fn identical_output_for_any_thread_count() {
     let s = sensor();
-    let c = [press(-20.0, 2.0), Contact::rod(30.0, [0.2, 0.1, -1.0], 2.0)];
+    let c = [press(-20.0, 2.0), Press::rod(30.0, [0.2, 0.1, -1.0], 2.0)];
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -256,11 +251,7 @@ fn truth_flow_explains_the_rendered_motion() {
     let r1 = s
         .render_indexed(
             1,
-            &[Contact::rod(
-                0.0,
-                scenario::tilted_force(3.0, 0.0, 15.0),
-                5.0,
-            )],
+            &[Press::rod(0.0, scenario::tilted_force(3.0, 0.0, 15.0), 5.0)],
             true,
         )
         .unwrap();
@@ -355,7 +346,7 @@ fn full_frame_holds_the_strip_at_its_crop() {
 #[test]
 fn nonsense_parameters_are_errors() {
     let s = sensor();
-    let bad = |c: Contact| {
+    let bad = |c: Press| {
         assert!(
             matches!(s.loads(&[c]), Err(Error::InvalidParameter { .. })),
             "{c:?}"
@@ -363,9 +354,9 @@ fn nonsense_parameters_are_errors() {
     };
     bad(press(150.0, 1.0)); // off the skin
     bad(press(f64::NAN, 1.0));
-    bad(Contact::rod(0.0, [0.0, 0.0, 1.0], 5.0)); // pulls the skin
-    bad(Contact::rod(0.0, [0.0, f64::INFINITY, -1.0], 5.0));
-    bad(Contact::rod(0.0, [0.0, 0.0, -1.0], 0.0));
+    bad(Press::rod(0.0, [0.0, 0.0, 1.0], 5.0)); // pulls the skin
+    bad(Press::rod(0.0, [0.0, f64::INFINITY, -1.0], 5.0));
+    bad(Press::rod(0.0, [0.0, 0.0, -1.0], 0.0));
     assert!(s.render_indexed(0, &[press(200.0, 1.0)], true).is_err());
     let with = |m: MarkerConfig| SimConfig {
         markers: m,

@@ -19,14 +19,16 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibration::{
     self, Calibration, DetectionLimit, FitOptions, PipelineSettings, PointTable, Sample,
-    SegmentationThresholds, SensorSetup,
+    SensorSetup,
+};
+use crate::contact::profile::{
+    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
 };
 use crate::contact::{ContactLocator, ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
-use crate::geometry::SensorGeometry;
 use crate::frame::Roi;
+use crate::geometry::SensorGeometry;
 use crate::io::{self, Split, TestRow};
-use crate::contact::profile::{ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into};
 use crate::sensor::{ContactExtractor, ExtractorConfig};
 
 /// One test of the dataset and what the pipeline found in it.
@@ -183,28 +185,18 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
 
 /// Fits a calibration from the extractions (see the module docs).
 ///
-/// `thresholds_name` labels the thresholds in the file (`low`, `mid`, `high`).
 pub fn fit_dataset(
     extractions: &[Extraction],
     config: &ExtractorConfig,
     contact_point: ContactPointMethod,
-    thresholds_name: &str,
     crop: Roi,
     geometry: SensorGeometry,
     options: &FitOptions,
 ) -> Result<DatasetFit> {
-    let t = &config.thresholds;
     let setup = SensorSetup {
         geometry,
         crop,
-        thresholds: SegmentationThresholds {
-            preset: thresholds_name.to_string(),
-            // Through the decimal text, so that 0.2f32 is recorded as 0.2.
-            magnitude: f32_to_f64(t.magnitude),
-            sum: f32_to_f64(t.sum),
-            erode: t.erode as u32,
-            dilate: t.dilate as u32,
-        },
+        thresholds: config.thresholds,
         pipeline: Some(PipelineSettings {
             flow_preset: preset_name(config),
             margin_px: config.margin_px,
@@ -556,11 +548,6 @@ pub fn load_cell_spread(rows: &[TestRow]) -> Option<LoadCellSpread> {
         groups: n_groups,
         dof,
     })
-}
-
-/// An `f32` as the `f64` of its shortest decimal form (0.2f32 -> 0.2).
-fn f32_to_f64(x: f32) -> f64 {
-    x.to_string().parse().unwrap_or(f64::from(x))
 }
 
 /// The DIS preset whose parameters `config.flow` equals, or `custom`.

@@ -58,13 +58,15 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array1, Array2};
 use serde::{Deserialize, Serialize};
 
+use crate::contact::profile::{ForceMatcher, ProfileModel};
 use crate::contact::{Contact, ContactLocator, ContactPointMethod, RawContact};
 use crate::error::{Error, Result};
-use crate::geometry::SensorGeometry;
 use crate::frame::Roi;
+use crate::geometry::SensorGeometry;
 use crate::io::{Split, TestRow};
+use crate::segment::morphology::Shape;
+use crate::segment::{ThresholdPreset, Thresholds};
 use poly::{CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
-use crate::contact::profile::{ForceMatcher, ProfileModel};
 
 /// How far, as a fraction of its width on each side, a force input may leave
 /// the [`ForceGuard`]'s training box before the fallback maps take over.
@@ -83,32 +85,63 @@ pub const G2_VARIABLES: [&str; 1] = ["y2d"];
 /// Variables of the force maps `gx, gy, gz`, in evaluation order.
 pub const FORCE_VARIABLES: [&str; 6] = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
 
-/// The segmentation thresholds a calibration was fitted with (the numbers of
-/// SPEC.md step 5; the segmentation module owns their meaning).
+/// How a calibration file records the segmentation thresholds it was fitted
+/// with: a label (`low`, `mid`, `high` for a preset, otherwise `custom`) and the
+/// numbers, full-resolution pixels. The kernel shape is written only when it is
+/// not the presets' rectangle.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SegmentationThresholds {
-    /// Preset name (`low`, `mid`, `high` or a custom label).
-    pub preset: String,
-    /// Threshold on the flow magnitude, pixels.
-    pub magnitude: f64,
-    /// Threshold on the summed |flow| of a bounding box, pixels.
-    pub sum: f64,
-    /// Erosion kernel size, pixels.
-    pub erode: u32,
-    /// Dilation kernel size, pixels.
-    pub dilate: u32,
+struct ThresholdsFile {
+    preset: String,
+    magnitude: f32,
+    sum: f32,
+    erode: u32,
+    dilate: u32,
+    #[serde(default, skip_serializing_if = "is_rect")]
+    shape: Shape,
 }
 
-impl SegmentationThresholds {
-    fn validate(&self) -> std::result::Result<(), String> {
-        for (name, v) in [("magnitude", self.magnitude), ("sum", self.sum)] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!(
-                    "threshold `{name}` must be finite and >= 0, got {v}"
-                ));
-            }
+fn is_rect(shape: &Shape) -> bool {
+    *shape == Shape::Rect
+}
+
+impl ThresholdsFile {
+    fn new(t: &Thresholds) -> Self {
+        ThresholdsFile {
+            preset: t
+                .as_preset()
+                .map_or("custom", ThresholdPreset::name)
+                .to_string(),
+            magnitude: t.magnitude,
+            sum: t.sum,
+            erode: u32::try_from(t.erode).unwrap_or(u32::MAX),
+            dilate: u32::try_from(t.dilate).unwrap_or(u32::MAX),
+            shape: t.shape,
         }
-        Ok(())
+    }
+
+    fn thresholds(&self) -> Thresholds {
+        Thresholds {
+            magnitude: self.magnitude,
+            sum: self.sum,
+            erode: self.erode as usize,
+            dilate: self.dilate as usize,
+            shape: self.shape,
+        }
+    }
+}
+
+/// Serde for [`SensorSetup::thresholds`] in the calibration file's form.
+mod thresholds_format {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    use super::{Thresholds, ThresholdsFile};
+
+    pub fn serialize<S: Serializer>(t: &Thresholds, s: S) -> Result<S::Ok, S::Error> {
+        ThresholdsFile::new(t).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Thresholds, D::Error> {
+        Ok(ThresholdsFile::deserialize(d)?.thresholds())
     }
 }
 
@@ -120,8 +153,9 @@ pub struct SensorSetup {
     pub geometry: SensorGeometry,
     /// The crop of the camera frame the pixel coordinates refer to.
     pub crop: Roi,
-    /// The segmentation thresholds.
-    pub thresholds: SegmentationThresholds,
+    /// The segmentation thresholds (written as a preset label and the numbers).
+    #[serde(with = "thresholds_format")]
+    pub thresholds: Thresholds,
     /// The flow and patch settings the raw quantities were measured with
     /// (optional for files that predate it; a sensor should measure the same way).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -502,7 +536,7 @@ impl Calibration {
                 "min_normal_n must be finite and non-negative, got {m}"
             ));
         }
-        self.setup.thresholds.validate()
+        self.setup.thresholds.validate().map_err(|e| e.to_string())
     }
 
     /// `g1` (x2d -> x3D, mm).
@@ -729,7 +763,7 @@ impl Calibration {
             version: FORMAT_VERSION,
             geometry: &self.setup.geometry,
             crop: &self.setup.crop,
-            thresholds: &self.setup.thresholds,
+            thresholds: ThresholdsFile::new(&self.setup.thresholds),
             pipeline: self.setup.pipeline.as_ref(),
             g1: &self.g1,
             g2: &self.g2,
@@ -835,7 +869,7 @@ impl Calibration {
             setup: SensorSetup {
                 geometry: repr.geometry,
                 crop: repr.crop,
-                thresholds: repr.thresholds,
+                thresholds: repr.thresholds.thresholds(),
                 pipeline: repr.pipeline,
             },
             g1: repr.g1,
@@ -868,7 +902,7 @@ struct CalibrationRef<'a> {
     version: u32,
     geometry: &'a SensorGeometry,
     crop: &'a Roi,
-    thresholds: &'a SegmentationThresholds,
+    thresholds: ThresholdsFile,
     #[serde(skip_serializing_if = "Option::is_none")]
     pipeline: Option<&'a PipelineSettings>,
     g1: &'a Polynomial,
@@ -892,7 +926,7 @@ struct CalibrationOwned {
     version: u32,
     geometry: SensorGeometry,
     crop: Roi,
-    thresholds: SegmentationThresholds,
+    thresholds: ThresholdsFile,
     #[serde(default)]
     pipeline: Option<PipelineSettings>,
     g1: Polynomial,
@@ -1067,7 +1101,7 @@ pub struct FitOptions {
     /// variable that does not vary in the dataset (y2d under an indenter that
     /// spans the width) then gets a minimum-norm (zero) coefficient, and the
     /// rank is in the report.
-    pub least_squares: poly::FitOptions,
+    pub least_squares: poly::LeastSquares,
 }
 
 impl Default for FitOptions {
@@ -1084,9 +1118,9 @@ impl Default for FitOptions {
             cross: CrossTerms::MaxOfGroups,
             profile: Some(ProfileFitOptions::default()),
             guard: Some(GuardOptions::default()),
-            least_squares: poly::FitOptions {
+            least_squares: poly::LeastSquares {
                 allow_rank_deficient: true,
-                ..poly::FitOptions::default()
+                ..poly::LeastSquares::default()
             },
         }
     }
@@ -1233,10 +1267,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         .geometry
         .validate()
         .map_err(|e| Error::param("geometry", e.to_string()))?;
-    setup
-        .thresholds
-        .validate()
-        .map_err(|m| Error::param("thresholds", m))?;
+    setup.thresholds.validate()?;
     if let Some(g) = &options.guard {
         g.validate()?;
     }

@@ -20,13 +20,13 @@
 //!
 //! ```
 //! use ndarray::array;
-//! use optical_tactile::calibration::poly::{fit, CrossTerms, FitOptions, PolySpec, VarGroup};
+//! use optical_tactile::calibration::poly::{fit, CrossTerms, LeastSquares, PolySpec, VarGroup};
 //!
 //! // y = 1 + 2x - 3x^2, fitted with a single group of order 2.
 //! let spec = PolySpec::new(vec![VarGroup::new("x", &["x"], 2)], CrossTerms::MaxOfGroups)?;
 //! let x = array![[-1.0], [0.0], [0.5], [1.0], [2.0]];
 //! let y = x.column(0).mapv(|x| 1.0 + 2.0 * x - 3.0 * x * x);
-//! let (p, stats) = fit(&spec, x.view(), y.view(), &FitOptions::default())?;
+//! let (p, stats) = fit(&spec, x.view(), y.view(), &LeastSquares::default())?;
 //! assert_eq!(stats.rank, 3);
 //! assert!((p.evaluate(&[3.0])? - (1.0 + 6.0 - 27.0)).abs() < 1e-9);
 //! # Ok::<(), optical_tactile::Error>(())
@@ -891,7 +891,7 @@ pub(crate) mod exact_f64 {
 
 /// Options of [`fit`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FitOptions {
+pub struct LeastSquares {
     /// Normalize every input to `[-1, 1]` over the training data (stored in
     /// the polynomial). On by default: it keeps high powers of large pixel
     /// coordinates from ruining the conditioning. Off: coefficients are in the
@@ -918,9 +918,9 @@ fn default_irls_iterations() -> u32 {
     30
 }
 
-impl Default for FitOptions {
+impl Default for LeastSquares {
     fn default() -> Self {
-        FitOptions {
+        LeastSquares {
             normalize: true,
             rcond: 1e-10,
             allow_rank_deficient: false,
@@ -988,7 +988,7 @@ fn check_data(x: ArrayView2<f64>, y: ArrayView1<f64>, n_vars: usize, what: &str)
 ///
 /// `x` has one row per sample and one column per variable (in
 /// [`PolySpec::variables`] order). Inputs are normalized (see
-/// [`FitOptions::normalize`]), the design matrix's columns scaled to unit
+/// [`LeastSquares::normalize`]), the design matrix's columns scaled to unit
 /// norm and the problem solved by SVD in f64.
 ///
 /// Errors: fewer rows than terms ([`Error::Numerical`], saying how many are
@@ -998,7 +998,7 @@ pub fn fit(
     spec: &PolySpec,
     x: ArrayView2<f64>,
     y: ArrayView1<f64>,
-    options: &FitOptions,
+    options: &LeastSquares,
 ) -> Result<(Polynomial, FitStats)> {
     spec.validate()?;
     if let Some(k) = options.huber
@@ -1347,7 +1347,7 @@ pub fn search_orders(
     train: FitData,
     val: FitData,
     test: Option<FitData>,
-    options: &FitOptions,
+    options: &LeastSquares,
 ) -> Result<(Polynomial, FitReport)> {
     spec.validate()?;
     let nv = spec.n_variables();

@@ -6,11 +6,11 @@ pub mod profile;
 use ndarray::ArrayView2;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
-use crate::geometry::SensorGeometry;
-use crate::frame::Roi;
-use crate::io::ContactRecord;
 use crate::contact::profile::column_profile_into;
+use crate::error::{Error, Result};
+use crate::frame::Roi;
+use crate::geometry::SensorGeometry;
+use crate::io::ContactRecord;
 
 /// The raw, uncalibrated quantities of one contact patch (SPEC.md step 7), all
 /// in the pixels of the cropped full-resolution image.

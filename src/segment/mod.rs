@@ -75,11 +75,77 @@ pub mod morphology;
 use ndarray::ArrayView2;
 
 use crate::contact::PatchGrid;
-use crate::segment::contours::{BoundingBox, ContourFinder};
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
 use crate::frame::Roi;
-use crate::segment::morphology::{Mask, Morphology, Shape, StructuringElement};
+use crate::segment::contours::{BoundingBox, ContourFinder};
+pub use crate::segment::morphology::Shape;
+use crate::segment::morphology::{Mask, Morphology, StructuringElement};
+
+/// A named set of segmentation thresholds: the paper's presets, from the most
+/// sensitive to the most robust to vibration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ThresholdPreset {
+    /// [`Thresholds::LOW`]: the smallest forces, little headroom for noise.
+    Low,
+    /// [`Thresholds::MID`].
+    Mid,
+    /// [`Thresholds::HIGH`]: the paper's choice in flight.
+    High,
+}
+
+impl ThresholdPreset {
+    /// Every preset, from the most sensitive.
+    pub const ALL: [ThresholdPreset; 3] = [
+        ThresholdPreset::Low,
+        ThresholdPreset::Mid,
+        ThresholdPreset::High,
+    ];
+
+    /// The preset's name as written in files and on command lines: `low`,
+    /// `mid` or `high`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            ThresholdPreset::Low => "low",
+            ThresholdPreset::Mid => "mid",
+            ThresholdPreset::High => "high",
+        }
+    }
+
+    /// The preset's thresholds.
+    pub const fn thresholds(self) -> Thresholds {
+        Thresholds::preset(self)
+    }
+}
+
+impl std::fmt::Display for ThresholdPreset {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for ThresholdPreset {
+    type Err = Error;
+
+    /// `low`, `mid` or `high`, in any case.
+    fn from_str(name: &str) -> Result<Self> {
+        ThresholdPreset::ALL
+            .into_iter()
+            .find(|p| p.name().eq_ignore_ascii_case(name))
+            .ok_or_else(|| {
+                Error::param(
+                    "thresholds",
+                    format!("unknown preset `{name}` (expected low, mid or high)"),
+                )
+            })
+    }
+}
+
+impl From<ThresholdPreset> for Thresholds {
+    fn from(preset: ThresholdPreset) -> Self {
+        Thresholds::preset(preset)
+    }
+}
 
 /// Segmentation thresholds and kernels, in **full-resolution** pixels (see
 /// the module docs for how they scale).
@@ -163,17 +229,20 @@ impl Thresholds {
         shape: Shape::Rect,
     };
 
-    /// The preset named `low`, `mid` or `high` (any case).
-    pub fn preset(name: &str) -> Result<Thresholds> {
-        match name.to_ascii_lowercase().as_str() {
-            "low" => Ok(Thresholds::LOW),
-            "mid" => Ok(Thresholds::MID),
-            "high" => Ok(Thresholds::HIGH),
-            _ => Err(Error::param(
-                "thresholds",
-                format!("unknown preset `{name}` (expected low, mid or high)"),
-            )),
+    /// The thresholds of a preset.
+    pub const fn preset(preset: ThresholdPreset) -> Thresholds {
+        match preset {
+            ThresholdPreset::Low => Thresholds::LOW,
+            ThresholdPreset::Mid => Thresholds::MID,
+            ThresholdPreset::High => Thresholds::HIGH,
         }
+    }
+
+    /// The preset these thresholds equal, if any.
+    pub fn as_preset(&self) -> Option<ThresholdPreset> {
+        ThresholdPreset::ALL
+            .into_iter()
+            .find(|&p| Thresholds::preset(p) == *self)
     }
 
     /// Errors unless the thresholds are finite and non-negative and the
@@ -1189,9 +1258,24 @@ mod tests {
 
     #[test]
     fn presets_by_name_and_json() {
-        assert_eq!(Thresholds::preset("HIGH").unwrap(), Thresholds::HIGH);
-        assert_eq!(Thresholds::preset("low").unwrap(), Thresholds::LOW);
-        assert!(Thresholds::preset("extreme").is_err());
+        assert_eq!(
+            "HIGH".parse::<ThresholdPreset>().unwrap(),
+            ThresholdPreset::High
+        );
+        assert_eq!(
+            "low".parse::<ThresholdPreset>().unwrap(),
+            ThresholdPreset::Low
+        );
+        assert!("extreme".parse::<ThresholdPreset>().is_err());
+        for p in ThresholdPreset::ALL {
+            assert_eq!(p.to_string().parse::<ThresholdPreset>().unwrap(), p);
+            assert_eq!(Thresholds::preset(p).as_preset(), Some(p));
+        }
+        let custom = Thresholds {
+            magnitude: 0.2,
+            ..Thresholds::LOW
+        };
+        assert_eq!(custom.as_preset(), None);
         let json = serde_json::to_string(&SegmenterConfig::default()).unwrap();
         assert!(json.contains("\"shape\":\"rect\""), "{json}");
         let back: SegmenterConfig = serde_json::from_str(&json).unwrap();

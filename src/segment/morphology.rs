@@ -329,10 +329,13 @@ fn pack_bytes(bytes: &[u8; 64]) -> u64 {
 
 /// The shape of a structuring element (OpenCV's `MORPH_RECT`, `MORPH_CROSS`,
 /// `MORPH_ELLIPSE`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Shape {
-    /// Every cell of the `width x height` box.
+    /// Every cell of the `width x height` box (the default).
+    #[default]
     Rect,
     /// The anchor's row and the anchor's column.
     Cross,

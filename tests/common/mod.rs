@@ -1,11 +1,10 @@
 //! Helpers shared by the integration tests of the whole sensor.
 
-use optical_tactile::calibration::{
-    Calibration, PipelineSettings, SegmentationThresholds, SensorSetup,
-};
-use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::frame::Roi;
 use optical_tactile::calibration::poly::Polynomial;
+use optical_tactile::calibration::{Calibration, PipelineSettings, SensorSetup};
+use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::segment::{Shape, Thresholds};
 
 /// A hand-made calibration: x = (x_px - 799.5) / 5 mm, y = 0, F = 1e-4 * D,
 /// recorded with thresholds 0.2 px / 600 and the given pipeline settings.
@@ -21,12 +20,12 @@ pub fn linear_calibration(crop: Roi, pipeline: Option<PipelineSettings>) -> Cali
     let setup = SensorSetup {
         geometry: SensorGeometry::default(),
         crop,
-        thresholds: SegmentationThresholds {
-            preset: "test".into(),
+        thresholds: Thresholds {
             magnitude: 0.2,
             sum: 600.0,
             erode: 5,
             dilate: 15,
+            shape: Shape::Rect,
         },
         pipeline,
     };

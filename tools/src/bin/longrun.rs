@@ -18,14 +18,14 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use ndarray::Array2;
-use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
-use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::frame::Roi;
 use optical_tactile::calibration::poly::Polynomial;
-use optical_tactile::segment::Thresholds;
+use optical_tactile::calibration::{Calibration, SensorSetup};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::segment::{Shape, Thresholds};
 use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 /// `VmRSS` and `VmHWM` in kB.
 fn memory_kb() -> Result<(u64, u64), String> {
@@ -56,12 +56,12 @@ fn calibration(crop: Roi) -> Result<Calibration, String> {
     let setup = SensorSetup {
         geometry: SensorGeometry::default(),
         crop,
-        thresholds: SegmentationThresholds {
-            preset: "longrun".into(),
+        thresholds: Thresholds {
             magnitude: 0.5,
             sum: 600.0,
             erode: 5,
             dilate: 15,
+            shape: Shape::Rect,
         },
         pipeline: None,
     };
@@ -114,7 +114,7 @@ fn run() -> Result<(), String> {
         Roi::new(0, 0, w, h)
     };
     let mut sim = SyntheticSensor::new(config, 1).map_err(|e| e.to_string())?;
-    let render = |sim: &mut SyntheticSensor, c: &[Contact]| -> Result<Array2<f32>, String> {
+    let render = |sim: &mut SyntheticSensor, c: &[Press]| -> Result<Array2<f32>, String> {
         Ok(sim.render(c).map_err(|e| e.to_string())?.0)
     };
     let reference = render(&mut sim, &[])?;
@@ -127,8 +127,8 @@ fn run() -> Result<(), String> {
             render(
                 &mut sim,
                 &[
-                    Contact::rod(-20.0, [0.0, 0.0, -f], 5.0),
-                    Contact::rod(20.0, [0.0, 0.0, -0.75 * f], 5.0),
+                    Press::rod(-20.0, [0.0, 0.0, -f], 5.0),
+                    Press::rod(20.0, [0.0, 0.0, -0.75 * f], 5.0),
                 ],
             )
         })

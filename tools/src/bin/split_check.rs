@@ -27,9 +27,9 @@ use std::time::Instant;
 use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
 use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use optical_tactile::sensor::ExtractorConfig;
-use optical_tactile_sim::scenario::{INDENTERS_MM, TILTS_DEG, tilted_force};
-use optical_tactile_sim::{Contact, SimConfig, SyntheticSensor};
 use optical_tactile::{Error, Result};
+use optical_tactile_sim::scenario::{INDENTERS_MM, TILTS_DEG, tilted_force};
+use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 struct Args {
     mode: String,
@@ -224,7 +224,7 @@ fn singles(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
                 idx += 1;
                 b.dis.set_reference(&r.frame)?;
                 for &f in &args.forces {
-                    let rod = Contact::rod(x, tilted_force(f, yaw, pitch), d);
+                    let rod = Press::rod(x, tilted_force(f, yaw, pitch), d);
                     let o = sensor.render_indexed(idx, &[rod], false)?;
                     idx += 1;
                     total += 1;
@@ -322,8 +322,8 @@ fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
                     let (s1, s2) = (c - 0.5 * sp, c + 0.5 * sp);
                     let skin = &sensor.config().skin;
                     let rods = [
-                        Contact::rod(skin.arc_to_chord(s1), [0.0, 0.0, -f], d),
-                        Contact::rod(skin.arc_to_chord(s2), [0.0, 0.0, -f], d),
+                        Press::rod(skin.arc_to_chord(s1), [0.0, 0.0, -f], d),
+                        Press::rod(skin.arc_to_chord(s2), [0.0, 0.0, -f], d),
                     ];
                     let (p1, p2) = (rod_px(sensor, s1), rod_px(sensor, s2));
                     let r = sensor.render_indexed(idx, &[], false)?;
@@ -424,13 +424,13 @@ fn profile(spec: &str, sensor: &SyntheticSensor) -> Result<()> {
     let (d, f) = (p[0], p[1]);
     let pitch = p.get(4).copied().unwrap_or(0.0);
     let skin = &sensor.config().skin;
-    let mut rods = vec![Contact::rod(
+    let mut rods = vec![Press::rod(
         skin.arc_to_chord(p[2]),
         tilted_force(f, 0.0, pitch),
         d,
     )];
     if let Some(&s2) = p.get(3) {
-        rods.push(Contact::rod(
+        rods.push(Press::rod(
             skin.arc_to_chord(s2),
             tilted_force(f, 0.0, pitch),
             d,

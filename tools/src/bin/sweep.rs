@@ -23,15 +23,15 @@
 
 use std::time::Instant;
 
-use optical_tactile::segment::morphology::Shape;
 use optical_tactile::segment::Thresholds;
+use optical_tactile::segment::morphology::Shape;
 use optical_tactile::sensor::ExtractorConfig;
+use optical_tactile::{Error, Result};
 use optical_tactile_sim::experiments::{
     INDENTERS_MM, MdfPlan, SpacingPlan, SweepOptions, TILTS_DEG, ThresholdSet, mdf_sweep,
     no_progress, rest_sweep, spacing_sweep,
 };
 use optical_tactile_sim::{SimConfig, SyntheticSensor};
-use optical_tactile::{Error, Result};
 
 struct Args {
     mode: String,
