@@ -7,8 +7,8 @@
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use ndarray::Array2;
-use optical_tactile::hhd::fft::{FftWorkspace, GreenConvolver};
 use optical_tactile::hhd::{Decomposition, NaturalHhd};
+use optical_tactile::hhd::{FftWorkspace, GreenConvolver};
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -150,19 +150,15 @@ fn ready(
     pressed: &Array2<f32>,
     size: &str,
 ) -> TactileSensor {
-    let config = SensorConfig {
-        crop: Some(crop),
-        extractor: ExtractorConfig {
-            flow: DisParams::preset(preset),
-            thresholds: Thresholds {
-                magnitude,
-                sum: 600.0,
-                ..Thresholds::LOW
-            },
-            ..ExtractorConfig::default()
-        },
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.crop = Some(crop);
+    config.extractor = ExtractorConfig::default()
+        .with_flow(DisParams::preset(preset))
+        .with_thresholds(Thresholds {
+            magnitude,
+            sum: 600.0,
+            ..Thresholds::LOW
+        });
     let mut sensor = TactileSensor::new(config, calibration(crop)).expect("sensor");
     sensor.set_reference(reference).expect("reference");
     let n = sensor.process(pressed, 0.02).expect("process").len();

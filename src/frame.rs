@@ -172,7 +172,9 @@ fn check_buffer(
     Ok(())
 }
 
-/// Generic conversion: `scale` maps a sample to the 8-bit scale.
+/// Generic conversion into `out` (reshaped to `(height, width)` when it has
+/// another shape, reusing its allocation when it can): `scale` maps a sample
+/// to the 8-bit scale.
 fn convert<T: Copy + Into<f32>>(
     data: &[T],
     width: usize,
@@ -181,7 +183,8 @@ fn convert<T: Copy + Into<f32>>(
     layout: PixelLayout,
     channel: Channel,
     scale: f32,
-) -> Result<Array2<f32>> {
+    out: &mut Array2<f32>,
+) -> Result<()> {
     check_buffer(
         data.len(),
         width,
@@ -195,7 +198,12 @@ fn convert<T: Copy + Into<f32>>(
             format!("YUYV needs an even width, got {width}"),
         ));
     }
-    let mut out = Array2::<f32>::zeros((height, width));
+    if out.dim() != (height, width) {
+        let mut buf = std::mem::take(out).into_raw_vec_and_offset().0;
+        buf.clear();
+        buf.resize(height * width, 0.0);
+        *out = Array2::from_shape_vec((height, width), buf).expect("length is height * width");
+    }
     for (y, mut orow) in out.rows_mut().into_iter().enumerate() {
         let row = &data[y * row_stride..];
         let orow = orow
@@ -244,7 +252,7 @@ fn convert<T: Copy + Into<f32>>(
             }
         }
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Converts an 8-bit buffer (`row_stride` bytes per row) to f32 grayscale.
@@ -256,7 +264,23 @@ pub fn gray_from_u8(
     layout: PixelLayout,
     channel: Channel,
 ) -> Result<Array2<f32>> {
-    convert(data, width, height, row_stride, layout, channel, 1.0)
+    let mut out = Array2::zeros((0, 0));
+    gray_from_u8_into(data, width, height, row_stride, layout, channel, &mut out)?;
+    Ok(out)
+}
+
+/// [`gray_from_u8`] into `out`, reusing its buffer (a camera loop converts
+/// every frame without allocating). `out` takes the frame's shape.
+pub fn gray_from_u8_into(
+    data: &[u8],
+    width: usize,
+    height: usize,
+    row_stride: usize,
+    layout: PixelLayout,
+    channel: Channel,
+    out: &mut Array2<f32>,
+) -> Result<()> {
+    convert(data, width, height, row_stride, layout, channel, 1.0, out)
 }
 
 /// Converts a 16-bit buffer (`row_stride` samples per row) to f32 grayscale on
@@ -269,6 +293,21 @@ pub fn gray_from_u16(
     layout: PixelLayout,
     channel: Channel,
 ) -> Result<Array2<f32>> {
+    let mut out = Array2::zeros((0, 0));
+    gray_from_u16_into(data, width, height, row_stride, layout, channel, &mut out)?;
+    Ok(out)
+}
+
+/// [`gray_from_u16`] into `out`, reusing its buffer.
+pub fn gray_from_u16_into(
+    data: &[u16],
+    width: usize,
+    height: usize,
+    row_stride: usize,
+    layout: PixelLayout,
+    channel: Channel,
+    out: &mut Array2<f32>,
+) -> Result<()> {
     if layout == PixelLayout::Yuyv {
         return Err(Error::param("layout", "YUYV is 8-bit only"));
     }
@@ -280,32 +319,85 @@ pub fn gray_from_u16(
         layout,
         channel,
         1.0 / 257.0,
+        out,
     )
+}
+
+/// An 8-bit gray image of the `image` crate as f32 grayscale.
+pub fn gray_from_gray_image(img: &::image::GrayImage) -> Result<Array2<f32>> {
+    let mut out = Array2::zeros((0, 0));
+    gray_from_gray_image_into(img, &mut out)?;
+    Ok(out)
+}
+
+/// [`gray_from_gray_image`] into `out`, reusing its buffer.
+pub fn gray_from_gray_image_into(img: &::image::GrayImage, out: &mut Array2<f32>) -> Result<()> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    gray_from_u8_into(
+        img.as_raw(),
+        w,
+        h,
+        w,
+        PixelLayout::Gray,
+        Channel::Green,
+        out,
+    )
+}
+
+/// An 8-bit RGB image of the `image` crate as f32 grayscale (`channel`:
+/// green for the markers, or luma).
+pub fn gray_from_rgb_image(img: &::image::RgbImage, channel: Channel) -> Result<Array2<f32>> {
+    let mut out = Array2::zeros((0, 0));
+    gray_from_rgb_image_into(img, channel, &mut out)?;
+    Ok(out)
+}
+
+/// [`gray_from_rgb_image`] into `out`, reusing its buffer.
+pub fn gray_from_rgb_image_into(
+    img: &::image::RgbImage,
+    channel: Channel,
+    out: &mut Array2<f32>,
+) -> Result<()> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    gray_from_u8_into(img.as_raw(), w, h, 3 * w, PixelLayout::Rgb, channel, out)
 }
 
 /// Converts a decoded image (8- or 16-bit, gray or RGB(A), or float) to f32 grayscale.
 pub fn gray_from_dynamic(img: &::image::DynamicImage, channel: Channel) -> Result<Array2<f32>> {
+    let mut out = Array2::zeros((0, 0));
+    gray_from_dynamic_into(img, channel, &mut out)?;
+    Ok(out)
+}
+
+/// [`gray_from_dynamic`] into `out`, reusing its buffer (formats other than
+/// 8/16-bit gray, RGB and RGBA go through a converted copy).
+pub fn gray_from_dynamic_into(
+    img: &::image::DynamicImage,
+    channel: Channel,
+    out: &mut Array2<f32>,
+) -> Result<()> {
     use ::image::DynamicImage as D;
+    use PixelLayout::{Gray, Rgb, Rgba};
     let (w, h) = (img.width() as usize, img.height() as usize);
     match img {
-        D::ImageLuma8(b) => gray_from_u8(b.as_raw(), w, h, w, PixelLayout::Gray, channel),
-        D::ImageRgb8(b) => gray_from_u8(b.as_raw(), w, h, 3 * w, PixelLayout::Rgb, channel),
-        D::ImageRgba8(b) => gray_from_u8(b.as_raw(), w, h, 4 * w, PixelLayout::Rgba, channel),
-        D::ImageLuma16(b) => gray_from_u16(b.as_raw(), w, h, w, PixelLayout::Gray, channel),
-        D::ImageRgb16(b) => gray_from_u16(b.as_raw(), w, h, 3 * w, PixelLayout::Rgb, channel),
-        D::ImageRgba16(b) => gray_from_u16(b.as_raw(), w, h, 4 * w, PixelLayout::Rgba, channel),
+        D::ImageLuma8(b) => gray_from_u8_into(b.as_raw(), w, h, w, Gray, channel, out),
+        D::ImageRgb8(b) => gray_from_u8_into(b.as_raw(), w, h, 3 * w, Rgb, channel, out),
+        D::ImageRgba8(b) => gray_from_u8_into(b.as_raw(), w, h, 4 * w, Rgba, channel, out),
+        D::ImageLuma16(b) => gray_from_u16_into(b.as_raw(), w, h, w, Gray, channel, out),
+        D::ImageRgb16(b) => gray_from_u16_into(b.as_raw(), w, h, 3 * w, Rgb, channel, out),
+        D::ImageRgba16(b) => gray_from_u16_into(b.as_raw(), w, h, 4 * w, Rgba, channel, out),
         D::ImageLumaA8(_) => {
             let b = img.to_luma8();
-            gray_from_u8(b.as_raw(), w, h, w, PixelLayout::Gray, channel)
+            gray_from_u8_into(b.as_raw(), w, h, w, Gray, channel, out)
         }
         D::ImageLumaA16(_) => {
             let b = img.to_luma16();
-            gray_from_u16(b.as_raw(), w, h, w, PixelLayout::Gray, channel)
+            gray_from_u16_into(b.as_raw(), w, h, w, Gray, channel, out)
         }
         // Float or future formats: go through 16-bit RGBA, which keeps the channels apart.
         _ => {
             let b = img.to_rgba16();
-            gray_from_u16(b.as_raw(), w, h, 4 * w, PixelLayout::Rgba, channel)
+            gray_from_u16_into(b.as_raw(), w, h, 4 * w, Rgba, channel, out)
         }
     }
 }

@@ -54,6 +54,7 @@ use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
 /// How the extractor cuts and measures patches.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct ExtractorConfig {
     /// Optical flow parameters (default [`DisPreset::Fine`]).
     pub flow: DisParams,
@@ -78,11 +79,36 @@ impl Default for ExtractorConfig {
 }
 
 impl ExtractorConfig {
+    /// This configuration with other optical flow parameters.
+    pub fn with_flow(mut self, flow: DisParams) -> Self {
+        self.flow = flow;
+        self
+    }
+
+    /// This configuration with other segmentation thresholds.
+    pub fn with_thresholds(mut self, thresholds: impl Into<Thresholds>) -> Self {
+        self.thresholds = thresholds.into();
+        self
+    }
+
+    /// This configuration with another patch margin, full-resolution pixels.
+    pub fn with_margin_px(mut self, margin_px: usize) -> Self {
+        self.margin_px = margin_px;
+        self
+    }
+
+    /// This configuration with sub-pixel contact points on or off.
+    pub fn with_subpixel(mut self, subpixel: bool) -> Self {
+        self.subpixel = subpixel;
+        self
+    }
+
     /// The settings a calibration was fitted with, so that a sensor measures
     /// the raw quantities the same way: the thresholds of `setup.thresholds`
     /// and, when recorded, the flow preset, margin and sub-pixel switch of
     /// `setup.pipeline` (otherwise the defaults).
     pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
+        setup.thresholds.validate()?;
         let mut config = ExtractorConfig {
             thresholds: setup.thresholds,
             ..ExtractorConfig::default()
@@ -532,7 +558,14 @@ pub fn max_tile_mean_where(flow: &FlowField, tile: usize, mask: &[bool], tiles_x
 }
 
 /// Everything a [`TactileSensor`] needs besides its calibration.
+///
+/// Prefer [`SensorConfig::from_calibration`] (or [`TactileSensor::from_calibration`]
+/// and [`TactileSensor::builder`]): a calibration's maps hold only for the
+/// thresholds, flow preset and crop it was fitted with. `Default` is the
+/// library's generic setting (HIGH thresholds, the `fine` flow), which matches a
+/// calibration only if it was fitted that way.
 #[derive(Debug, Clone, PartialEq, Default)]
+#[non_exhaustive]
 pub struct SensorConfig {
     /// Crop of the camera frame to the sensing area; `None` takes the
     /// calibration's crop.
@@ -570,8 +603,120 @@ pub struct TactileSensor {
     timings: StageTimings,
 }
 
+impl SensorConfig {
+    /// The settings `calibration` was fitted with: its crop, thresholds and
+    /// (when recorded) flow preset, patch margin and sub-pixel switch; default
+    /// tracking and re-referencing. Errors if the recorded settings are not
+    /// valid (an unknown flow preset, say).
+    pub fn from_calibration(calibration: &Calibration) -> Result<Self> {
+        Ok(SensorConfig {
+            crop: Some(calibration.setup.crop),
+            extractor: ExtractorConfig::from_setup(&calibration.setup)?,
+            tracker: TrackerConfig::default(),
+            rereference: ReferencePolicy::default(),
+        })
+    }
+}
+
+/// Builds a [`TactileSensor`] from a calibration, with overrides
+/// ([`TactileSensor::builder`]). Every setting starts as the calibration
+/// records it ([`SensorConfig::from_calibration`]).
+///
+/// ```no_run
+/// use optical_tactile::flow::dis::{DisParams, DisPreset};
+/// use optical_tactile::{Calibration, TactileSensor, ThresholdPreset};
+///
+/// let calibration = Calibration::load("fixtures/calibration.json")?;
+/// // Robust to vibration, at the cost of the weakest presses; a faster flow.
+/// let sensor = TactileSensor::builder(calibration)
+///     .thresholds(ThresholdPreset::High)
+///     .flow(DisParams::preset(DisPreset::Fast))
+///     .build()?;
+/// # Ok::<(), optical_tactile::Error>(())
+/// ```
+#[derive(Debug)]
+#[must_use = "a builder does nothing until `build` is called"]
+pub struct SensorBuilder {
+    calibration: Calibration,
+    config: Result<SensorConfig>,
+}
+
+impl SensorBuilder {
+    fn with(mut self, f: impl FnOnce(&mut SensorConfig)) -> Self {
+        if let Ok(c) = &mut self.config {
+            f(c);
+        }
+        self
+    }
+
+    /// Segmentation thresholds (a [`Thresholds`] or a
+    /// [`ThresholdPreset`](crate::segment::ThresholdPreset)). The calibration's
+    /// force maps were fitted with its own thresholds: others change the
+    /// patches' extent and so the raw quantities the maps read.
+    pub fn thresholds(self, thresholds: impl Into<Thresholds>) -> Self {
+        let t = thresholds.into();
+        self.with(|c| c.extractor.thresholds = t)
+    }
+
+    /// Optical flow parameters (a [`DisParams`], e.g. `DisParams::preset(DisPreset::Fast)`).
+    pub fn flow(self, params: DisParams) -> Self {
+        self.with(|c| c.extractor.flow = params)
+    }
+
+    /// Crop of the camera frame; the calibration's pixel coordinates refer to
+    /// its own crop.
+    pub fn crop(self, crop: Roi) -> Self {
+        self.with(|c| c.crop = Some(crop))
+    }
+
+    /// Tracking: identity, hysteresis and smoothing.
+    pub fn tracker(self, tracker: TrackerConfig) -> Self {
+        self.with(|c| c.tracker = tracker)
+    }
+
+    /// When to take a fresh reference.
+    pub fn rereference(self, policy: ReferencePolicy) -> Self {
+        self.with(|c| c.rereference = policy)
+    }
+
+    /// Any other change to the configuration.
+    pub fn configure(self, f: impl FnOnce(&mut SensorConfig)) -> Self {
+        self.with(f)
+    }
+
+    /// The configuration the sensor will have (`None` if `build` will fail).
+    pub fn config(&self) -> Option<&SensorConfig> {
+        self.config.as_ref().ok()
+    }
+
+    /// The sensor. Errors if the calibration's recorded settings are invalid
+    /// or an override is.
+    pub fn build(self) -> Result<TactileSensor> {
+        TactileSensor::new(self.config?, self.calibration)
+    }
+}
+
 impl TactileSensor {
-    /// A sensor for `config` and `calibration`.
+    /// A sensor that measures as `calibration` was fitted: crop, thresholds
+    /// and flow settings from the calibration, default tracking and
+    /// re-referencing. The main way to build one; [`TactileSensor::builder`]
+    /// for overrides.
+    pub fn from_calibration(calibration: Calibration) -> Result<Self> {
+        Self::builder(calibration).build()
+    }
+
+    /// A builder starting from the calibration's settings
+    /// ([`SensorConfig::from_calibration`]).
+    pub fn builder(calibration: Calibration) -> SensorBuilder {
+        SensorBuilder {
+            config: SensorConfig::from_calibration(&calibration),
+            calibration,
+        }
+    }
+
+    /// A sensor for `config` and `calibration`, for full control. The
+    /// thresholds and flow settings of `config` should be the ones the
+    /// calibration was fitted with (see [`SensorConfig::from_calibration`]).
     pub fn new(config: SensorConfig, calibration: Calibration) -> Result<Self> {
         let crop = config.crop.unwrap_or(calibration.setup.crop);
         Ok(TactileSensor {

@@ -24,6 +24,7 @@ use crate::error::{Error, Result};
 
 /// Noise levels of the constant-velocity Kalman filter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct FilterConfig {
     /// Standard deviation of a location measurement, mm.
     pub location_sigma_mm: f64,
@@ -49,6 +50,7 @@ impl Default for FilterConfig {
 
 /// How contacts are followed over time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct TrackerConfig {
     /// Largest jump (mm) between frames for a contact to keep its identity.
     pub gate_mm: f64,
@@ -343,6 +345,7 @@ fn apply_filter(
 
 /// When to take a fresh reference frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct ReferencePolicy {
     /// Whether re-referencing happens at all.
     pub enabled: bool,
@@ -363,6 +366,26 @@ impl Default for ReferencePolicy {
             quiet_s: 2.0,
             max_flow_px: 0.5,
         }
+    }
+}
+
+impl ReferencePolicy {
+    /// This configuration with `enabled` set (whether re-referencing happens at all).
+    pub fn with_enabled(mut self, enabled: bool) -> Self {
+        self.enabled = enabled;
+        self
+    }
+
+    /// This configuration with `quiet_s` set (seconds of quiet before re-referencing).
+    pub fn with_quiet_s(mut self, quiet_s: f64) -> Self {
+        self.quiet_s = quiet_s;
+        self
+    }
+
+    /// This configuration with `max_flow_px` set (the largest flow that counts as quiet).
+    pub fn with_max_flow_px(mut self, max_flow_px: f64) -> Self {
+        self.max_flow_px = max_flow_px;
+        self
     }
 }
 

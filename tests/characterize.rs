@@ -18,14 +18,11 @@ fn fixture() -> PathBuf {
 
 /// The thresholds the shipped calibration uses: 0.2 px, sum 600, low kernels.
 fn config() -> ExtractorConfig {
-    ExtractorConfig {
-        thresholds: Thresholds {
-            magnitude: 0.2,
-            sum: 600.0,
-            ..Thresholds::LOW
-        },
-        ..ExtractorConfig::default()
-    }
+    ExtractorConfig::default().with_thresholds(Thresholds {
+        magnitude: 0.2,
+        sum: 600.0,
+        ..Thresholds::LOW
+    })
 }
 
 fn scratch(name: &str) -> PathBuf {

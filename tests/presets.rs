@@ -21,11 +21,7 @@ fn small_sensor(seed: u64) -> SyntheticSensor {
 }
 
 fn extractor(t: Thresholds) -> ContactExtractor {
-    ContactExtractor::new(ExtractorConfig {
-        thresholds: t,
-        ..ExtractorConfig::default()
-    })
-    .unwrap()
+    ContactExtractor::new(ExtractorConfig::default().with_thresholds(t)).unwrap()
 }
 
 /// Column (strip pixels) of a rod at arc position `s` mm.

@@ -16,15 +16,13 @@ const SEQ: &str = "fixtures/press";
 /// Thresholds low enough for the simulator's sub-pixel motion at ~0.6 N and
 /// above the accurate preset's rest noise (at most ~0.14 px).
 fn sensitive() -> ExtractorConfig {
-    ExtractorConfig {
-        flow: DisParams::preset(DisPreset::Accurate),
-        thresholds: Thresholds {
+    ExtractorConfig::default()
+        .with_flow(DisParams::preset(DisPreset::Accurate))
+        .with_thresholds(Thresholds {
             magnitude: 0.2,
             sum: 600.0,
             ..Thresholds::LOW
-        },
-        ..ExtractorConfig::default()
-    }
+        })
 }
 
 fn frames() -> Vec<optical_tactile::capture::Frame> {
@@ -67,10 +65,7 @@ fn both_rods_are_found_where_they_press() {
 fn fine_flow_is_analysed_on_the_two_pixel_grid() {
     let truth: Vec<FrameRecord> = read_jsonl(format!("{SEQ}/truth.jsonl")).unwrap();
     let frames = frames();
-    let config = ExtractorConfig {
-        flow: DisParams::preset(DisPreset::Fine),
-        ..sensitive()
-    };
+    let config = sensitive().with_flow(DisParams::preset(DisPreset::Fine));
     let mut ex = ContactExtractor::new(config).unwrap();
     assert_eq!(ex.scale(), 2);
     ex.set_reference(&frames[0].image).unwrap();
@@ -106,10 +101,8 @@ fn fine_flow_is_analysed_on_the_two_pixel_grid() {
 }
 
 fn sensor() -> TactileSensor {
-    let config = SensorConfig {
-        extractor: sensitive(),
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.extractor = sensitive();
     TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200), None)).unwrap()
 }
 
@@ -161,11 +154,9 @@ fn bad_frames_are_errors_and_change_nothing() {
     assert!(s.process(&nan, 0.16).is_err());
     assert_eq!(s.contacts(), &before[..]);
     // A crop outside the frame.
-    let config = SensorConfig {
-        crop: Some(Roi::new(100, 0, 1600, 200)),
-        extractor: sensitive(),
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.crop = Some(Roi::new(100, 0, 1600, 200));
+    config.extractor = sensitive();
     let mut s =
         TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200), None)).unwrap();
     assert!(matches!(

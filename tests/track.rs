@@ -22,20 +22,16 @@ use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 /// The fast preset (cheap enough for hundreds of frames in a test) with
 /// thresholds above its rest noise.
 fn fast_sensor(crop: Roi, policy: ReferencePolicy) -> TactileSensor {
-    let config = SensorConfig {
-        crop: Some(crop),
-        extractor: ExtractorConfig {
-            flow: DisParams::preset(DisPreset::Fast),
-            thresholds: Thresholds {
-                magnitude: 0.5,
-                sum: 600.0,
-                ..Thresholds::LOW
-            },
-            ..ExtractorConfig::default()
-        },
-        rereference: policy,
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.crop = Some(crop);
+    config.extractor = ExtractorConfig::default()
+        .with_flow(DisParams::preset(DisPreset::Fast))
+        .with_thresholds(Thresholds {
+            magnitude: 0.5,
+            sum: 600.0,
+            ..Thresholds::LOW
+        });
+    config.rereference = policy;
     TactileSensor::new(config, linear_calibration(crop, None)).unwrap()
 }
 
@@ -94,11 +90,10 @@ fn drift(policy: ReferencePolicy) -> (usize, u64) {
 
 #[test]
 fn slow_drift_is_absorbed_by_re_referencing() {
-    let policy = ReferencePolicy {
-        enabled: true,
-        quiet_s: 0.5,
-        max_flow_px: 0.5,
-    };
+    let policy = ReferencePolicy::default()
+        .with_enabled(true)
+        .with_quiet_s(0.5)
+        .with_max_flow_px(0.5);
     let (touched, refs) = drift(policy);
     assert_eq!(touched, 0, "drift reported as contact");
     // 1.5 px of drift, at most ~0.5 px + 0.5 s of drift (0.25 px) between references.
@@ -108,10 +103,7 @@ fn slow_drift_is_absorbed_by_re_referencing() {
 #[test]
 fn without_re_referencing_the_same_drift_piles_up_into_false_contacts() {
     // The control for the test above: the drift is large enough to matter.
-    let policy = ReferencePolicy {
-        enabled: false,
-        ..ReferencePolicy::default()
-    };
+    let policy = ReferencePolicy::default().with_enabled(false);
     let (touched, refs) = drift(policy);
     assert_eq!(refs, 1);
     assert!(touched > 0, "drift of 1.5 px never crossed the threshold");
@@ -120,11 +112,10 @@ fn without_re_referencing_the_same_drift_piles_up_into_false_contacts() {
 #[test]
 fn never_re_references_while_touched() {
     let (reference, rest, press) = renders();
-    let policy = ReferencePolicy {
-        enabled: true,
-        quiet_s: 0.2,
-        max_flow_px: 0.5,
-    };
+    let policy = ReferencePolicy::default()
+        .with_enabled(true)
+        .with_quiet_s(0.2)
+        .with_max_flow_px(0.5);
     let mut s = fast_sensor(CROP, policy);
     s.set_reference(&reference).unwrap();
     // 1.5 s of a steady press (the flow is steady too: only the touch is there).
@@ -176,17 +167,12 @@ fn broken_frames_in_the_middle_are_named_skipped_and_nothing_written_is_lost() {
     let out = dir.join("contacts.jsonl");
     let mut seq = SequenceSource::open(&dir).unwrap();
     let crop = Roi::new(0, 0, 1600, 200);
-    let config = SensorConfig {
-        extractor: ExtractorConfig {
-            thresholds: Thresholds {
-                magnitude: 0.2,
-                sum: 600.0,
-                ..Thresholds::LOW
-            },
-            ..ExtractorConfig::default()
-        },
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.extractor = ExtractorConfig::default().with_thresholds(Thresholds {
+        magnitude: 0.2,
+        sum: 600.0,
+        ..Thresholds::LOW
+    });
     let mut sensor = TactileSensor::new(config, linear_calibration(crop, None)).unwrap();
     let first = seq.next_frame().unwrap().unwrap();
     sensor.set_reference(&first.image).unwrap();
@@ -379,23 +365,17 @@ fn the_accurate_preset_re_references_at_rest_too() {
     // Its rest flow has single border pixels at ~0.5 px: the tile mean
     // keeps them from vetoing re-referencing.
     let (reference, rest, _) = renders();
-    let config = SensorConfig {
-        crop: Some(CROP),
-        extractor: ExtractorConfig {
-            thresholds: Thresholds {
-                magnitude: 0.2,
-                sum: 600.0,
-                ..Thresholds::LOW
-            },
-            ..ExtractorConfig::default()
-        },
-        rereference: ReferencePolicy {
-            enabled: true,
-            quiet_s: 0.2,
-            max_flow_px: 0.5,
-        },
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.crop = Some(CROP);
+    config.extractor = ExtractorConfig::default().with_thresholds(Thresholds {
+        magnitude: 0.2,
+        sum: 600.0,
+        ..Thresholds::LOW
+    });
+    config.rereference = ReferencePolicy::default()
+        .with_enabled(true)
+        .with_quiet_s(0.2)
+        .with_max_flow_px(0.5);
     let mut s = TactileSensor::new(config, linear_calibration(CROP, None)).unwrap();
     s.set_reference(&reference).unwrap();
     for n in 1..=24 {

@@ -21,11 +21,7 @@ fn sensor(seed: u64) -> SyntheticSensor {
 }
 
 fn extractor(t: Thresholds) -> ContactExtractor {
-    ContactExtractor::new(ExtractorConfig {
-        thresholds: t,
-        ..ExtractorConfig::default()
-    })
-    .unwrap()
+    ContactExtractor::new(ExtractorConfig::default().with_thresholds(t)).unwrap()
 }
 
 fn only(name: &str, t: Thresholds) -> SweepOptions {
@@ -45,11 +41,11 @@ fn a_pair_60_mm_apart_is_told_apart_and_one_at_0_mm_is_not() {
         let mut ex = extractor(t);
         for d in [2.0, 10.0] {
             assert!(
-                pair_told_apart(&s, &mut ex, d, 2.0, 60.0, 0.0, 3.0, 10, false).unwrap(),
+                pair_told_apart(&s, &mut ex, d, 2.0, 60.0, 0.0, 3.0, 10, None).unwrap(),
                 "{name}, {d} mm rods 60 mm apart"
             );
             assert!(
-                !pair_told_apart(&s, &mut ex, d, 2.0, 0.0, 0.0, 3.0, 12, false).unwrap(),
+                !pair_told_apart(&s, &mut ex, d, 2.0, 0.0, 0.0, 3.0, 12, None).unwrap(),
                 "{name}, {d} mm rods at the same place"
             );
         }
@@ -62,8 +58,8 @@ fn a_pair_is_not_told_apart_when_the_tolerance_excludes_the_contacts() {
     // contact location's scatter: the criterion really looks at positions.
     let s = sensor(5);
     let mut ex = extractor(Thresholds::MID);
-    assert!(pair_told_apart(&s, &mut ex, 10.0, 2.0, 60.0, 0.0, 3.0, 10, false).unwrap());
-    assert!(!pair_told_apart(&s, &mut ex, 10.0, 2.0, 60.0, 0.0, 1e-6, 10, false).unwrap());
+    assert!(pair_told_apart(&s, &mut ex, 10.0, 2.0, 60.0, 0.0, 3.0, 10, None).unwrap());
+    assert!(!pair_told_apart(&s, &mut ex, 10.0, 2.0, 60.0, 0.0, 1e-6, 10, None).unwrap());
 }
 
 #[test]
@@ -96,7 +92,7 @@ fn spacing_sweep_matches_sequential_calls() {
                     0.0,
                     3.0,
                     2_000_000 + 2 * case,
-                    false,
+                    None,
                 )
                 .unwrap();
                 assert_eq!(r.apart[k][ii][0][si][0], want, "{} d {d} sp {sp}", set.name);
@@ -278,10 +274,10 @@ fn bad_input_is_a_parameter_error() {
     ));
     let mut ex = extractor(Thresholds::MID);
     assert!(is_param(
-        pair_told_apart(&s, &mut ex, 5.0, 1.0, f64::NAN, 0.0, 3.0, 0, false).unwrap_err()
+        pair_told_apart(&s, &mut ex, 5.0, 1.0, f64::NAN, 0.0, 3.0, 0, None).unwrap_err()
     ));
     assert!(is_param(
-        pair_told_apart(&s, &mut ex, 5.0, 1.0, 20.0, 0.0, 0.0, 0, false).unwrap_err()
+        pair_told_apart(&s, &mut ex, 5.0, 1.0, 20.0, 0.0, 0.0, 0, None).unwrap_err()
     ));
 }
 

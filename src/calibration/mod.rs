@@ -18,10 +18,11 @@
 //! [`evaluate`] and the `*_markdown` functions give the paper's Table I / II.
 //!
 //! ```
-//! use optical_tactile::calibration::{Calibration, SegmentationThresholds, SensorSetup};
-//! use optical_tactile::geometry::SensorGeometry;
-//! use optical_tactile::frame::Roi;
 //! use optical_tactile::calibration::poly::Polynomial;
+//! use optical_tactile::calibration::{Calibration, SensorSetup};
+//! use optical_tactile::frame::Roi;
+//! use optical_tactile::geometry::SensorGeometry;
+//! use optical_tactile::segment::{Shape, Thresholds};
 //!
 //! // A hand-made calibration: x = (x2d - 800) / 4 mm, y = 0, F = 0.01 * D.
 //! let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25])?;
@@ -35,8 +36,8 @@
 //! let setup = SensorSetup {
 //!     geometry: SensorGeometry::default(),
 //!     crop: Roi::new(0, 440, 1600, 200),
-//!     thresholds: SegmentationThresholds {
-//!         preset: "high".into(), magnitude: 1.5, sum: 400.0, erode: 5, dilate: 9,
+//!     thresholds: Thresholds {
+//!         magnitude: 1.5, sum: 400.0, erode: 5, dilate: 9, shape: Shape::Rect,
 //!     },
 //!     pipeline: None,
 //! };

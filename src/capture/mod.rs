@@ -4,10 +4,11 @@
 //! A source yields grayscale frames (green channel or luma, f32 on the 8-bit
 //! scale) at their full size; cropping to the sensing area is the sensor's job.
 //!
+//! A [`SequenceSource`] is also an [`Iterator`] over `Result<Frame>`:
+//!
 //! ```no_run
-//! use optical_tactile::capture::{FrameSource, SequenceSource};
-//! let mut seq = SequenceSource::open("fixtures/press")?;
-//! while let Some(frame) = seq.next_frame() {
+//! use optical_tactile::capture::SequenceSource;
+//! for frame in SequenceSource::open("fixtures/press")? {
 //!     match frame {
 //!         Ok(f) => println!("{} at {:.3} s: {:?}", f.name, f.t_s, f.image.dim()),
 //!         // An unreadable frame is named; the sequence goes on with the next one.

@@ -1,4 +1,4 @@
-//! An ordered directory of PNG frames (DATASET.md "Image sequence").
+//! An ordered directory of PNG frames (docs/formats.md, "Image sequence").
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -104,5 +104,20 @@ impl FrameSource for SequenceSource {
 
     fn remaining(&self) -> Option<usize> {
         Some(self.frames.len() - self.next)
+    }
+}
+
+/// The frames in order; an unreadable frame is an `Err` and the iteration
+/// goes on with the next file.
+impl Iterator for SequenceSource {
+    type Item = Result<Frame>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_frame()
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.frames.len() - self.next;
+        (n, Some(n))
     }
 }

@@ -6,7 +6,7 @@
 
 pub mod color;
 pub mod dis;
-pub mod pyramid;
+mod pyramid;
 pub mod refine;
 
 use ndarray::{Array2, ArrayView2, Zip};

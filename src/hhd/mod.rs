@@ -20,8 +20,9 @@
 //! Layout: `u` is the component along columns (x, spacing `dx`), `v` along
 //! rows (y, spacing `dy`); arrays have shape `(ny, nx)` = (rows, columns).
 //!
-//! [`NaturalHhd`] evaluates the convolution by zero-padded FFT ([`fft`]) in
-//! `O(N log N)`; [`direct`] is the `O(N^2)` sum kept as the test oracle.
+//! [`NaturalHhd`] evaluates the convolution by zero-padded FFT in
+//! `O(N log N)` ([`GreenConvolver`] is one planned grid size); the tests check
+//! it against the `O(N^2)` direct sum of the definition.
 //!
 //! ```
 //! use ndarray::Array2;
@@ -38,8 +39,15 @@
 //! assert!(dec.potential_r.iter().all(|r| r.abs() < 1e-12));
 //! ```
 
-pub mod direct;
-pub mod fft;
+#[cfg(test)]
+mod direct;
+mod fft;
+#[cfg(test)]
+mod tests_oracle;
+#[cfg(test)]
+mod tests_reference;
+
+pub use fft::{FftWorkspace, GreenConvolver, PARALLEL_MIN_CELLS};
 
 use std::sync::Arc;
 
@@ -48,7 +56,6 @@ use rustfft::FftPlanner;
 
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
-use fft::{FftWorkspace, GreenConvolver};
 
 /// A 2-D vector field in f64: `u` along columns (x), `v` along rows (y), each
 /// of shape `(ny, nx)`.

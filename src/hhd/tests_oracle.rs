@@ -1,9 +1,9 @@
 //! Properties of the natural HHD on analytic and random fields, the FFT path
 //! against the direct-sum oracle, and bad input.
 
+use super::{Decomposition, NaturalHhd, direct, gradient};
+use crate::Error;
 use ndarray::{Array2, ArrayView2, s};
-use optical_tactile::Error;
-use optical_tactile::hhd::{Decomposition, NaturalHhd, direct, gradient};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 
@@ -355,7 +355,7 @@ fn a_torus_split_over_two_threads_matches_direct_sum() {
     let mut hhd = NaturalHhd::new();
     let conv = hhd.prepare(60, 300, 2.0, 2.0).unwrap();
     let (py, px) = conv.padded_shape();
-    assert!(py * px >= optical_tactile::hhd::fft::PARALLEL_MIN_CELLS);
+    assert!(py * px >= super::fft::PARALLEL_MIN_CELLS);
     let fast = hhd.decompose(u.view(), v.view(), 2.0, 2.0).unwrap();
     let slow = direct::decompose(u.view(), v.view(), 2.0, 2.0).unwrap();
     let e = dec_rel_diff(&fast, &slow, field_scale(u.view(), v.view()));
@@ -449,7 +449,7 @@ fn bad_input_is_a_typed_error() {
 /// 60x60 gives the direct sum on a 13x17 grid, and refuses a grid too big.
 #[test]
 fn a_convolver_serves_smaller_grids_exactly() {
-    use optical_tactile::hhd::fft::{FftWorkspace, GreenConvolver};
+    use super::fft::{FftWorkspace, GreenConvolver};
     use rustfft::FftPlanner;
     let (dx, dy) = (0.7, 1.9);
     let conv = GreenConvolver::new(&mut FftPlanner::new(), 60, 60, dx, dy).unwrap();

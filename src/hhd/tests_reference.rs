@@ -7,8 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+use super::{Decomposition, NaturalHhd, direct};
 use ndarray::Array2;
-use optical_tactile::hhd::{Decomposition, NaturalHhd, direct};
 
 /// Minimal reader for the .npy files numpy writes for a C-ordered 2-D `<f8`
 /// array (all the fixtures are such).

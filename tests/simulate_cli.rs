@@ -1,0 +1,115 @@
+//! The `simulate` example's command line: every scenario's options reach the
+//! simulator's `Scenario` and `Common`, bad input is a usage error (exit
+//! status 2) and `--help` is not an error.
+
+#[allow(dead_code)]
+#[path = "../examples/simulate.rs"]
+mod simulate;
+
+use clap::{CommandFactory, Parser};
+use optical_tactile_sim::scenario::{Common, Scenario};
+use simulate::{Cli, Job};
+
+fn parse(line: &str) -> Result<Job, clap::Error> {
+    let args = std::iter::once("simulate").chain(line.split_whitespace());
+    Cli::try_parse_from(args).map(|c| c.command.job().0)
+}
+
+fn run(line: &str) -> (Scenario, Common) {
+    match parse(line).unwrap() {
+        Job::Run(b) => *b,
+        other => panic!("{other:?}"),
+    }
+}
+
+fn usage_error(line: &str) -> String {
+    let e = parse(line).unwrap_err();
+    assert_eq!(e.exit_code(), 2, "{line}: {e}");
+    e.to_string()
+}
+
+#[test]
+fn definition_is_consistent() {
+    Cli::command().debug_assert();
+}
+
+#[test]
+fn options_reach_the_scenario() {
+    let (sc, c) = run("single --out /tmp/x --force-n 3 --pitch-deg 15 --no-flow --seed 9");
+    let Scenario::Single(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.force_n, o.pitch_deg, o.frames), (3.0, 15.0, 10));
+    assert!(!c.flow && c.seed == 9);
+    assert_eq!(c.out, std::path::PathBuf::from("/tmp/x"));
+
+    let (sc, _) =
+        run("presses --out /tmp/x --presses 5 --indenters-mm 2,5 --force-min-n 1 --max-tilt-deg 7");
+    let Scenario::Presses(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.presses, o.force_min_n, o.max_tilt_deg), (5, 1.0, 7.0));
+    assert_eq!(o.indenters_mm, vec![2.0, 5.0]);
+
+    // Flow is off by default for the characterization only, and --flow turns it on.
+    let (sc, c) = run("characterization --out d --subset 12");
+    assert!(matches!(sc, Scenario::Characterization(ref o) if o.subset == Some(12)));
+    assert!(!c.flow);
+    assert!(run("characterization --out d --flow").1.flow);
+    assert!(run("pair --out d").1.flow);
+    assert!(!run("pair --out d --flow --no-flow").1.flow);
+
+    // Negative positions, lists, the sensor's options.
+    let (sc, c) = run(
+        "perches --out d --x1-mm -70 --x2-mm 40 --k2 3 --youngs-kpa 60 --markers 500 --full-frame",
+    );
+    let Scenario::Perches(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.x_mm, o.stiffness_n_per_mm), ([-70.0, 40.0], [1.0, 3.0]));
+    assert_eq!(c.config.material.youngs_kpa, 60.0);
+    assert_eq!(c.config.markers.count, Some(500));
+    assert!(c.config.full_frame);
+    let (sc, _) = run("mapping --out d --rods 0.5,1.5 --touches 3");
+    let Scenario::Mapping(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.rods_x_m, o.touches), (vec![0.5, 1.5], 3));
+
+    // Defaults equal the library's.
+    let (sc, c) = run("pair --out d");
+    assert_eq!(sc, Scenario::Pair(Default::default()));
+    assert_eq!(c, Common::new("d"));
+}
+
+#[test]
+fn fixtures_default_to_this_crate() {
+    match parse("fixtures --docs pics --seed 3").unwrap() {
+        Job::Fixtures { out, docs, seed } => {
+            assert_eq!(
+                out,
+                std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
+            );
+            assert_eq!(docs.as_deref(), Some(std::path::Path::new("pics")));
+            assert_eq!(seed, 3);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn nonsense_is_a_usage_error() {
+    assert!(usage_error("warp --out x").contains("warp"));
+    assert!(usage_error("single").contains("--out"));
+    usage_error("");
+    usage_error("single --out x --spacing-mm 3"); // pair only
+    usage_error("single --out x --force-n"); // no value
+    assert!(usage_error("single --out x --force-n abc").contains("abc"));
+    assert!(usage_error("presses --out x --indenters-mm 2,x").contains("2,x"));
+    usage_error("presses --out x --x-mm 3"); // single only
+    usage_error("fixtures --force-n 2");
+    // Help is not an error.
+    let e = parse("pair --help").unwrap_err();
+    assert_eq!(e.exit_code(), 0);
+    assert!(e.to_string().contains("--spacing-mm"));
+}
