@@ -1,4 +1,4 @@
-//! Polynomial evaluation per contact (the calibrated force of SPEC.md step 9)
+//! Polynomial evaluation per contact (the calibrated force of docs/pipeline.md, step 9)
 //! and least-squares fitting at the size of the characterization protocol.
 //!
 //! Run: `cargo bench --bench poly`

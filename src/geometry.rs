@@ -176,7 +176,7 @@ mod tests {
         for s in [-150.0, -120.0, -3.0, 0.0, 17.5, 140.0] {
             assert_relative_eq!(g.chord_to_arc(g.arc_to_chord(s)), s, epsilon = 1e-9);
         }
-        // Point 2 of the protocol (DATASET.md: "point 2 is near -114 mm").
+        // Point 2 of the protocol (docs/formats.md: point 2 is near -114 mm).
         assert_relative_eq!(g.arc_to_chord(-120.0), -114.1, epsilon = 0.05);
     }
 

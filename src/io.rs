@@ -1,7 +1,7 @@
 //! File formats: Middlebury `.flo`, 2-D `.npy`, PNG images and sequences, JSON
 //! Lines of contacts, the characterization dataset's `tests.csv` and `poses.csv`.
 //!
-//! The formats are specified in `shared/DATASET.md`; they are interfaces with
+//! The formats are specified in docs/formats.md; they are interfaces with
 //! other tools, so they are written exactly and read strictly: every error
 //! names the file (and the line, for line-oriented files).
 
@@ -550,7 +550,7 @@ impl std::str::FromStr for Split {
     }
 }
 
-/// One row of a characterization dataset's `tests.csv` (DATASET.md).
+/// One row of a characterization dataset's `tests.csv` (docs/formats.md).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TestRow {
     /// Test number.
@@ -697,7 +697,7 @@ pub struct PoseRow {
 
 const POSE_COLUMNS: [&str; 9] = ["frame", "t_s", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz"];
 
-/// Reads `poses.csv` (DATASET.md); errors name the file and line.
+/// Reads `poses.csv` (docs/formats.md); errors name the file and line.
 pub fn read_poses_csv(path: impl AsRef<Path>) -> Result<Vec<PoseRow>> {
     let csv = Csv::read(path.as_ref())?;
     let mut c = [0usize; 9];

@@ -1,6 +1,6 @@
 //! The whole pipeline: frames in, contacts out.
 //!
-//! - [`ContactExtractor`] runs SPEC.md steps 4-7 on cropped grayscale frames:
+//! - [`ContactExtractor`] runs steps 4-7 of docs/pipeline.md on cropped grayscale frames:
 //!   DIS optical flow against a fixed reference, segmentation into patches, a
 //!   natural HHD per patch (in parallel), and each patch's raw quantities. It
 //!   works at the flow's **native resolution** (DIS's finest computed level:

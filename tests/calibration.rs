@@ -44,7 +44,7 @@ fn small_options() -> FitOptions {
     }
 }
 
-/// The characterization protocol (SPEC.md) with a smooth synthetic forward
+/// The characterization protocol (docs/pipeline.md) with a smooth synthetic forward
 /// model from truth to raw quantities plus noise: points 2-14, three
 /// indenters, five tilts, six force magnitudes; points 5, 8, 11 alternate
 /// between validation and test.
@@ -759,12 +759,12 @@ fn the_shipped_fixture_loads_with_its_settings() {
     assert_eq!(cal.setup.thresholds.sum, 600.0);
     assert_eq!(cal.g1().variables(), ["x2d", "shear"]);
     let t = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
-    // The figures docs/results/calibration.md reports for this file.
+    // The figures docs/results.md reports for this file.
     assert!(
         t.n > 1300 && t.x_mm < 0.2 && t.fx < 0.0151 && t.fy < 0.0085 && t.fz < 0.0452,
         "{t:?}"
     );
-    // Session 6: the force guard and the press test are in the file.
+    // The force guard and the press test are in the file.
     let g = cal.guard.as_ref().expect("a force guard");
     assert!(
         g.tolerance_n.iter().all(|t| *t > 0.0 && *t < 0.5),

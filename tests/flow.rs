@@ -361,7 +361,7 @@ fn speed_knobs_stay_accurate_and_deterministic() {
                 }
                 // Within 25 % (+0.02 px) of OpenCV's semantics (on these small
                 // frames with few levels; the 1080p figures are in
-                // docs/results/flow.md).
+                // docs/results.md).
                 assert!(
                     e <= 1.25 * base + 0.02,
                     "{preset:?} stop {stop} levels {levels:?}: AEPE {e} vs {base}"

@@ -3,7 +3,7 @@
 
 pynhhd 1.1 (the authors' package) could not be installed from the package
 index here, so this script is our own numpy/scipy transcription of the exact
-definition in shared/reference/NHHD.md, built from the same library calls the
+definition of the natural HHD (Bhatia et al. 2014), built from the same library calls the
 reference makes: numpy.gradient for every derivative, the Green's function
 ln(r)/(2 pi) on a (2ny-1) x (2nx-1) offset grid with r(0) = (dx+dy)/4, and
 scipy.signal.fftconvolve(..., mode='same') times dx*dy for the potentials.

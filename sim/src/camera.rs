@@ -10,7 +10,7 @@
 use optical_tactile::error::{Error, Result};
 use optical_tactile::geometry::SensorGeometry;
 
-/// The curved sensing skin: the sensor geometry (SPEC.md reference by default)
+/// The curved sensing skin: the sensor geometry (the reference design by default)
 /// and the length of the sensing area along the arc.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Skin {

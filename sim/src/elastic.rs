@@ -1,5 +1,5 @@
 //! Linear-elastic response of the gel layer to surface loads
-//! (shared/reference/ELASTIC.md).
+//! (Boussinesq and Cerruti, integrated over the footprint).
 //!
 //! Coordinates here are local to the unrolled skin: `x` along the arc (mm), `y`
 //! across (mm), `z` depth into the gel (mm, `z > 0`). Loads are
@@ -50,7 +50,7 @@ impl Default for Material {
     fn default() -> Self {
         Material {
             // Calibrated so that 0.5-3 N on a 40 mm rod moves markers by about
-            // 0.3-1.6 px at 5 px/mm (ELASTIC.md), at the soft end of gel moduli.
+            // 0.3-1.6 px at 5 px/mm, at the soft end of gel moduli.
             youngs_kpa: 40.0,
             poisson: 0.47,
             layer_mm: 8.0,
@@ -95,7 +95,7 @@ impl Material {
 
 /// Half-space displacement at `p = [x, y, z]` (z > 0) due to a point force
 /// `f = [f_x, f_y, f_n]` at the surface origin: Boussinesq + Cerruti
-/// (ELASTIC.md table). The slow, obviously-correct oracle of the integrated
+/// (the elastic half-space solutions). The slow, obviously-correct oracle of the integrated
 /// kernels.
 pub fn point_displacement(mat: &Material, f: [f64; 3], p: [f64; 3]) -> [f64; 3] {
     let nu = mat.poisson;

@@ -1,4 +1,4 @@
-//! Scoring predicted contacts against ground truth (DATASET.md: contacts JSON
+//! Scoring predicted contacts against ground truth (docs/formats.md: contacts JSON
 //! Lines against `truth.jsonl`).
 //!
 //! Frames are paired by their `frame` name. Within a frame, predicted and true

@@ -12,8 +12,8 @@
 //! brightness flicker. It also returns the true dense motion.
 //!
 //! [`scenario`] writes whole sequences (frames, `truth.jsonl`, `.flo` truth
-//! flow, `tests.csv`, `poses.csv`) in the DATASET.md formats; the `simulate`
-//! example is its command line ([`cli`]).
+//! flow, `tests.csv`, `poses.csv`) in the formats of docs/formats.md; the `simulate`
+//! example is its command line.
 //!
 //! Units and frames: contacts are given in the sensor frame (chord position
 //! `x_mm`, force `[Fx, Fy, Fz]` in N, a press has `Fz < 0`); internally the
@@ -33,7 +33,6 @@
 //! ```
 
 pub mod camera;
-pub mod cli;
 pub mod elastic;
 pub mod evaluate;
 pub mod experiments;

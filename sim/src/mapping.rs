@@ -269,7 +269,7 @@ pub struct Cluster {
 }
 
 /// One obstacle estimate as the demos and experiments report it (world
-/// frame; the JSON shape of issue 8's `touch_mapping`).
+/// frame; the JSON shape of the `touch_mapping` example).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ClusterSummary {
     /// Mean position of the touches, x, m.

@@ -10,7 +10,7 @@ use super::elastic::{Material, QuadratureCache, RodLoad, hertz_half_width};
 use super::render;
 use super::rng::{SplitMix64, mix64};
 
-/// One rod contact, given in the sensor frame (SPEC.md): the rod lies across the
+/// One rod contact, given in the sensor frame (docs/pipeline.md): the rod lies across the
 /// whole width of the skin at chord position `x_mm`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Press {

@@ -5,7 +5,7 @@
 //! minimum detectable force rises from LOW to HIGH), and bad input.
 //!
 //! The full measurements are `cargo run --release --example experiments`
-//! (docs/results/experiments.md).
+//! (docs/results.md).
 
 use optical_tactile::Error;
 use optical_tactile::segment::Thresholds;
@@ -182,7 +182,7 @@ fn minimum_detectable_force_rises_from_low_to_high() {
         .collect();
     assert!(m[0] <= m[1] && m[1] <= m[2], "LOW, MID, HIGH: {m:?}");
     assert!(m[0] < m[2], "LOW must see less than HIGH: {m:?}");
-    // The low preset sees 0.5 N presses (issue 5: its MDF is below 0.5 N).
+    // The low preset sees 0.5 N presses (its minimum detectable force is below 0.5 N).
     assert!(m[0] <= 0.5, "{m:?}");
     // Detection never falls as the thresholds fall, press by press.
     for ii in 0..INDENTERS_MM.len() {

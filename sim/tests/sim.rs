@@ -147,7 +147,7 @@ fn max_marker_px(s: &SyntheticSensor, c: Press) -> f64 {
 
 #[test]
 fn press_magnitudes_match_the_reference_range() {
-    // ELASTIC.md: 0.5-3 N on a 40 mm rod moves markers ~0.3-2 px at ~5 px/mm.
+    // 0.5-3 N on a 40 mm rod moves markers ~0.3-2 px at ~5 px/mm.
     let s = sensor();
     let lo = max_marker_px(&s, press(0.0, 0.5));
     let hi = max_marker_px(&s, press(0.0, 3.0));

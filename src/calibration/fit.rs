@@ -1,5 +1,5 @@
-//! Calibrating a sensor from a characterization dataset (SPEC.md
-//! "Characterization", DATASET.md `tests.csv`).
+//! Calibrating a sensor from a characterization dataset (docs/calibration.md;
+//! the `tests.csv` of docs/formats.md).
 //!
 //! 1. [`extract_dataset`] runs the image pipeline on every test: the test's
 //!    own unloaded reference, then its loaded frame, through a

@@ -1,6 +1,6 @@
 //! Calibration: the fitted maps from raw contact quantities to millimetres and newtons.
 //!
-//! A [`Calibration`] holds the five polynomials of the paper (SPEC.md steps 8-9):
+//! A [`Calibration`] holds the five polynomials of the paper (docs/pipeline.md, steps 8-9):
 //!
 //! - `g1: x2d -> x3D` and `g2: y2d -> y3D` (mm), with `z3D = sqrt(R^2 - x3D^2) - d`
 //!   from the [`SensorGeometry`];
@@ -8,7 +8,7 @@
 //!
 //! plus the geometry, the crop and the segmentation thresholds it was fitted
 //! with, and the fit report (orders, validation and test MAE). It is saved and
-//! loaded as versioned, human-readable JSON (`"version": 1`, see DATASET.md);
+//! loaded as versioned, human-readable JSON (`"version": 1`, see docs/formats.md);
 //! loading a malformed or incompatible file gives [`Error::Calibration`] naming
 //! the file, never a panic.
 //!
@@ -198,7 +198,7 @@ impl PipelineSettings {
 }
 
 /// One characterization test, reduced to the raw quantities of its contact
-/// and the truth (SPEC.md steps 7-9; DATASET.md `tests.csv`).
+/// and the truth (docs/pipeline.md, steps 7-9; the `tests.csv` of docs/formats.md).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Sample {
     /// Train, validation or test.

@@ -1,6 +1,6 @@
 //! Multivariate polynomials: terms, evaluation, least-squares fitting, order search.
 //!
-//! The calibration maps of the paper (SPEC.md steps 8-9) are polynomials of a
+//! The calibration maps of the paper (docs/pipeline.md, steps 8-9) are polynomials of a
 //! few named variables whose orders are chosen per *group* of variables: the
 //! force maps `gx, gy, gz` take the displacements `{dx, dy, dz}` up to one order,
 //! the image location `{x2d, y2d}` up to another and `{d_pf}` up to a third.

@@ -1,4 +1,4 @@
-//! Contacts: the raw quantities of a contact patch (SPEC.md step 7) and the
+//! Contacts: the raw quantities of a contact patch (docs/pipeline.md, step 7) and the
 //! calibrated contact a user acts on.
 
 pub mod profile;
@@ -12,7 +12,7 @@ use crate::frame::Roi;
 use crate::geometry::SensorGeometry;
 use crate::io::ContactRecord;
 
-/// The raw, uncalibrated quantities of one contact patch (SPEC.md step 7), all
+/// The raw, uncalibrated quantities of one contact patch (docs/pipeline.md, step 7), all
 /// in the pixels of the cropped full-resolution image.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct RawContact {
@@ -85,7 +85,7 @@ impl Contact {
         (x * x + y * y + z * z).sqrt()
     }
 
-    /// The JSON Lines record of DATASET.md.
+    /// The JSON Lines record of docs/formats.md.
     pub fn to_record(&self) -> ContactRecord {
         let r = &self.raw;
         ContactRecord {
@@ -149,7 +149,7 @@ fn parabola_offset(a: f64, b: f64, c: f64) -> f64 {
     }
 }
 
-/// The raw quantities of one patch (SPEC.md step 7), in full-resolution units.
+/// The raw quantities of one patch (docs/pipeline.md, step 7), in full-resolution units.
 ///
 /// - contact point: argmin of `D` (first in row-major order on ties),
 ///   optionally refined to sub-pixel precision by a parabola through the
@@ -571,7 +571,7 @@ pub fn sensor_displacements(geometry: &SensorGeometry, x_mm: f64, raw: &RawConta
 }
 
 /// Rotates a patch's raw displacements from the local surface frame at chord
-/// position `x_mm` into the sensor frame (SPEC.md step 9).
+/// position `x_mm` into the sensor frame (docs/pipeline.md, step 9).
 ///
 /// Locally, `ds1` runs along the tangent (image x follows the arc), `ds2`
 /// across (image y follows the width) and the normal component is `-dn`: the

@@ -60,7 +60,7 @@ pub enum DisPreset {
     /// (`min_stripe_rows`) and a coarsest level at least 3 patches high
     /// (`coarsest_min_patches`: OpenCV's 30x16 top level of a 1080p marker
     /// image is aliased noise that made 16.7 px of motion fail). Measured
-    /// against OpenCV FAST in docs/results/flow.md.
+    /// against OpenCV FAST in docs/results.md.
     /// [`DisParams::opencv_semantics`] restores OpenCV's.
     Fast,
     /// OpenCV 5 `PRESET_MEDIUM`: scale 1, 8/3 patches, 25 descent
@@ -100,7 +100,7 @@ pub enum DisPreset {
     /// a sharp peak (the tangential load) a few pixels wide; a flow computed
     /// at half resolution blurs them by an amount that depends on the marker
     /// pattern there, and the forces matched to the blurred profile scatter
-    /// with the position (docs/results/calibration.md). At full resolution
+    /// with the position (docs/results.md). At full resolution
     /// the shape survives, and the coarser stride and fewer iterations keep
     /// it about as fast as [`DisPreset::Accurate`] on the 1600x200 strip.
     Fine,

@@ -1,4 +1,4 @@
-//! Cutting a flow into contact patches (SPEC.md step 5, the paper's
+//! Cutting a flow into contact patches (docs/pipeline.md, step 5, the paper's
 //! "Thresholds" section).
 //!
 //! [`Segmenter::segment`]: `|flow|` → threshold → binary mask → erode (drops
@@ -155,7 +155,7 @@ impl From<ThresholdPreset> for Thresholds {
 /// strip, 5 px/mm) through [`ContactExtractor`](crate::sensor::ContactExtractor)
 /// with the default (accurate) DIS flow at its native resolution (scale 2).
 /// Measured with `cargo run --release --example sweep` (seed 1; tables in
-/// docs/results/segmentation.md):
+/// docs/results.md):
 ///
 /// | preset | min. detectable force (>= 95%) | every press from | false contacts at rest |
 /// |---|---|---|---|
@@ -177,7 +177,7 @@ impl From<ThresholdPreset> for Thresholds {
 /// to 10-12.5 mm (LOW and MID at 1.5 and 3 N, HIGH at 3 N; 2, 5 and 10 mm
 /// rods; midpoints -60, 0 and 60 mm); before it, 20-40 mm at the centre
 /// only. HIGH at 1.5 N does not detect a centred pair at all below 20-30
-/// mm (see docs/results/segmentation.md).
+/// mm (see docs/results.md).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Thresholds {
     /// Per-pixel `|flow|` above which a pixel belongs to the mask, in
@@ -918,7 +918,7 @@ impl SplitRule {
     /// (`examples/split_check.rs`, seeds 1 and 2): 0 of 525 single presses
     /// (7 positions, 5 tilts, 0.5-3 N, 2/5/10 mm rods) cut, for every
     /// preset; 0 false contacts on 1500 rest pairs (see
-    /// docs/results/segmentation.md).
+    /// docs/results.md).
     pub const DEFAULT: SplitRule = SplitRule {
         smooth: 21,
         depth: 0.1,
