@@ -33,6 +33,7 @@
 //! ```
 
 pub mod camera;
+mod config;
 pub mod elastic;
 pub mod evaluate;
 pub mod experiments;
@@ -44,4 +45,5 @@ mod sensor;
 
 pub use camera::{CameraModel, Skin};
 pub use elastic::Material;
-pub use sensor::{MarkerConfig, NoiseConfig, Press, Rendered, SimConfig, SyntheticSensor};
+pub use config::{MarkerConfig, NoiseConfig, Rendered, SimConfig};
+pub use sensor::{Press, SyntheticSensor};
