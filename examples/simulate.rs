@@ -1,60 +1,496 @@
 //! Synthetic sensor frames with ground truth, written in the DATASET.md formats.
 //!
 //! ```text
-//! cargo run --release --example simulate -- <scenario> --out DIR [--seed N] [...]
+//! cargo run --release --example simulate -- <SCENARIO> --out DIR [OPTIONS]
+//! cargo run --release --example simulate -- fixtures [--out DIR] [--docs DIR]
 //! cargo run --release --example simulate -- --help
+//! cargo run --release --example simulate -- <SCENARIO> --help
 //! ```
+//!
+//! Scenarios: `single`, `pair`, `presses`, `characterization`, `perches`,
+//! `mapping` (see `optical_tactile_sim::scenario`), and `fixtures`, which
+//! regenerates the repository's fixtures (by default in this crate's
+//! `fixtures/`, whatever the working directory) and, with `--docs`, the
+//! README pictures. A progress bar with an ETA shows on a terminal (not with
+//! `--quiet`).
 
-use std::path::Path;
+#[path = "cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::{Args, Parser, Subcommand};
+use cli_support::{Failure, Numbers, Sink, Stages};
 use ndarray::{Array2, s};
 use optical_tactile::Result;
 use optical_tactile::viz::{Canvas, Rgb, colormap};
-use optical_tactile_sim::cli::{self, Command};
-use optical_tactile_sim::scenario;
+use optical_tactile_sim::scenario::{
+    self, Characterization, Common, Mapping, Pair, Perches, Presses, Scenario, Single,
+};
 use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
-fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("simulate: error: {e}");
-            ExitCode::FAILURE
+/// Where `fixtures` writes by default: this crate's fixtures folder.
+const FIXTURES_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures");
+
+/// Synthetic optical tactile sensor frames with ground truth.
+#[derive(Parser, Debug)]
+#[command(
+    name = "simulate",
+    after_help = "Each scenario's options and their defaults: simulate <SCENARIO> --help\n\
+                  Example: simulate pair --out /tmp/pair --spacing-mm 30 --force-n 2.5"
+)]
+pub struct Cli {
+    /// The scenario to write.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The scenarios, each with the common options and its own.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// One indenter, force ramp (frame 0 unloaded), optional tilt.
+    Single {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: SingleArgs,
+    },
+    /// Two indenters at a given spacing, force ramps.
+    Pair {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: PairArgs,
+    },
+    /// Independent presses at random places, forces, tilts and rods, each
+    /// frame against frame 0 (accuracy between the protocol's points;
+    /// presses.json).
+    Presses {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: PressesArgs,
+    },
+    /// The characterization protocol (tests.csv + frames/), SPEC.md.
+    Characterization {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: CharacterizationArgs,
+    },
+    /// Two rods of different stiffness under a descending body.
+    Perches {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: PerchesArgs,
+    },
+    /// Touch, move, touch over rods at known world positions (poses.csv,
+    /// rods.json).
+    Mapping {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: MappingArgs,
+    },
+    /// The repository's fixtures (a two-contact press and a characterization
+    /// subset) and, with --docs, the README pictures.
+    Fixtures(FixturesArgs),
+}
+
+/// Options of every scenario.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Common options")]
+pub struct CommonArgs {
+    /// Output folder (created).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Seed for markers, noise and random choices.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub seed: u64,
+    /// Write the true dense motion as flow/*.flo [default: on, except for
+    /// characterization].
+    #[arg(long, overrides_with = "no_flow")]
+    pub flow: bool,
+    /// Do not write the true dense motion.
+    #[arg(long, overrides_with = "flow")]
+    pub no_flow: bool,
+    /// Frame rate for the time stamps.
+    #[arg(long, value_name = "F", default_value_t = 50.0)]
+    pub fps: f64,
+    /// Render the full 1920x1080 camera frame with the strip inside it (crop
+    /// printed, and written as crop.json) instead of the 1600x200 strip.
+    #[arg(long)]
+    pub full_frame: bool,
+    /// Gel Young's modulus, kPa.
+    #[arg(long, value_name = "E", default_value_t = SimConfig::default().material.youngs_kpa)]
+    pub youngs_kpa: f64,
+    /// Gel Poisson's ratio.
+    #[arg(long, value_name = "NU", default_value_t = SimConfig::default().material.poisson)]
+    pub poisson: f64,
+    /// Gel layer thickness over the rigid plate, mm.
+    #[arg(long, value_name = "T", default_value_t = SimConfig::default().material.layer_mm)]
+    pub layer_mm: f64,
+    /// Fraction of the image covered by markers.
+    #[arg(long, value_name = "C", default_value_t = SimConfig::default().markers.coverage)]
+    pub coverage: f64,
+    /// Exact number of markers (overrides --coverage).
+    #[arg(long, value_name = "N")]
+    pub markers: Option<usize>,
+    /// Read-noise standard deviation, grey levels.
+    #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.read)]
+    pub noise_read: f32,
+    /// Relative per-frame brightness flicker.
+    #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.flicker)]
+    pub flicker: f32,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+impl CommonArgs {
+    /// The scenario's common options; `flow_default` when neither --flow
+    /// nor --no-flow is given.
+    pub fn common(&self, flow_default: bool) -> Common {
+        let mut c = Common::new(&self.out);
+        c.seed = self.seed;
+        c.fps = self.fps;
+        c.flow = if self.no_flow {
+            false
+        } else {
+            self.flow || flow_default
+        };
+        let cfg = &mut c.config;
+        cfg.full_frame = self.full_frame;
+        cfg.material.youngs_kpa = self.youngs_kpa;
+        cfg.material.poisson = self.poisson;
+        cfg.material.layer_mm = self.layer_mm;
+        cfg.markers.coverage = self.coverage;
+        cfg.markers.count = self.markers;
+        cfg.noise.read = self.noise_read;
+        cfg.noise.flicker = self.flicker;
+        c
+    }
+}
+
+/// `single`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct SingleArgs {
+    /// Chord position, mm.
+    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Single::default().x_mm)]
+    pub x_mm: f64,
+    /// Peak force magnitude, N.
+    #[arg(long, value_name = "F", default_value_t = Single::default().force_n)]
+    pub force_n: f64,
+    /// Frames including the reference.
+    #[arg(long, value_name = "N", default_value_t = Single::default().frames)]
+    pub frames: usize,
+    /// Rod diameter, mm.
+    #[arg(long, value_name = "D", default_value_t = Single::default().indenter_mm)]
+    pub indenter_mm: f64,
+    /// Force tilt in the x-z plane, deg.
+    #[arg(long, value_name = "P", allow_negative_numbers = true, default_value_t = Single::default().pitch_deg)]
+    pub pitch_deg: f64,
+    /// Force tilt in the y-z plane, deg.
+    #[arg(long, value_name = "Y", allow_negative_numbers = true, default_value_t = Single::default().yaw_deg)]
+    pub yaw_deg: f64,
+}
+
+/// `pair`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct PairArgs {
+    /// Chord position of the midpoint, mm.
+    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Pair::default().x_mm)]
+    pub x_mm: f64,
+    /// Distance between the rods along the arc, mm.
+    #[arg(long, value_name = "S", default_value_t = Pair::default().spacing_mm)]
+    pub spacing_mm: f64,
+    /// Peak force of the left rod, N.
+    #[arg(long, value_name = "F", default_value_t = Pair::default().force_n)]
+    pub force_n: f64,
+    /// Peak force of the right rod, N.
+    #[arg(long, value_name = "F", default_value_t = Pair::default().force2_n)]
+    pub force2_n: f64,
+    /// Frames including the reference.
+    #[arg(long, value_name = "N", default_value_t = Pair::default().frames)]
+    pub frames: usize,
+    /// Rod diameter, mm.
+    #[arg(long, value_name = "D", default_value_t = Pair::default().indenter_mm)]
+    pub indenter_mm: f64,
+}
+
+/// `presses`' options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct PressesArgs {
+    /// Loaded frames.
+    #[arg(long, value_name = "N", default_value_t = Presses::default().presses)]
+    pub presses: usize,
+    /// Chord positions uniform in [-X, X], mm.
+    #[arg(long, value_name = "X", default_value_t = Presses::default().x_max_mm)]
+    pub x_max_mm: f64,
+    /// Smallest force magnitude, N.
+    #[arg(long, value_name = "F", default_value_t = Presses::default().force_min_n)]
+    pub force_min_n: f64,
+    /// Largest force magnitude, N.
+    #[arg(long, value_name = "F", default_value_t = Presses::default().force_max_n)]
+    pub force_max_n: f64,
+    /// Pitch or yaw (even odds) uniform in [-T, T], deg.
+    #[arg(long, value_name = "T", default_value_t = Presses::default().max_tilt_deg)]
+    pub max_tilt_deg: f64,
+    /// Rod diameters drawn from, mm.
+    #[arg(long, value_name = "D,D,...", default_value_t = Numbers(Presses::default().indenters_mm))]
+    pub indenters_mm: Numbers,
+}
+
+/// `characterization`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct CharacterizationArgs {
+    /// A random subset of N tests [default: all, 7200 with 5 repeats].
+    #[arg(long, value_name = "N")]
+    pub subset: Option<usize>,
+    /// Repetitions.
+    #[arg(long, value_name = "R", default_value_t = Characterization::default().repeats)]
+    pub repeats: u32,
+    /// Load-cell noise per axis, N.
+    #[arg(long = "load-cell-noise", value_name = "F", default_value_t = Characterization::default().load_cell_noise_n)]
+    pub load_cell_noise_n: f64,
+}
+
+/// `perches`' options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct PerchesArgs {
+    /// Position of the first rod, mm.
+    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Perches::default().x_mm[0])]
+    pub x1_mm: f64,
+    /// Position of the second rod, mm.
+    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Perches::default().x_mm[1])]
+    pub x2_mm: f64,
+    /// Stiffness of the first rod, N/mm.
+    #[arg(long, value_name = "K", default_value_t = Perches::default().stiffness_n_per_mm[0])]
+    pub k1: f64,
+    /// Stiffness of the second rod, N/mm.
+    #[arg(long, value_name = "K", default_value_t = Perches::default().stiffness_n_per_mm[1])]
+    pub k2: f64,
+    /// Deepest penetration, mm.
+    #[arg(long, value_name = "P", default_value_t = Perches::default().max_penetration_mm)]
+    pub penetration_mm: f64,
+    /// Frames including the reference.
+    #[arg(long, value_name = "N", default_value_t = Perches::default().frames)]
+    pub frames: usize,
+    /// Rod diameter, mm.
+    #[arg(long, value_name = "D", default_value_t = Perches::default().indenter_mm)]
+    pub indenter_mm: f64,
+}
+
+/// `mapping`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct MappingArgs {
+    /// World x of the rods, m.
+    #[arg(long, value_name = "X,X,...", allow_hyphen_values = true, default_value_t = Numbers(Mapping::default().rods_x_m))]
+    pub rods: Numbers,
+    /// Height of the rods' tops, m.
+    #[arg(long, value_name = "Z", allow_negative_numbers = true, default_value_t = Mapping::default().rods_top_m)]
+    pub rods_top_m: f64,
+    /// Touches per rod.
+    #[arg(long, value_name = "N", default_value_t = Mapping::default().touches)]
+    pub touches: usize,
+    /// Peak touch force, N.
+    #[arg(long, value_name = "F", default_value_t = Mapping::default().force_n)]
+    pub force_n: f64,
+    /// Rod diameter, mm.
+    #[arg(long, value_name = "D", default_value_t = Mapping::default().indenter_mm)]
+    pub indenter_mm: f64,
+}
+
+/// `fixtures`' options.
+#[derive(Args, Debug)]
+pub struct FixturesArgs {
+    /// Fixtures folder.
+    #[arg(long, value_name = "DIR", default_value = FIXTURES_DIR)]
+    pub out: PathBuf,
+    /// Also write reference_frame.png and press_motion.png there.
+    #[arg(long, value_name = "DIR")]
+    pub docs: Option<PathBuf>,
+    /// Seed for markers, noise and random choices.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub seed: u64,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// What the command line asks for.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Job {
+    /// Run one scenario (boxed: the options are large).
+    Run(Box<(Scenario, Common)>),
+    /// Regenerate the fixtures under `out` (and the pictures under `docs`).
+    Fixtures {
+        /// Fixtures folder.
+        out: PathBuf,
+        /// Pictures folder, if wanted.
+        docs: Option<PathBuf>,
+        /// Seed.
+        seed: u64,
+    },
+}
+
+impl Command {
+    /// The job, and whether to hide the progress bar.
+    pub fn job(self) -> (Job, bool) {
+        let run = |s: Scenario, c: &CommonArgs, flow: bool| {
+            (Job::Run(Box::new((s, c.common(flow)))), c.quiet)
+        };
+        match self {
+            Command::Single { common, options: o } => run(
+                Scenario::Single(Single {
+                    x_mm: o.x_mm,
+                    force_n: o.force_n,
+                    frames: o.frames,
+                    indenter_mm: o.indenter_mm,
+                    yaw_deg: o.yaw_deg,
+                    pitch_deg: o.pitch_deg,
+                }),
+                &common,
+                true,
+            ),
+            Command::Pair { common, options: o } => run(
+                Scenario::Pair(Pair {
+                    x_mm: o.x_mm,
+                    spacing_mm: o.spacing_mm,
+                    force_n: o.force_n,
+                    force2_n: o.force2_n,
+                    frames: o.frames,
+                    indenter_mm: o.indenter_mm,
+                }),
+                &common,
+                true,
+            ),
+            Command::Presses { common, options: o } => run(
+                Scenario::Presses(Presses {
+                    presses: o.presses,
+                    x_max_mm: o.x_max_mm,
+                    force_min_n: o.force_min_n,
+                    force_max_n: o.force_max_n,
+                    max_tilt_deg: o.max_tilt_deg,
+                    indenters_mm: o.indenters_mm.0,
+                }),
+                &common,
+                true,
+            ),
+            Command::Characterization { common, options: o } => run(
+                Scenario::Characterization(Characterization {
+                    subset: o.subset,
+                    repeats: o.repeats,
+                    load_cell_noise_n: o.load_cell_noise_n,
+                }),
+                &common,
+                false,
+            ),
+            Command::Perches { common, options: o } => run(
+                Scenario::Perches(Perches {
+                    x_mm: [o.x1_mm, o.x2_mm],
+                    stiffness_n_per_mm: [o.k1, o.k2],
+                    max_penetration_mm: o.penetration_mm,
+                    frames: o.frames,
+                    indenter_mm: o.indenter_mm,
+                }),
+                &common,
+                true,
+            ),
+            Command::Mapping { common, options: o } => run(
+                Scenario::Mapping(Mapping {
+                    rods_x_m: o.rods.0,
+                    rods_top_m: o.rods_top_m,
+                    touches: o.touches,
+                    force_n: o.force_n,
+                    indenter_mm: o.indenter_mm,
+                }),
+                &common,
+                true,
+            ),
+            Command::Fixtures(f) => (
+                Job::Fixtures {
+                    out: f.out,
+                    docs: f.docs,
+                    seed: f.seed,
+                },
+                f.quiet,
+            ),
         }
     }
 }
 
-fn run(args: &[String]) -> Result<()> {
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    cli_support::finish(run(cli.command).map(|()| ExitCode::SUCCESS))
+}
+
+fn run(command: Command) -> std::result::Result<(), Failure> {
     let t0 = Instant::now();
-    match cli::parse(args)? {
-        Command::Help => print!("{}", cli::HELP),
-        Command::Run(run) => {
+    let (job, quiet) = command.job();
+    let mut out = Sink::stdout();
+    let stages = Stages::new(quiet);
+    let progress = |stage: &str, done: usize, total: usize| stages.update(stage, done, total);
+    match job {
+        Job::Run(run) => {
             let (sc, common) = *run;
             if common.config.full_frame {
                 let (x, y, w, h) = common.config.camera.crop();
-                println!("full frame; the sensing strip is the crop x={x} y={y} w={w} h={h}");
+                writeln!(
+                    out,
+                    "full frame; the sensing strip is the crop x={x} y={y} w={w} h={h}"
+                )?;
             }
-            let sum = scenario::run(&sc, &common)?;
-            println!(
+            let sum = scenario::run_with_progress(&sc, &common, &progress);
+            stages.finish();
+            let sum = sum?;
+            writeln!(
+                out,
                 "wrote {} frames to {} in {:.1} s",
                 sum.frames,
                 sum.out.display(),
                 t0.elapsed().as_secs_f64()
-            );
+            )?;
         }
-        Command::Fixtures { out, docs, seed } => {
-            scenario::fixtures(&out, seed)?;
+        Job::Fixtures {
+            out: dir,
+            docs,
+            seed,
+        } => {
+            let done = scenario::fixtures_with_progress(&dir, seed, &progress);
+            stages.finish();
+            done?;
             if let Some(d) = docs {
                 pictures(&d, seed)?;
             }
-            println!(
+            writeln!(
+                out,
                 "fixtures written to {} in {:.1} s",
-                out.display(),
+                dir.display(),
                 t0.elapsed().as_secs_f64()
-            );
+            )?;
         }
     }
     Ok(())

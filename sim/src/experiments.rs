@@ -87,9 +87,32 @@ pub struct SweepOptions {
     pub sets: Vec<ThresholdSet>,
     /// Patch margin, full-resolution px (as [`ExtractorConfig::margin_px`]).
     pub margin_px: usize,
-    /// Print every missed press (from 0.8 N) and every spacing case to
-    /// stderr with its patches and contour boxes.
-    pub debug: bool,
+    /// Where to send one line per missed press (from 0.8 N) and per
+    /// spacing case, with its patches and contour boxes (`None`: nowhere).
+    pub debug: Option<DebugLog>,
+}
+
+/// A sink for the sweeps' debug lines (the library prints nothing): called
+/// once per line, from worker threads, e.g. `DebugLog(|l| eprintln!("{l}"))`.
+#[derive(Clone, Copy)]
+pub struct DebugLog(pub fn(&str));
+
+impl DebugLog {
+    fn line(&self, line: &str) {
+        (self.0)(line)
+    }
+}
+
+impl std::fmt::Debug for DebugLog {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("DebugLog(..)")
+    }
+}
+
+impl PartialEq for DebugLog {
+    fn eq(&self, other: &Self) -> bool {
+        std::ptr::fn_addr_eq(self.0, other.0)
+    }
 }
 
 impl Default for SweepOptions {
@@ -98,7 +121,7 @@ impl Default for SweepOptions {
         SweepOptions {
             sets: ThresholdSet::presets(),
             margin_px: ExtractorConfig::default().margin_px,
-            debug: false,
+            debug: None,
         }
     }
 }
@@ -116,10 +139,7 @@ impl SweepOptions {
 }
 
 /// Progress callback: `(stage, done, total)`, called from worker threads.
-pub type Progress<'a> = &'a (dyn Fn(&str, usize, usize) + Sync);
-
-/// A progress callback that does nothing.
-pub fn no_progress(_: &str, _: usize, _: usize) {}
+pub use super::scenario::{Progress, no_progress};
 
 /// A worker thread's state, built on its first use (an error, not a panic,
 /// if that fails).
@@ -444,14 +464,14 @@ pub fn mdf_sweep(
                         hit[k][fi] = p.iter().any(|p| covers(p, scale, xp));
                         let away = p.iter().filter(|p| !covers(p, scale, xp)).count();
                         stray[k] += away;
-                        if o.debug && f >= 0.8 && away > 0 {
+                        if let Some(log) = o.debug.filter(|_| f >= 0.8 && away > 0) {
                             let boxes: Vec<_> = p
                                 .iter()
                                 .map(|p| (p.bbox.x as f64 * scale, p.bbox.x_end() as f64 * scale))
                                 .collect();
-                            eprintln!(
+                            log.line(&format!(
                                 "miss set {k} d {d} s {s} tilt ({yaw},{pitch}) f {f}: rod {xp:.0} boxes {boxes:?}"
-                            );
+                            ));
                         }
                     })?;
                 }
@@ -567,7 +587,7 @@ impl SpacingResult {
 /// tells whether `extractor` finds exactly two contacts, each within
 /// `tol_mm` (along the arc) of its rod, its column measured as the shipped
 /// calibration does ([`ContactPointMethod::DEFAULT`]). Frames `frame_index` (reference) and
-/// `frame_index + 1` (loaded). With `debug`, prints the case to stderr.
+/// `frame_index + 1` (loaded). With `debug`, sends the case to it as one line.
 #[allow(clippy::too_many_arguments)]
 pub fn pair_told_apart(
     sensor: &SyntheticSensor,
@@ -578,7 +598,7 @@ pub fn pair_told_apart(
     centre_mm: f64,
     tol_mm: f64,
     frame_index: u64,
-    debug: bool,
+    debug: Option<DebugLog>,
 ) -> Result<bool> {
     let skin = &sensor.config().skin;
     let (s1, s2) = (centre_mm - 0.5 * spacing_mm, centre_mm + 0.5 * spacing_mm);
@@ -603,7 +623,7 @@ pub fn pair_told_apart(
     extractor.set_reference(&r.frame)?;
     extractor.extract(&o.frame)?;
     let raws = extractor.raws();
-    if debug {
+    if let Some(log) = debug {
         let got: Vec<_> = raws
             .iter()
             .map(|r| (r.x_px.round(), r.bbox.x, r.bbox.x + r.bbox.w))
@@ -615,9 +635,9 @@ pub fn pair_told_apart(
             .iter()
             .map(|b| (b.x * s, b.x_end() * s))
             .collect();
-        eprintln!(
+        log.line(&format!(
             "d {indenter_mm} f {force_n} sp {spacing_mm} c {centre_mm}: rods {p1:.0} {p2:.0} got {got:?} contours {cores:?}"
-        );
+        ));
     }
     if raws.len() != 2 {
         return Ok(false);
@@ -662,10 +682,10 @@ pub fn spacing_sweep(
     let configs: Vec<ExtractorConfig> = o
         .sets
         .iter()
-        .map(|s| ExtractorConfig {
-            thresholds: s.thresholds,
-            margin_px: o.margin_px,
-            ..ExtractorConfig::default()
+        .map(|s| {
+            ExtractorConfig::default()
+                .with_thresholds(s.thresholds)
+                .with_margin_px(o.margin_px)
         })
         .collect();
     let cases = INDENTERS_MM.len() * nf * ns * nc;
@@ -800,10 +820,8 @@ pub fn mapping_run(
     let poses_path = dir.join("poses.csv");
     let poses = poses_by_frame(&io::read_poses_csv(&poses_path)?, &poses_path)?;
     let truth = read_rods_json(dir.join("rods.json"))?;
-    let config = SensorConfig {
-        extractor: ExtractorConfig::from_setup(&calibration.setup)?,
-        ..SensorConfig::default()
-    };
+    let mut config = SensorConfig::default();
+    config.extractor = ExtractorConfig::from_setup(&calibration.setup)?;
     let mut sensor = TactileSensor::new(config, calibration.clone())?;
     let mut records = Vec::new();
     for (k, path) in io::list_frames(dir)?.iter().enumerate() {

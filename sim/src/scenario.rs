@@ -1,5 +1,5 @@
 //! Scenarios: sequences of frames with ground truth, written to a folder in the
-//! DATASET.md formats.
+//! file formats of docs/formats.md.
 //!
 //! Every scenario writes its frames as 8-bit grey PNG. Sequences (`single`,
 //! `pair`, `presses`, `perches`, `mapping`) write `000000.png, 000001.png, ...` (frame 0
@@ -111,7 +111,7 @@ impl Default for Pair {
     }
 }
 
-/// The characterization protocol (SPEC.md).
+/// The characterization protocol (docs/pipeline.md).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Characterization {
     /// Only a random subset of this many tests (all when `None`).
@@ -253,6 +253,14 @@ pub enum Scenario {
     Mapping(Mapping),
 }
 
+/// Progress callback: `(stage, done, total)`, called from worker threads as
+/// work completes (a scenario's stage is its name, its steps the frames or
+/// tests written). The library prints nothing: the caller shows progress.
+pub type Progress<'a> = &'a (dyn Fn(&str, usize, usize) + Sync);
+
+/// A progress callback that does nothing.
+pub fn no_progress(_: &str, _: usize, _: usize) {}
+
 /// What a scenario wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {
@@ -325,17 +333,21 @@ fn create_dir(dir: &Path) -> Result<()> {
     std::fs::remove_file(&probe).map_err(|e| Error::io(&probe, e))
 }
 
-/// Writes frames + truth of a contact sequence.
-struct SequenceWriter {
+/// Writes frames + truth of a contact sequence of `total` frames, reporting
+/// each frame written to `progress` under `stage`.
+struct SequenceWriter<'p> {
     out: PathBuf,
     flow: bool,
     fps: f64,
     truth: io::JsonlWriter,
     n: usize,
+    stage: &'static str,
+    total: usize,
+    progress: Progress<'p>,
 }
 
-impl SequenceWriter {
-    fn new(c: &Common) -> Result<Self> {
+impl<'p> SequenceWriter<'p> {
+    fn new(c: &Common, stage: &'static str, total: usize, progress: Progress<'p>) -> Result<Self> {
         create_dir(&c.out)?;
         if c.flow {
             create_dir(&c.out.join("flow"))?;
@@ -347,6 +359,9 @@ impl SequenceWriter {
             fps: c.fps,
             truth: io::JsonlWriter::create(c.out.join("truth.jsonl"))?,
             n: 0,
+            stage,
+            total,
+            progress,
         })
     }
 
@@ -372,11 +387,12 @@ impl SequenceWriter {
         };
         self.truth.write(&rec)?;
         self.n += 1;
+        (self.progress)(self.stage, self.n, self.total);
         Ok(name)
     }
 }
 
-/// The DATASET.md record of a true contact (pixel position in the strip image).
+/// The JSON Lines record (docs/formats.md) of a true contact (pixel position in the strip image).
 pub fn truth_record(sensor: &SyntheticSensor, c: &Press) -> ContactRecord {
     let cfg = sensor.config();
     let s = cfg.skin.geometry.chord_to_arc(c.x_mm);
@@ -395,6 +411,16 @@ pub fn truth_record(sensor: &SyntheticSensor, c: &Press) -> ContactRecord {
 
 /// Runs a scenario, writing everything into `common.out`.
 pub fn run(scenario: &Scenario, common: &Common) -> Result<Summary> {
+    run_with_progress(scenario, common, &no_progress)
+}
+
+/// [`run`], reporting every frame (or characterization test) written to
+/// `progress` as `(scenario name, done, total)`.
+pub fn run_with_progress(
+    scenario: &Scenario,
+    common: &Common,
+    progress: Progress<'_>,
+) -> Result<Summary> {
     if !(common.fps.is_finite() && common.fps > 0.0) {
         return Err(Error::param(
             "fps",
@@ -478,12 +504,12 @@ pub fn run(scenario: &Scenario, common: &Common) -> Result<Summary> {
     }
     let sensor = SyntheticSensor::new(common.config, common.seed)?;
     match scenario {
-        Scenario::Single(o) => single(&sensor, common, o),
-        Scenario::Pair(o) => pair(&sensor, common, o),
-        Scenario::Presses(o) => presses(&sensor, common, o),
-        Scenario::Characterization(o) => characterization(&sensor, common, o),
-        Scenario::Perches(o) => perches(&sensor, common, o),
-        Scenario::Mapping(o) => mapping(&sensor, common, o),
+        Scenario::Single(o) => single(&sensor, common, o, progress),
+        Scenario::Pair(o) => pair(&sensor, common, o, progress),
+        Scenario::Presses(o) => presses(&sensor, common, o, progress),
+        Scenario::Characterization(o) => characterization(&sensor, common, o, progress),
+        Scenario::Perches(o) => perches(&sensor, common, o, progress),
+        Scenario::Mapping(o) => mapping(&sensor, common, o, progress),
     }
 }
 
@@ -492,11 +518,16 @@ fn ramp(k: usize, n: usize) -> f64 {
     k as f64 / (n - 1) as f64
 }
 
-fn single(sensor: &SyntheticSensor, c: &Common, o: &Single) -> Result<Summary> {
+fn single(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Single,
+    progress: Progress<'_>,
+) -> Result<Summary> {
     let f = tilted_force(1.0, o.yaw_deg, o.pitch_deg);
     // Reject a bad contact before writing anything.
     sensor.loads(&[Press::rod(o.x_mm, f, o.indenter_mm)])?;
-    let mut w = SequenceWriter::new(c)?;
+    let mut w = SequenceWriter::new(c, "single", o.frames, progress)?;
     for k in 0..o.frames {
         let a = o.force_n * ramp(k, o.frames);
         let contacts = if k == 0 {
@@ -521,7 +552,12 @@ struct PressInfo {
     pitch_deg: f64,
 }
 
-fn presses(sensor: &SyntheticSensor, c: &Common, o: &Presses) -> Result<Summary> {
+fn presses(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Presses,
+    progress: Progress<'_>,
+) -> Result<Summary> {
     // All draws first, from their own stream, so that the presses depend on
     // the seed alone; every rod is checked before anything is written.
     let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7072_6573_7365_7321));
@@ -540,7 +576,7 @@ fn presses(sensor: &SyntheticSensor, c: &Common, o: &Presses) -> Result<Summary>
         sensor.loads(std::slice::from_ref(&contact))?;
         plan.push((contact, d, yaw, pitch));
     }
-    let mut w = SequenceWriter::new(c)?;
+    let mut w = SequenceWriter::new(c, "presses", 1 + o.presses, progress)?;
     w.frame(sensor, &[])?;
     let mut info = Vec::with_capacity(plan.len());
     for (contact, d, yaw, pitch) in plan {
@@ -559,7 +595,7 @@ fn presses(sensor: &SyntheticSensor, c: &Common, o: &Presses) -> Result<Summary>
     })
 }
 
-fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair) -> Result<Summary> {
+fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair, progress: Progress<'_>) -> Result<Summary> {
     let skin = &c.config.skin;
     let s_mid = skin.chord_to_arc(o.x_mm)?;
     let xs = [
@@ -591,7 +627,7 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair) -> Result<Summary> {
             ));
         }
     }
-    let mut w = SequenceWriter::new(c)?;
+    let mut w = SequenceWriter::new(c, "pair", o.frames, progress)?;
     for k in 0..o.frames {
         w.frame(sensor, &at(k))?;
     }
@@ -601,7 +637,7 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair) -> Result<Summary> {
     })
 }
 
-/// Measuring points and their split (SPEC.md): points 2-14; 5, 8, 11 are
+/// Measuring points and their split (docs/pipeline.md): points 2-14; 5, 8, 11 are
 /// validation; the test split repeats points 5, 8, 11.
 const TRAIN_POINTS: [u32; 10] = [2, 3, 4, 6, 7, 9, 10, 12, 13, 14];
 const HELD_OUT_POINTS: [u32; 3] = [5, 8, 11];
@@ -658,7 +694,12 @@ fn protocol(repeats: u32) -> Vec<Planned> {
     v
 }
 
-fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) -> Result<Summary> {
+fn characterization(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Characterization,
+    progress: Progress<'_>,
+) -> Result<Summary> {
     let all = protocol(o.repeats);
     let mut ids: Vec<usize> = (0..all.len()).collect();
     if let Some(n) = o.subset {
@@ -704,9 +745,7 @@ fn characterization(sensor: &SyntheticSensor, c: &Common, o: &Characterization) 
             let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(id as u64 ^ 0x10AD_CE11)));
             let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
             let k = done.fetch_add(1, Ordering::Relaxed) + 1;
-            if k % 200 == 0 {
-                eprintln!("characterization: {k} / {} tests", ids.len());
-            }
+            progress("characterization", k, ids.len());
             Ok(TestRow {
                 test: id,
                 frame,
@@ -740,7 +779,12 @@ struct PerchInfo {
     diameter_mm: f64,
 }
 
-fn perches(sensor: &SyntheticSensor, c: &Common, o: &Perches) -> Result<Summary> {
+fn perches(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Perches,
+    progress: Progress<'_>,
+) -> Result<Summary> {
     let at = |k: usize| -> Vec<Press> {
         let pen = o.max_penetration_mm * ramp(k, o.frames);
         (0..2)
@@ -755,7 +799,7 @@ fn perches(sensor: &SyntheticSensor, c: &Common, o: &Perches) -> Result<Summary>
             .collect()
     };
     sensor.loads(&at(o.frames - 1))?;
-    let mut w = SequenceWriter::new(c)?;
+    let mut w = SequenceWriter::new(c, "perches", o.frames, progress)?;
     for k in 0..o.frames {
         w.frame(sensor, &at(k))?;
     }
@@ -800,10 +844,17 @@ struct WorldInfo {
 /// x, sensor y = -body y, sensor z = -body z (180 deg about x).
 const SENSOR_IN_BODY: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]];
 
-fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary> {
+fn mapping(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Mapping,
+    progress: Progress<'_>,
+) -> Result<Summary> {
     let skin = &c.config.skin;
     let mut rng = SplitMix64::new(mix64(c.seed ^ 0x3A99_1F6E));
-    let mut w = SequenceWriter::new(c)?;
+    // The reference, then per touch: approach, three press steps, leave.
+    let total = 1 + 5 * o.rods_x_m.len() * o.touches;
+    let mut w = SequenceWriter::new(c, "mapping", total, progress)?;
     let mut poses = Vec::new();
     let hover = 0.05; // m above the touching height while travelling
     let mut push = |w: &mut SequenceWriter, pose: [f64; 3], contacts: &[Press]| -> Result<()> {
@@ -872,6 +923,12 @@ fn mapping(sensor: &SyntheticSensor, c: &Common, o: &Mapping) -> Result<Summary>
 /// ramping to 2.0 and 1.5 N over 8 frames, no flow) and `characterization/`
 /// (a 6-test subset of the protocol, no flow). See `fixtures/README.md`.
 pub fn fixtures(out: &Path, seed: u64) -> Result<()> {
+    fixtures_with_progress(out, seed, &no_progress)
+}
+
+/// [`fixtures`], reporting progress as [`run_with_progress`] does (stages
+/// `pair`, then `characterization`).
+pub fn fixtures_with_progress(out: &Path, seed: u64, progress: Progress<'_>) -> Result<()> {
     let mut press = Common::new(out.join("press"));
     press.seed = seed;
     press.flow = false;
@@ -883,7 +940,7 @@ pub fn fixtures(out: &Path, seed: u64) -> Result<()> {
         frames: 8,
         indenter_mm: 5.0,
     };
-    run(&Scenario::Pair(pair), &press)?;
+    run_with_progress(&Scenario::Pair(pair), &press, progress)?;
     let mut ch = Common::new(out.join("characterization"));
     ch.seed = seed;
     ch.flow = false;
@@ -891,7 +948,7 @@ pub fn fixtures(out: &Path, seed: u64) -> Result<()> {
         subset: Some(6),
         ..Default::default()
     };
-    run(&Scenario::Characterization(c), &ch)?;
+    run_with_progress(&Scenario::Characterization(c), &ch, progress)?;
     Ok(())
 }
 

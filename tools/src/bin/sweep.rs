@@ -28,7 +28,7 @@ use optical_tactile::segment::morphology::Shape;
 use optical_tactile::sensor::ExtractorConfig;
 use optical_tactile::{Error, Result};
 use optical_tactile_sim::experiments::{
-    INDENTERS_MM, MdfPlan, SpacingPlan, SweepOptions, TILTS_DEG, ThresholdSet, mdf_sweep,
+    DebugLog, INDENTERS_MM, MdfPlan, SpacingPlan, SweepOptions, TILTS_DEG, ThresholdSet, mdf_sweep,
     no_progress, rest_sweep, spacing_sweep,
 };
 use optical_tactile_sim::{SimConfig, SyntheticSensor};
@@ -154,7 +154,7 @@ fn options(args: &Args) -> SweepOptions {
     SweepOptions {
         sets: args.sets.clone(),
         margin_px: args.margin,
-        debug: std::env::var_os("SWEEP_DEBUG").is_some(),
+        debug: std::env::var_os("SWEEP_DEBUG").map(|_| DebugLog(|l| eprintln!("{l}"))),
     }
 }
 
