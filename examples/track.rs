@@ -3,13 +3,14 @@
 //! ```text
 //! cargo run --release --example track -- [SEQ_DIR] [--calibration FILE] [--crop x,y,w,h]
 //!     [--thresholds low|mid|high] [--preset fast|accurate|...] [--filter on|off]
-//!     [--rereference on|off] [--hold N] [--out contacts.jsonl] [--debug DIR]
+//!     [--rereference on|off] [--hold N] [--out contacts.jsonl|-] [--debug DIR] [--quiet]
 //! ```
 //!
-//! With no arguments it runs on `fixtures/press` with
-//! `fixtures/calibration.json`. The first readable frame is the reference
-//! (unloaded); every later frame is processed and printed as a table of its
-//! contacts (id, location in mm, force in N, latency), then the frame rate.
+//! With no arguments it runs on this crate's `fixtures/press` with
+//! `fixtures/calibration.json` (found from any working directory). The first
+//! readable frame is the reference (unloaded); every later frame is processed
+//! and printed as a table of its contacts (id, location in mm, force in N,
+//! latency), then the frame rate.
 //!
 //! The flow preset, patch margin and sub-pixel switch come from the
 //! calibration's `setup.pipeline` when it records them, the segmentation
@@ -22,113 +23,86 @@
 //! frames are independent presses, such as `simulate presses`).
 //!
 //! `--out` writes JSON Lines per DATASET.md (one line per processed frame,
-//! with `latency_ms`), flushed line by line. `--debug DIR` writes the debug
-//! panel (flow, divergent field, potential, image) of every frame as
-//! `DIR/<frame>.png`.
+//! with `latency_ms`), flushed line by line; `--out -` writes them to stdout
+//! and the table to stderr. `--debug DIR` writes the debug panel (flow,
+//! divergent field, potential, image) of every frame as `DIR/<frame>.png`.
+//! A closed stdout (`track | head`) ends the run quietly.
 //!
 //! Errors: a missing calibration or sequence stops the run before anything is
 //! written. An unreadable frame, or one that cannot be processed (another size
 //! than the reference, NaN), is named on stderr and skipped: the run goes on,
 //! and the exit status is 2 at the end if any frame was skipped.
 
+#[path = "cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::{ArgAction, Parser};
+use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::Calibration;
 use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
-use optical_tactile::io::{FrameRecord, JsonlWriter};
-use optical_tactile::segment::{ThresholdPreset, Thresholds};
-use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
-use optical_tactile::track::{FilterConfig, ReferencePolicy};
+use optical_tactile::io::FrameRecord;
+use optical_tactile::segment::ThresholdPreset;
+use optical_tactile::sensor::TactileSensor;
+use optical_tactile::track::FilterConfig;
 use optical_tactile::viz;
 
-const USAGE: &str = "usage: track [SEQ_DIR (default fixtures/press)] [--calibration FILE (default fixtures/calibration.json)] \
-[--crop x,y,w,h] [--thresholds low|mid|high] [--preset ultrafast|fast|medium|accurate|balanced|fine] \
-[--filter on|off (default off)] [--rereference on|off (default on)] [--hold N (default 2)] [--out contacts.jsonl] [--debug DIR] [--quiet]";
+/// The sequence run with no argument: this crate's fixture.
+const DEFAULT_SEQ: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/press");
+/// The calibration used unless `--calibration` names another.
+const DEFAULT_CALIBRATION: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
 
-struct Args {
+/// Runs the tactile sensor over an image sequence and prints the contacts
+/// of every frame (id, location in mm, force in N, latency).
+#[derive(Parser, Debug)]
+#[command(
+    name = "track",
+    after_help = "The first readable frame is the unloaded reference. Exit status: 0, 1 on an \
+                  error, 2 if some frame was skipped (named on stderr) or on a usage error."
+)]
+struct Cli {
+    /// Folder of frames (PNG, in name order).
+    #[arg(value_name = "SEQ_DIR", default_value = DEFAULT_SEQ)]
     seq: PathBuf,
+    /// Calibration file.
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
     calibration: PathBuf,
+    /// Crop of the camera frame [default: the calibration's].
+    #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     crop: Option<Roi>,
-    thresholds: Option<Thresholds>,
+    /// Segmentation thresholds [default: the calibration's].
+    #[arg(long, value_name = "PRESET", value_parser = cli_support::threshold_preset())]
+    thresholds: Option<ThresholdPreset>,
+    /// DIS flow preset [default: the calibration's].
+    #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
+    /// Kalman filter on the tracked contacts.
+    #[arg(long, value_name = "on|off", default_value = "off", action = ArgAction::Set, value_parser = cli_support::on_off)]
     filter: bool,
+    /// Take a fresh reference after a quiet spell with small flow.
+    #[arg(long, value_name = "on|off", default_value = "on", action = ArgAction::Set, value_parser = cli_support::on_off)]
     rereference: bool,
+    /// Frames a contact no longer detected is still reported with its last
+    /// estimate [default: 2, the tracker's].
+    #[arg(long, value_name = "N")]
     hold: Option<u32>,
-    out: Option<PathBuf>,
+    /// Write JSON Lines (one line per processed frame) to FILE, or to stdout
+    /// with `-` (the table then goes to stderr).
+    #[arg(long, value_name = "FILE|-")]
+    out: Option<TextOut>,
+    /// Write every frame's debug panel as DIR/<frame>.png.
+    #[arg(long, value_name = "DIR")]
     debug: Option<PathBuf>,
+    /// No per-frame table.
+    #[arg(long, short)]
     quiet: bool,
-}
-
-fn on_off(name: &str, v: &str) -> Result<bool, String> {
-    match v {
-        "on" | "true" | "1" => Ok(true),
-        "off" | "false" | "0" => Ok(false),
-        _ => Err(format!("{name}: expected on or off, got `{v}`")),
-    }
-}
-
-fn parse() -> Result<Option<Args>, String> {
-    let mut a = Args {
-        seq: PathBuf::from("fixtures/press"),
-        calibration: PathBuf::from("fixtures/calibration.json"),
-        crop: None,
-        thresholds: None,
-        preset: None,
-        filter: false,
-        rereference: true,
-        hold: None,
-        out: None,
-        debug: None,
-        quiet: false,
-    };
-    let mut seq = None;
-    let mut args = std::env::args().skip(1);
-    while let Some(arg) = args.next() {
-        let mut val = |name: &str| args.next().ok_or(format!("{name} needs a value\n{USAGE}"));
-        match arg.as_str() {
-            "-h" | "--help" => {
-                println!("{USAGE}");
-                return Ok(None);
-            }
-            "--calibration" => a.calibration = PathBuf::from(val("--calibration")?),
-            "--crop" => a.crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
-            "--thresholds" => {
-                a.thresholds = Some(
-                    val("--thresholds")?
-                        .parse::<ThresholdPreset>()
-                        .map_err(|e| e.to_string())?
-                        .thresholds(),
-                )
-            }
-            "--preset" => {
-                a.preset = Some(DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?)
-            }
-            "--filter" => a.filter = on_off("--filter", &val("--filter")?)?,
-            "--rereference" => a.rereference = on_off("--rereference", &val("--rereference")?)?,
-            "--hold" => {
-                let v = val("--hold")?;
-                a.hold = Some(
-                    v.parse()
-                        .map_err(|_| format!("--hold: expected a number of frames, got `{v}`"))?,
-                )
-            }
-            "--out" => a.out = Some(PathBuf::from(val("--out")?)),
-            "--debug" => a.debug = Some(PathBuf::from(val("--debug")?)),
-            "--quiet" => a.quiet = true,
-            _ if arg.starts_with("--") => return Err(format!("unknown option {arg}\n{USAGE}")),
-            _ if seq.is_none() => seq = Some(PathBuf::from(arg)),
-            _ => return Err(format!("unexpected argument `{arg}`\n{USAGE}")),
-        }
-    }
-    if let Some(s) = seq {
-        a.seq = s;
-    }
-    Ok(Some(a))
 }
 
 fn load_calibration(path: &Path) -> Result<Calibration, String> {
@@ -143,54 +117,51 @@ fn load_calibration(path: &Path) -> Result<Calibration, String> {
     Calibration::load(path).map_err(|e| format!("cannot load calibration: {e}"))
 }
 
-fn sensor_config(a: &Args, cal: &Calibration) -> Result<SensorConfig, String> {
-    let mut extractor = ExtractorConfig::from_setup(&cal.setup).map_err(|e| e.to_string())?;
+/// The sensor as the calibration was fitted, with the overrides of `a`.
+fn sensor(a: &Cli, cal: Calibration) -> Result<TactileSensor, String> {
+    let mut b = TactileSensor::builder(cal);
+    if let Some(crop) = a.crop {
+        b = b.crop(crop);
+    }
     if let Some(p) = a.preset {
-        extractor.flow = DisParams::preset(p);
+        b = b.flow(DisParams::preset(p));
     }
     if let Some(t) = a.thresholds {
-        extractor.thresholds = t;
+        b = b.thresholds(t);
     }
-    let mut config = SensorConfig {
-        crop: a.crop,
-        extractor,
-        ..SensorConfig::default()
-    };
-    config.tracker.filter = a.filter.then(FilterConfig::default);
-    if let Some(h) = a.hold {
-        config.tracker.max_missed = h;
-    }
-    config.rereference = ReferencePolicy {
-        enabled: a.rereference,
-        ..ReferencePolicy::default()
-    };
-    Ok(config)
+    b.configure(|c| {
+        c.tracker.filter = a.filter.then(FilterConfig::default);
+        if let Some(h) = a.hold {
+            c.tracker.max_missed = h;
+        }
+        c.rereference.enabled = a.rereference;
+    })
+    .build()
+    .map_err(|e| e.to_string())
 }
 
-fn run() -> Result<bool, String> {
-    let Some(a) = parse()? else {
-        return Ok(true);
-    };
+/// Runs the sensor as `a` asks; `Ok(false)` if some frame was skipped.
+fn run(a: &Cli) -> Result<bool, Failure> {
     let cal = load_calibration(&a.calibration)?;
-    let config = sensor_config(&a, &cal)?;
     let mut seq = SequenceSource::open(&a.seq).map_err(|e| format!("cannot open sequence: {e}"))?;
-    let mut sensor = TactileSensor::new(config, cal).map_err(|e| e.to_string())?;
-    let mut out = match &a.out {
-        Some(p) => Some(JsonlWriter::create(p).map_err(|e| e.to_string())?),
-        None => None,
-    };
+    let mut sensor = sensor(a, cal)?;
+    let mut out = a.out.as_ref().map(TextOut::create).transpose()?;
+    let mut report = Sink::report(a.out.as_ref().is_some_and(TextOut::is_stdout));
     if let Some(d) = &a.debug {
         std::fs::create_dir_all(d)
             .map_err(|e| format!("cannot create debug directory {}: {e}", d.display()))?;
     }
-    let c = sensor.config();
+    let (c, crop) = (sensor.config(), sensor.crop());
     eprintln!(
-        "sequence {} ({} frames), calibration {}, crop {:?}, flow preset {}, thresholds |flow| > {} px sum > {}, \
+        "sequence {} ({} frames), calibration {}, crop {},{},{},{}, flow preset {}, thresholds |flow| > {} px sum > {}, \
          filter {}, re-referencing {}",
         a.seq.display(),
         seq.len(),
         a.calibration.display(),
-        sensor.crop(),
+        crop.x,
+        crop.y,
+        crop.w,
+        crop.h,
         preset_name(&c.extractor),
         c.extractor.thresholds.magnitude,
         c.extractor.thresholds.sum,
@@ -203,10 +174,11 @@ fn run() -> Result<bool, String> {
     let (mut processed, mut busy_ms) = (0usize, 0.0f64);
     let wall = Instant::now();
     if !a.quiet {
-        println!(
+        writeln!(
+            report,
             "{:<14} {:>7} {:>4} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>8}",
             "frame", "t_s", "id", "x_mm", "y_mm", "z_mm", "fx_n", "fy_n", "fz_n", "ms"
-        );
+        )?;
     }
     while let Some(frame) = seq.next_frame() {
         let frame = match frame {
@@ -222,14 +194,15 @@ fn run() -> Result<bool, String> {
                 Ok(()) => {
                     have_reference = true;
                     if !a.quiet {
-                        println!("{:<14} {:>7.3} reference", frame.name, frame.t_s);
+                        writeln!(report, "{:<14} {:>7.3} reference", frame.name, frame.t_s)?;
                     }
                 }
                 Err(e) => {
                     return Err(format!(
                         "frame {}: cannot take it as the reference: {e}",
                         frame.name
-                    ));
+                    )
+                    .into());
                 }
             }
             continue;
@@ -248,28 +221,31 @@ fn run() -> Result<bool, String> {
         busy_ms += latency_ms;
         if !a.quiet {
             if contacts.is_empty() {
-                println!(
+                writeln!(
+                    report,
                     "{:<14} {:>7.3} {:>4} {:>60.1}",
                     frame.name, frame.t_s, "-", latency_ms
-                );
+                )?;
             }
             for (k, c) in contacts.iter().enumerate() {
                 let name = if k == 0 { frame.name.as_str() } else { "" };
                 let [x, y, z] = c.location_mm;
                 let [fx, fy, fz] = c.force_n;
-                println!(
+                writeln!(
+                    report,
                     "{name:<14} {:>7.3} {:>4} {x:>8.2} {y:>8.2} {z:>8.2} {fx:>7.3} {fy:>7.3} {fz:>7.3} {:>8.1}{}",
                     frame.t_s,
                     c.id,
                     latency_ms,
                     if c.missed > 0 { " (held)" } else { "" }
-                );
+                )?;
             }
             if sensor.rereferenced() {
-                println!(
+                writeln!(
+                    report,
                     "{:<14} {:>7.3} new reference (quiet, small flow)",
                     "", frame.t_s
-                );
+                )?;
             }
         }
         if let Some(w) = &mut out {
@@ -279,7 +255,7 @@ fn run() -> Result<bool, String> {
                 contacts: contacts.iter().map(|c| c.to_record()).collect(),
                 latency_ms: Some(latency_ms),
             };
-            w.write(&rec).map_err(|e| e.to_string())?;
+            w.json_line(&rec)?;
         }
         if let Some(d) = &a.debug {
             let stem = Path::new(&frame.name)
@@ -293,11 +269,12 @@ fn run() -> Result<bool, String> {
         }
     }
     if !have_reference {
-        return Err(format!("no readable frame in {}", a.seq.display()));
+        return Err(format!("no readable frame in {}", a.seq.display()).into());
     }
     let wall_s = wall.elapsed().as_secs_f64();
     if processed > 0 {
-        println!(
+        writeln!(
+            report,
             "{processed} frames processed ({skipped} skipped), {:.1} ms per frame in process(): {:.1} fps \
              ({:.1} fps with reading{})",
             busy_ms / processed as f64,
@@ -308,20 +285,20 @@ fn run() -> Result<bool, String> {
             } else {
                 ""
             }
-        );
+        )?;
     } else {
-        println!("no frame processed ({skipped} skipped)");
+        writeln!(report, "no frame processed ({skipped} skipped)")?;
     }
     Ok(skipped == 0)
 }
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => ExitCode::from(2),
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
+    let cli = Cli::parse();
+    cli_support::finish(run(&cli).map(|ok| {
+        if ok {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(2)
         }
-    }
+    }))
 }
