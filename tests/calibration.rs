@@ -1094,3 +1094,32 @@ fn load_cell_spread_finds_the_noise_it_was_given() {
         assert!((sigma - 0.01).abs() < 0.001, "{:?}", s.sigma_n);
     }
 }
+
+#[test]
+fn load_cell_spread_pools_the_repetitions_variance() {
+    // Two groups of repetitions around different forces; within each,
+    // Fy is the group's mean +-0.01 N, Fx +-0.02, Fz exact.
+    let rows = vec![
+        load_cell_row(2, 1.0, 1, [0.12, -0.01, -1.0]),
+        load_cell_row(2, 1.0, 2, [0.08, 0.01, -1.0]),
+        load_cell_row(3, 2.0, 1, [0.52, 0.29, -2.0]),
+        load_cell_row(3, 2.0, 2, [0.48, 0.31, -2.0]),
+        // A test alone in its group says nothing; nor does a NaN reading.
+        load_cell_row(4, 2.0, 1, [9.0, 9.0, 9.0]),
+        load_cell_row(3, 2.0, 3, [f64::NAN, 0.0, 0.0]),
+    ];
+    let s = load_cell_spread(&rows).unwrap();
+    assert_eq!((s.groups, s.dof), (2, 2));
+    // Per group sum of squares 2 * d^2, over 2 degrees of freedom.
+    let want = [0.02f64 * 2f64.sqrt(), 0.01 * 2f64.sqrt(), 0.0];
+    for a in 0..3 {
+        assert!((s.sigma_n[a] - want[a]).abs() < 1e-12, "{:?}", s.sigma_n);
+    }
+    let floor = s.mae_floor_n();
+    assert!((floor[1] - want[1] * (2.0 / std::f64::consts::PI).sqrt()).abs() < 1e-12);
+    // Other splits, tilts or forces are other groups.
+    let mut other = rows[1].clone();
+    other.split = Split::Test;
+    assert_eq!(load_cell_spread(&[rows[0].clone(), other]), None);
+    assert_eq!(load_cell_spread(&[]), None);
+}
