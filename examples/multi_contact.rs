@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example multi_contact -- [SEQ_DIR | --simulate DIR]
 //!     [--calibration FILE] [--crop x,y,w,h] [--truth truth.jsonl]
-//!     [--json FILE] [--png FILE] [--seed N] [--gate-mm G (default 15)]
+//!     [--json FILE|-] [--png FILE] [--seed N] [--quiet] [--gate-mm G (default 15)]
 //! ```
 //!
 //! Runs the sensor over the sequence and prints, per frame, every live
@@ -21,20 +21,35 @@
 //! With no sequence (or `--simulate DIR`) it first simulates two 5 mm rods
 //! 80 mm apart (arc length), centred, pressing to 2.0 and 1.5 N over 16 frames.
 
+#[path = "cli_support/mod.rs"]
+mod cli_support;
 #[path = "demo_support/mod.rs"]
 mod demo_support;
 
 use std::collections::BTreeMap;
+use std::io::Write as _;
 use std::process::ExitCode;
 
+use clap::Parser;
+use cli_support::Failure;
 use demo_support::*;
 use optical_tactile::io::FrameRecord;
 use optical_tactile_sim::evaluate::match_contacts;
 use optical_tactile_sim::scenario::{Pair, Scenario};
 use serde::Serialize;
 
-fn usage() -> String {
-    format!("usage: multi_contact {COMMON_USAGE} [--gate-mm G (default 15)]")
+/// Two rods under the body: both located, both forces measured over time,
+/// against the truth when there is one.
+#[derive(Parser, Debug)]
+#[command(name = "multi_contact")]
+struct Cli {
+    /// The options every demo takes.
+    #[command(flatten)]
+    demo: DemoArgs,
+    /// A measured contact is matched to the nearest true one within this
+    /// distance in x, mm.
+    #[arg(long, value_name = "G", default_value_t = 15.0, value_parser = cli_support::positive)]
+    gate_mm: f64,
 }
 
 fn scenario() -> Scenario {
@@ -250,16 +265,17 @@ fn picture(out: &Output, truth: Option<&[FrameRecord]>) -> optical_tactile::viz:
 
 /// Runs the demo on the command-line arguments `args` (without the program
 /// name); `Ok(false)` if some frame had to be skipped.
-pub fn run_with(args: &[String]) -> Result<bool, String> {
-    let usage = usage();
-    let Some(a) = parse_args(args, &usage, &["--gate-mm"])? else {
-        return Ok(true);
-    };
-    let gate = a.extra_f64("--gate-mm", 15.0)?;
-    if gate <= 0.0 {
-        return Err("--gate-mm must be > 0".into());
+pub fn run_with(args: &[String]) -> Result<bool, Failure> {
+    match cli_support::try_parse::<Cli>("multi_contact", args)? {
+        Some(cli) => run(&cli),
+        None => Ok(true),
     }
-    let (dir, _) = resolve_input(&a, "multi_contact", &scenario())?;
+}
+
+fn run(cli: &Cli) -> Result<bool, Failure> {
+    let (a, gate) = (&cli.demo, cli.gate_mm);
+    let mut report = a.report();
+    let (dir, _) = resolve_input(a, "multi_contact", &scenario())?;
     let truth_path = a.truth.clone().or_else(|| {
         let p = dir.join("truth.jsonl");
         p.is_file().then_some(p)
@@ -268,19 +284,23 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
     let run = run_sensor(&dir, &a.calibration, a.crop)?;
     let out = analyse(&run.frames, truth.as_deref(), gate);
 
-    println!("## multi_contact: {}\n", dir.display());
-    println!("| frame | t_s | id | x_mm | fx_n | fy_n | fz_n | true x_mm | true fz_n |");
-    println!("|---|---|---|---|---|---|---|---|---|");
+    writeln!(report, "## multi_contact: {}\n", dir.display())?;
+    writeln!(
+        report,
+        "| frame | t_s | id | x_mm | fx_n | fy_n | fz_n | true x_mm | true fz_n |"
+    )?;
+    writeln!(report, "|---|---|---|---|---|---|---|---|---|")?;
     for f in &out.frames {
         if f.contacts.is_empty() {
-            println!("| {} | {:.3} | - | | | | | | |", f.frame, f.t_s);
+            writeln!(report, "| {} | {:.3} | - | | | | | | |", f.frame, f.t_s)?;
         }
         for c in &f.contacts {
             let (tx, tf) = c
                 .truth
                 .map(|t| (format!("{:.2}", t.x_mm), format!("{:.3}", t.fz_n)))
                 .unwrap_or_default();
-            println!(
+            writeln!(
+                report,
                 "| {} | {:.3} | {} | {:.2} | {:.3} | {:.3} | {:.3} | {tx} | {tf} |",
                 f.frame,
                 f.t_s,
@@ -289,16 +309,18 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
                 c.fx_n,
                 c.fy_n,
                 c.fz_n
-            );
+            )?;
         }
     }
-    println!(
+    writeln!(
+        report,
         "\n| contact id | frames | true contact | MAE x (mm) | MAE Fx (N) | MAE Fy (N) | MAE Fz (N) |"
-    );
-    println!("|---|---|---|---|---|---|---|");
+    )?;
+    writeln!(report, "|---|---|---|---|---|---|---|")?;
     let f = |v: Option<f64>, d: usize| v.map(|v| format!("{v:.d$}")).unwrap_or("-".into());
     for t in &out.contacts {
-        println!(
+        writeln!(
+            report,
             "| {} | {} | {} | {} | {} | {} | {} |",
             t.id,
             t.frames,
@@ -307,20 +329,23 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
             f(t.mae_fx_n, 3),
             f(t.mae_fy_n, 3),
             f(t.mae_fz_n, 3)
-        );
+        )?;
     }
     if let (Some(d), Some(n)) = (out.frames_all_true_detected, out.truth_frames) {
-        println!("\nall true contacts detected in {d} of {n} loaded frames (gate {gate} mm)");
+        writeln!(
+            report,
+            "\nall true contacts detected in {d} of {n} loaded frames (gate {gate} mm)"
+        )?;
     }
     if let Some(p) = &a.png {
         save_png(&picture(&out, truth.as_deref()), p)?;
     }
     if let Some(p) = &a.json {
-        write_json(p, &out)?;
+        p.write_json(&out)?;
     }
     Ok(run.skipped == 0)
 }
 
 fn main() -> ExitCode {
-    demo_support::main_with(run_with)
+    exit_status(run(&Cli::parse()))
 }

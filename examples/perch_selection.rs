@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release --example perch_selection -- [SEQ_DIR | --simulate DIR]
 //!     [--calibration FILE] [--crop x,y,w,h] [--truth truth.jsonl]
-//!     [--json FILE] [--png FILE] [--seed N] [--min-force F (default 0.5)]
+//!     [--json FILE|-] [--png FILE] [--seed N] [--quiet] [--min-force F (default 0.5)]
 //! ```
 //!
 //! Contacts lighter than `--min-force` N are left out everywhere: with the
@@ -29,11 +29,16 @@
 //! `perches` scenario: 10 mm rods at x = -60 and +50 mm with stiffness 1 and
 //! 2 N/mm, pressed to 1.5 mm over 12 frames.
 
+#[path = "cli_support/mod.rs"]
+mod cli_support;
 #[path = "demo_support/mod.rs"]
 mod demo_support;
 
+use std::io::Write as _;
 use std::process::ExitCode;
 
+use clap::Parser;
+use cli_support::Failure;
 use demo_support::*;
 use optical_tactile::io::FrameRecord;
 use optical_tactile::viz::{Rgb, Series, Style};
@@ -42,8 +47,17 @@ use optical_tactile_sim::mapping::{PerchReading, rank_perches};
 use optical_tactile_sim::scenario::{Perches, Scenario};
 use serde::Serialize;
 
-fn usage() -> String {
-    format!("usage: perch_selection {COMMON_USAGE} [--min-force F (default 0.5)]")
+/// Two perches of different stiffness pressed by the same depth: which is
+/// stiffer, where it is, and the move that puts the body over it.
+#[derive(Parser, Debug)]
+#[command(name = "perch_selection")]
+struct Cli {
+    /// The options every demo takes.
+    #[command(flatten)]
+    demo: DemoArgs,
+    /// Contacts lighter than this are left out, N.
+    #[arg(long, value_name = "F", default_value_t = 0.5, allow_negative_numbers = true, value_parser = cli_support::finite)]
+    min_force: f64,
 }
 
 #[derive(Serialize, Clone, Copy)]
@@ -92,17 +106,17 @@ fn press_frame(frames: &[FrameRecord]) -> Result<usize, String> {
 
 /// Runs the demo on the command-line arguments `args` (without the program
 /// name); `Ok(false)` if some frame had to be skipped.
-pub fn run_with(args: &[String]) -> Result<bool, String> {
-    let usage = usage();
-    let Some(a) = parse_args(args, &usage, &["--min-force"])? else {
-        return Ok(true);
-    };
-    let min_force = a.extra_f64("--min-force", 0.5)?;
-    let (dir, _) = resolve_input(
-        &a,
-        "perch_selection",
-        &Scenario::Perches(Perches::default()),
-    )?;
+pub fn run_with(args: &[String]) -> Result<bool, Failure> {
+    match cli_support::try_parse::<Cli>("perch_selection", args)? {
+        Some(cli) => run(&cli),
+        None => Ok(true),
+    }
+}
+
+fn run(cli: &Cli) -> Result<bool, Failure> {
+    let (a, min_force) = (&cli.demo, cli.min_force);
+    let mut report = a.report();
+    let (dir, _) = resolve_input(a, "perch_selection", &Scenario::Perches(Perches::default()))?;
     let truth_path = a.truth.clone().or_else(|| {
         let p = dir.join("truth.jsonl");
         p.is_file().then_some(p)
@@ -172,14 +186,18 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
         None
     };
 
-    println!(
+    writeln!(
+        report,
         "## perch_selection: {} (press frame {}, t = {:.3} s)\n",
         dir.display(),
         press.frame,
         press.t_s
-    );
-    println!("| perch | x_mm | force_n | stiffness rank | true x_mm | true force_n | true rank |");
-    println!("|---|---|---|---|---|---|---|");
+    )?;
+    writeln!(
+        report,
+        "| perch | x_mm | force_n | stiffness rank | true x_mm | true force_n | true rank |"
+    )?;
+    writeln!(report, "|---|---|---|---|---|---|---|")?;
     for (i, p) in out.perches.iter().enumerate() {
         let (tx, tf) = matched[i]
             .map(|(x, f)| (format!("{x:.2}"), format!("{f:.3}")))
@@ -188,26 +206,29 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
             .as_ref()
             .map(|r| r.ranks[i].to_string())
             .unwrap_or("-".into());
-        println!(
+        writeln!(
+            report,
             "| {} | {:.2} | {:.3} | {} | {tx} | {tf} | {tr} |",
             i + 1,
             p.x_mm,
             p.force_n,
             p.stiffness_rank
-        );
+        )?;
     }
-    println!(
+    writeln!(
+        report,
         "\nstiffer perch at x = {:.2} mm ({:.3} N): move the body {:+.2} mm along x to be over it",
         out.stiffer.x_mm, out.stiffer.force_n, out.move_mm
-    );
+    )?;
     if let Some(r) = &true_ranks {
         let agree = r.ranks == ranking.ranks;
         let tx = matched[r.stiffest].expect("ranked").0;
-        println!(
+        writeln!(
+            report,
             "truth: stiffer perch at x = {tx:.2} mm; ranking {}; move error {:.2} mm",
             if agree { "agrees" } else { "DISAGREES" },
             (out.move_mm - tx).abs()
-        );
+        )?;
     }
 
     if let Some(p) = &a.png {
@@ -263,11 +284,11 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
         save_png(&stack(&[px.render(900, 260), pf.render(900, 300)]), p)?;
     }
     if let Some(p) = &a.json {
-        write_json(p, &out)?;
+        p.write_json(&out)?;
     }
     Ok(run.skipped == 0)
 }
 
 fn main() -> ExitCode {
-    demo_support::main_with(run_with)
+    exit_status(run(&Cli::parse()))
 }

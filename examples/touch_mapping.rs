@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release --example touch_mapping -- [SEQ_DIR | --simulate DIR]
 //!     [--calibration FILE] [--crop x,y,w,h] [--truth rods.json]
-//!     [--json FILE] [--png FILE] [--seed N] [--radius-mm R (default 50)]
+//!     [--json FILE|-] [--png FILE] [--seed N] [--quiet] [--radius-mm R (default 50)]
 //!     [--min-force F (default 0.5)] [--gate-mm G (default 100)]
 //!     [--mounting default|identity] [--min-count N (default 1)]
 //! ```
@@ -39,11 +39,16 @@
 //! 2.5 m with tops at 1.0 m, touched twice each at random places on the skin
 //! with a 1.5 N press in three steps.
 
+#[path = "cli_support/mod.rs"]
+mod cli_support;
 #[path = "demo_support/mod.rs"]
 mod demo_support;
 
+use std::io::Write as _;
 use std::process::ExitCode;
 
+use clap::{Parser, ValueEnum};
+use cli_support::Failure;
 use demo_support::*;
 use optical_tactile::io;
 use optical_tactile::viz::{Plot, Rgb, Series, Style};
@@ -54,11 +59,39 @@ use optical_tactile_sim::mapping::{
 use optical_tactile_sim::scenario::{Mapping, Scenario};
 use serde::Serialize;
 
-fn usage() -> String {
-    format!(
-        "usage: touch_mapping {COMMON_USAGE} [--radius-mm R (default 50)] [--min-force F (default 0.5)] \
-         [--gate-mm G (default 100)] [--mounting default|identity] [--min-count N (default 1)]"
-    )
+/// Touch, move, touch again: contacts into the world frame with the body
+/// pose of their frame, repeated touches clustered into obstacles.
+#[derive(Parser, Debug)]
+#[command(name = "touch_mapping")]
+struct Cli {
+    /// The options every demo takes.
+    #[command(flatten)]
+    demo: DemoArgs,
+    /// Touches closer than this are one obstacle (single linkage), mm.
+    #[arg(long, value_name = "R", default_value_t = MapOptions::default().radius_m * 1e3, value_parser = cli_support::finite)]
+    radius_mm: f64,
+    /// Contacts lighter than this are left out, N.
+    #[arg(long, value_name = "F", default_value_t = MapOptions::default().min_force_n, allow_negative_numbers = true, value_parser = cli_support::finite)]
+    min_force: f64,
+    /// A rod is matched to a cluster within this distance, mm.
+    #[arg(long, value_name = "G", default_value_t = 100.0, value_parser = cli_support::finite)]
+    gate_mm: f64,
+    /// The sensor's mounting on the body [default: the truth file's, else
+    /// the simulator's].
+    #[arg(long, value_enum)]
+    mounting: Option<MountingArg>,
+    /// Clusters of fewer touches are dropped.
+    #[arg(long, value_name = "N", default_value_t = MapOptions::default().min_count as u64, value_parser = clap::value_parser!(u64).range(1..))]
+    min_count: u64,
+}
+
+/// `--mounting`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum MountingArg {
+    /// The simulator's: skin facing down under the body (x = x, y = -y, z = -z).
+    Default,
+    /// The sensor frame is the body frame.
+    Identity,
 }
 
 #[derive(Serialize)]
@@ -68,43 +101,31 @@ struct Output {
 
 /// Runs the demo on the command-line arguments `args` (without the program
 /// name); `Ok(false)` if some frame had to be skipped.
-pub fn run_with(args: &[String]) -> Result<bool, String> {
-    let usage = usage();
-    let Some(a) = parse_args(
-        args,
-        &usage,
-        &[
-            "--radius-mm",
-            "--min-force",
-            "--gate-mm",
-            "--mounting",
-            "--min-count",
-        ],
-    )?
-    else {
-        return Ok(true);
-    };
-    let d = MapOptions::default();
-    let min_count = a.extra_f64("--min-count", d.min_count as f64)?;
-    if !(min_count >= 1.0 && min_count.fract() == 0.0) {
-        return Err(format!(
-            "--min-count: expected a whole number >= 1, got {min_count}"
-        ));
+pub fn run_with(args: &[String]) -> Result<bool, Failure> {
+    match cli_support::try_parse::<Cli>("touch_mapping", args)? {
+        Some(cli) => run(&cli),
+        None => Ok(true),
     }
+}
+
+fn run(cli: &Cli) -> Result<bool, Failure> {
+    let a = &cli.demo;
+    let mut report = a.report();
     let options = MapOptions {
-        radius_m: a.extra_f64("--radius-mm", d.radius_m * 1e3)? * 1e-3,
-        min_force_n: a.extra_f64("--min-force", d.min_force_n)?,
-        min_count: min_count as usize,
+        radius_m: cli.radius_mm * 1e-3,
+        min_force_n: cli.min_force,
+        min_count: cli.min_count as usize,
     };
-    let gate_m = a.extra_f64("--gate-mm", 100.0)? * 1e-3;
-    let (dir, _) = resolve_input(&a, "touch_mapping", &Scenario::Mapping(Mapping::default()))?;
+    let gate_m = cli.gate_mm * 1e-3;
+    let (dir, _) = resolve_input(a, "touch_mapping", &Scenario::Mapping(Mapping::default()))?;
     let poses_path = dir.join("poses.csv");
     if !poses_path.is_file() {
         return Err(format!(
             "no poses.csv in {}: mapping needs the body pose of every frame with contacts \
              (DATASET.md: frame,t_s,x_m,y_m,z_m,qw,qx,qy,qz)",
             dir.display()
-        ));
+        )
+        .into());
     }
     let rows = io::read_poses_csv(&poses_path).map_err(|e| format!("cannot read poses: {e}"))?;
     let poses = poses_by_frame(&rows, &poses_path).map_err(|e| e.to_string())?;
@@ -121,15 +142,10 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
             read_rods_json(p).map_err(|e| format!("cannot read truth: {e}"))
         })
         .transpose()?;
-    let mounting = match a.extra_str("--mounting") {
+    let mounting = match cli.mounting {
         None => truth.as_ref().map(|t| t.mounting).unwrap_or_default(),
-        Some("default") => Mounting::default(),
-        Some("identity") => Mounting::identity(),
-        Some(m) => {
-            return Err(format!(
-                "--mounting: expected default or identity, got `{m}`"
-            ));
-        }
+        Some(MountingArg::Default) => Mounting::default(),
+        Some(MountingArg::Identity) => Mounting::identity(),
     };
 
     let run = run_sensor(&dir, &a.calibration, a.crop)?;
@@ -143,20 +159,25 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
         .transpose()
         .map_err(|e| e.to_string())?;
 
-    println!(
+    writeln!(
+        report,
         "## touch_mapping: {} ({} contacts in {} frames, {} clusters)\n",
         dir.display(),
         touches.len(),
         run.frames.len(),
         clusters.len()
-    );
-    println!("| cluster | x_m | y_m | z_m | count | spread_mm | rod | error_mm |");
-    println!("|---|---|---|---|---|---|---|---|");
+    )?;
+    writeln!(
+        report,
+        "| cluster | x_m | y_m | z_m | count | spread_mm | rod | error_mm |"
+    )?;
+    writeln!(report, "|---|---|---|---|---|---|---|---|")?;
     for (k, c) in clusters.iter().enumerate() {
         let m = matches
             .as_ref()
             .and_then(|m| m.iter().find(|r| r.cluster == Some(k)));
-        println!(
+        writeln!(
+            report,
             "| {} | {:.4} | {:.4} | {:.4} | {} | {:.2} | {} | {} |",
             k + 1,
             c.position_m[0],
@@ -168,11 +189,14 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
             m.and_then(|r| r.error_m)
                 .map(|e| format!("{:.2}", e * 1e3))
                 .unwrap_or("-".into())
-        );
+        )?;
     }
     if let (Some(t), Some(m)) = (&truth, &matches) {
-        println!("\n| rod | x_m | top_m | cluster | dx_mm | dz_mm | error_mm |");
-        println!("|---|---|---|---|---|---|---|");
+        writeln!(
+            report,
+            "\n| rod | x_m | top_m | cluster | dx_mm | dz_mm | error_mm |"
+        )?;
+        writeln!(report, "|---|---|---|---|---|---|---|")?;
         let mut errs = Vec::new();
         for r in m {
             let rod = &t.rods[r.rod];
@@ -189,25 +213,30 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
                 }
                 None => ("missed".into(), "-".into(), "-".into(), "-".into()),
             };
-            println!(
+            writeln!(
+                report,
                 "| {} | {:.4} | {:.4} | {c} | {dx} | {dz} | {e} |",
                 r.rod + 1,
                 rod.point_m[0],
                 rod.point_m[2]
-            );
+            )?;
         }
         let missed = m.iter().filter(|r| r.cluster.is_none()).count();
         let false_clusters = clusters.len() - errs.len();
         if errs.is_empty() {
-            println!("\nno rod found ({missed} missed, {false_clusters} false clusters)");
+            writeln!(
+                report,
+                "\nno rod found ({missed} missed, {false_clusters} false clusters)"
+            )?;
         } else {
-            println!(
+            writeln!(
+                report,
                 "\nerror per rod: mean {:.2} mm, worst {:.2} mm over {} rods; {missed} missed, \
                  {false_clusters} false clusters (target: worst <= 2 mm; paper < 40 mm)",
                 mean(&errs) * 1e3,
                 errs.iter().fold(0.0f64, |a, &b| a.max(b)) * 1e3,
                 errs.len()
-            );
+            )?;
         }
     }
 
@@ -327,11 +356,11 @@ pub fn run_with(args: &[String]) -> Result<bool, String> {
         let out = Output {
             clusters: clusters.iter().map(Cluster::summary).collect(),
         };
-        write_json(p, &out)?;
+        p.write_json(&out)?;
     }
     Ok(run.skipped == 0)
 }
 
 fn main() -> ExitCode {
-    demo_support::main_with(run_with)
+    exit_status(run(&Cli::parse()))
 }

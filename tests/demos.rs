@@ -1,8 +1,9 @@
 //! End-to-end runs of the three demo examples on tiny simulated sequences,
 //! and their answers to bad input (clear errors, no panic).
 
-// Each example includes the shared `demo_support` module itself (it must, to
-// build alone), so including the three examples loads it three times.
+// Each example includes the shared `demo_support` and `cli_support` modules
+// itself (it must, to build alone), so including the three examples loads
+// them three times.
 #![allow(clippy::duplicate_mod)]
 
 #[allow(dead_code)]
@@ -200,19 +201,25 @@ fn touch_mapping_finds_both_rods() {
 fn bad_sequences_and_options_are_clear_errors() {
     let d = tmp("bad");
     let missing = d.join("missing");
-    for run in [
-        multi_contact::run_with,
-        perch_selection::run_with,
-        touch_mapping::run_with,
-    ] {
+    // Each example has its own copy of the error type: compare messages.
+    type Run = fn(&[String]) -> Result<bool, String>;
+    let runs: [Run; 3] = [
+        |a| multi_contact::run_with(a).map_err(|e| e.to_string()),
+        |a| perch_selection::run_with(a).map_err(|e| e.to_string()),
+        |a| touch_mapping::run_with(a).map_err(|e| e.to_string()),
+    ];
+    for run in runs {
         let e = run(&args(&[p(&missing)])).unwrap_err();
         assert!(e.contains("not found"), "{e}");
+        // Usage errors: clap's first line, naming the flag.
         let e = run(&args(&["fixtures/press", "--frobnicate", "1"])).unwrap_err();
-        assert!(e.contains("unknown option"), "{e}");
+        assert!(e.contains("unexpected argument '--frobnicate'"), "{e}");
         let e = run(&args(&["fixtures/press", "--json"])).unwrap_err();
-        assert!(e.contains("needs a value"), "{e}");
+        assert!(e.contains("a value is required for '--json"), "{e}");
         let e = run(&args(&["fixtures/press", "--simulate", p(&d)])).unwrap_err();
-        assert!(e.contains("not both"), "{e}");
+        assert!(e.contains("cannot be used with"), "{e}");
+        let e = run(&args(&["fixtures/press", "--png", "-"])).unwrap_err();
+        assert!(e.contains("cannot go to stdout"), "{e}");
         // An empty folder: no frames.
         let empty = d.join("empty");
         std::fs::create_dir_all(&empty).unwrap();

@@ -2,126 +2,68 @@
 //! `touch_mapping`) share: the command line, running the sensor over a
 //! sequence, reading truth, writing JSON and plots. Included with `#[path]`
 //! by each example and by `tests/demos.rs`, so each uses only part of it.
+//! It uses the tools' shared `cli_support`, which the including file
+//! declares beside it.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
+use clap::Args;
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::frame::Roi;
 use optical_tactile::io::{self, FrameRecord};
-use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
+use optical_tactile::sensor::TactileSensor;
 use optical_tactile::viz::{Canvas, Plot, Rgb, Series, Style};
 use optical_tactile_sim::scenario::{self, Common, Scenario};
-use serde::Serialize;
+
+use super::cli_support::{self, Failure, Stages, TextOut};
+
+/// The calibration used unless `--calibration` names another: this crate's.
+pub const DEFAULT_CALIBRATION: &str =
+    concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
 
 /// The options every demo takes.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Args, Debug, Clone, PartialEq)]
 pub struct DemoArgs {
-    /// A recorded sequence (DATASET.md formats).
+    /// A recorded sequence: a folder of frames (DATASET.md) [default:
+    /// simulate the demo's scenario first].
+    #[arg(value_name = "SEQ_DIR", conflicts_with = "simulate")]
     pub input: Option<PathBuf>,
-    /// Simulate the demo's scenario into this folder first.
+    /// Simulate the demo's scenario into DIR first [default: a folder under
+    /// the system's temp dir named after the demo].
+    #[arg(long, value_name = "DIR")]
     pub simulate: Option<PathBuf>,
-    /// The calibration file.
+    /// Calibration file.
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
     pub calibration: PathBuf,
-    /// Crop of the frames (default: the calibration's).
+    /// Crop of the camera frame [default: the calibration's].
+    #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     pub crop: Option<Roi>,
-    /// Ground truth file.
+    /// Ground truth file [default: the one beside the frames, if any].
+    #[arg(long, value_name = "FILE")]
     pub truth: Option<PathBuf>,
-    /// Write the result as JSON here.
-    pub json: Option<PathBuf>,
-    /// Write the picture here.
+    /// Write the result as JSON to FILE, or to stdout with `-` (the tables
+    /// then go to stderr).
+    #[arg(long, value_name = "FILE|-")]
+    pub json: Option<TextOut>,
+    /// Write the picture (PNG) to FILE.
+    #[arg(long, value_name = "FILE", value_parser = cli_support::binary_path)]
     pub png: Option<PathBuf>,
     /// Simulator seed.
+    #[arg(long, value_name = "N", default_value_t = 1)]
     pub seed: u64,
-    /// Demo-specific `--key value` options, in order.
-    pub extra: Vec<(String, String)>,
+    /// No progress bar while simulating.
+    #[arg(long, short)]
+    pub quiet: bool,
 }
 
 impl DemoArgs {
-    /// A demo-specific numeric option, or `default`.
-    pub fn extra_f64(&self, key: &str, default: f64) -> Result<f64, String> {
-        match self.extra.iter().rev().find(|(k, _)| k == key) {
-            None => Ok(default),
-            Some((_, v)) => v
-                .parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| format!("{key}: expected a number, got `{v}`")),
-        }
+    /// Where the printed tables go: stdout, or stderr when the JSON does.
+    pub fn report(&self) -> cli_support::Sink {
+        cli_support::Sink::report(self.json.as_ref().is_some_and(TextOut::is_stdout))
     }
-
-    /// A demo-specific text option.
-    pub fn extra_str(&self, key: &str) -> Option<&str> {
-        self.extra
-            .iter()
-            .rev()
-            .find(|(k, _)| k == key)
-            .map(|(_, v)| v.as_str())
-    }
-}
-
-/// The common part of every demo's usage line.
-pub const COMMON_USAGE: &str = "[SEQ_DIR | --simulate DIR] [--calibration FILE (default fixtures/calibration.json)] \
-[--crop x,y,w,h] [--truth FILE] [--json FILE] [--png FILE] [--seed N (simulation, default 1)]";
-
-/// Parses `args` (without the program name). `extra_keys` are the demo's
-/// own `--key value` options. `Ok(None)` after `--help`.
-pub fn parse_args(
-    args: &[String],
-    usage: &str,
-    extra_keys: &[&str],
-) -> Result<Option<DemoArgs>, String> {
-    let mut a = DemoArgs {
-        input: None,
-        simulate: None,
-        calibration: PathBuf::from("fixtures/calibration.json"),
-        crop: None,
-        truth: None,
-        json: None,
-        png: None,
-        seed: 1,
-        extra: Vec::new(),
-    };
-    let mut it = args.iter();
-    while let Some(arg) = it.next() {
-        let mut val = |name: &str| {
-            it.next()
-                .cloned()
-                .ok_or(format!("{name} needs a value\n{usage}"))
-        };
-        match arg.as_str() {
-            "-h" | "--help" => {
-                println!("{usage}");
-                return Ok(None);
-            }
-            "--simulate" => a.simulate = Some(PathBuf::from(val("--simulate")?)),
-            "--calibration" => a.calibration = PathBuf::from(val("--calibration")?),
-            "--crop" => a.crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
-            "--truth" => a.truth = Some(PathBuf::from(val("--truth")?)),
-            "--json" => a.json = Some(PathBuf::from(val("--json")?)),
-            "--png" => a.png = Some(PathBuf::from(val("--png")?)),
-            "--seed" => {
-                let v = val("--seed")?;
-                a.seed = v
-                    .parse()
-                    .map_err(|_| format!("--seed: expected a whole number, got `{v}`"))?;
-            }
-            k if extra_keys.contains(&k) => {
-                let v = val(k)?;
-                a.extra.push((k.to_string(), v));
-            }
-            _ if arg.starts_with("--") => return Err(format!("unknown option {arg}\n{usage}")),
-            _ if a.input.is_none() => a.input = Some(PathBuf::from(arg)),
-            _ => return Err(format!("unexpected argument `{arg}`\n{usage}")),
-        }
-    }
-    if a.input.is_some() && a.simulate.is_some() {
-        return Err(format!(
-            "give either a sequence folder or --simulate DIR, not both\n{usage}"
-        ));
-    }
-    Ok(Some(a))
 }
 
 /// The sequence to run: the given folder, or a scenario simulated into
@@ -149,17 +91,23 @@ pub fn resolve_input(
         .simulate
         .clone()
         .unwrap_or_else(|| std::env::temp_dir().join(format!("optical-tactile-{demo}")));
-    simulate(scenario, &dir, a.seed)?;
+    simulate(scenario, &dir, a.seed, a.quiet)?;
     Ok((dir, true))
 }
 
-/// Simulates `scenario` into `dir` (no true flow: not needed, and large).
-pub fn simulate(scenario: &Scenario, dir: &Path, seed: u64) -> Result<(), String> {
+/// Simulates `scenario` into `dir` (no true flow: not needed, and large),
+/// with a progress bar on a terminal unless `quiet`.
+pub fn simulate(scenario: &Scenario, dir: &Path, seed: u64, quiet: bool) -> Result<(), String> {
     let mut common = Common::new(dir);
     common.seed = seed;
     common.flow = false;
     eprintln!("simulating into {} (seed {seed}) ...", dir.display());
-    let s = scenario::run(scenario, &common).map_err(|e| format!("simulation failed: {e}"))?;
+    let stages = Stages::new(quiet);
+    let s = scenario::run_with_progress(scenario, &common, &|stage, done, total| {
+        stages.update(stage, done, total)
+    });
+    stages.finish();
+    let s = s.map_err(|e| format!("simulation failed: {e}"))?;
     eprintln!("  {} frames", s.frames);
     Ok(())
 }
@@ -191,12 +139,10 @@ pub struct SensorRun {
 /// (its recorded pipeline settings and thresholds) and an optional crop.
 pub fn run_sensor(dir: &Path, calibration: &Path, crop: Option<Roi>) -> Result<SensorRun, String> {
     let cal = load_calibration(calibration)?;
-    let extractor = ExtractorConfig::from_setup(&cal.setup).map_err(|e| e.to_string())?;
-    let config = SensorConfig {
-        crop,
-        extractor,
-        ..SensorConfig::default()
-    };
+    let mut builder = TactileSensor::builder(cal);
+    if let Some(crop) = crop {
+        builder = builder.crop(crop);
+    }
     let mut seq = SequenceSource::open(dir)
         .map_err(|e| format!("cannot open sequence {}: {e}", dir.display()))?;
     if seq.len() < 2 {
@@ -206,7 +152,7 @@ pub fn run_sensor(dir: &Path, calibration: &Path, crop: Option<Roi>) -> Result<S
             seq.len()
         ));
     }
-    let mut sensor = TactileSensor::new(config, cal).map_err(|e| e.to_string())?;
+    let mut sensor = builder.build().map_err(|e| e.to_string())?;
     let mut out = SensorRun {
         frames: Vec::new(),
         skipped: 0,
@@ -265,14 +211,6 @@ pub fn read_truth(path: &Path) -> Result<Vec<FrameRecord>, String> {
     io::read_jsonl(path).map_err(|e| format!("cannot read truth: {e}"))
 }
 
-/// Writes `v` as pretty JSON and says so on stderr.
-pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), String> {
-    let s = serde_json::to_string_pretty(v).map_err(|e| e.to_string())?;
-    std::fs::write(path, s + "\n").map_err(|e| format!("cannot write {}: {e}", path.display()))?;
-    eprintln!("wrote {}", path.display());
-    Ok(())
-}
-
 /// Writes a picture as PNG and says so on stderr.
 pub fn save_png(picture: &Canvas, path: &Path) -> Result<(), String> {
     picture.save_png(path).map_err(|e| e.to_string())?;
@@ -280,20 +218,17 @@ pub fn save_png(picture: &Canvas, path: &Path) -> Result<(), String> {
     Ok(())
 }
 
-/// Runs a demo on the process's arguments and turns its outcome into the
-/// exit status every demo documents: 0 when all frames were read, 2 when
-/// some were skipped (each named on stderr), 1 on an error.
-pub fn main_with(run: fn(&[String]) -> Result<bool, String>) -> std::process::ExitCode {
-    use std::process::ExitCode;
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    match run(&args) {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => ExitCode::from(2),
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
+/// The exit status every demo documents: 0 when all frames were read, 2
+/// when some were skipped (each named on stderr), 1 on an error (one line
+/// on stderr), 0 when stdout was closed early.
+pub fn exit_status(outcome: Result<bool, Failure>) -> ExitCode {
+    cli_support::finish(outcome.map(|all| {
+        if all {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(2)
         }
-    }
+    }))
 }
 
 /// Colours for contacts 0, 1, 2, ...
