@@ -33,12 +33,23 @@
 //! `--guard-shear-order N` is the shear order of the fallback force maps that
 //! take over where the full maps are not trusted (default 2; 0 fits no guard;
 //! see `calibration::ForceGuard`).
+//!
+//! `--out -` writes the calibration to stdout and the tables to stderr (not
+//! with `--thresholds all`, which writes one file per preset);
+//! `--predictions -` writes the test set's predictions (JSON Lines) to
+//! stdout. The extraction shows a progress bar with an ETA on a terminal
+//! (`--quiet` hides it).
+
+#[path = "cli_support/mod.rs"]
+mod cli_support;
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::{Parser, ValueEnum};
+use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::fit::{
     extract_dataset, fit_dataset, load_cell_spread, read_dataset,
 };
@@ -47,17 +58,96 @@ use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::io::{self, FrameRecord, JsonlWriter, Split};
+use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
 
-const USAGE: &str = "usage: calibrate DATASET_DIR --out calibration.json [--thresholds low|mid|high|all (default high)] \
-[--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin (default slope:8)] [--contact-window PX] [--shear-order N (default 2)] [--force-order N (default 5)] [--dpf-order N (default 2)] [--shear-order-force N (default 0: one displacement group)] [--guard-shear-order N (default 2, 0: no guard)] [--force-y2d] \
-[--preset ultrafast|fast|medium|accurate|balanced|fine (default fine, the sensor's)] [--crop x,y,w,h] [--predictions FILE]";
+/// Calibrates a sensor from a characterization dataset: runs the pipeline on
+/// every test, fits the polynomial maps and prints the paper's Tables I and
+/// II (test-set errors) in markdown.
+#[derive(Parser, Debug)]
+#[command(name = "calibrate")]
+struct Cli {
+    /// Characterization dataset folder (tests.csv and its frames, DATASET.md).
+    #[arg(value_name = "DATASET_DIR")]
+    dir: PathBuf,
+    /// Write the calibration (JSON) to FILE, or to stdout with `-` (the
+    /// tables then go to stderr).
+    #[arg(long, value_name = "FILE|-")]
+    out: TextOut,
+    /// Threshold preset to fit; `all` fits the three, --out gets `high` and
+    /// the others go beside it as NAME.low.json and NAME.mid.json.
+    #[arg(long, value_enum, default_value_t = PresetArg::High)]
+    thresholds: PresetArg,
+    /// Fit with flow magnitude MAGNITUDE px and patch sum SUM (full
+    /// resolution) and the `low` kernels, labelled `custom` (instead of
+    /// --thresholds).
+    #[arg(long, value_name = "MAGNITUDE,SUM", value_parser = parse_custom)]
+    thresholds_custom: Option<(f32, f32)>,
+    /// How a contact's column is measured: the steepest rise of the profile
+    /// smoothed by a Gaussian of SIGMA px, the energy centroid in a window of
+    /// half-width HALF px (default 400), or argmin of D (the paper's).
+    #[arg(long, value_name = "slope[:SIGMA]|centroid[:HALF]|argmin", default_value = "slope:8",
+          value_parser = parse_contact_point, overrides_with = "contact_window")]
+    contact_point: ContactPointMethod,
+    /// The older spelling of --contact-point centroid:PX (0: argmin).
+    #[arg(long, value_name = "PX", overrides_with = "contact_point")]
+    contact_window: Option<u32>,
+    /// Largest order of the shear ratio in g1 (0: the paper's g1(x2d)).
+    #[arg(long, value_name = "N", default_value_t = FitOptions::default().location_shear_order,
+          value_parser = clap::value_parser!(u32).range(0..=5))]
+    shear_order: u32,
+    /// The force maps' largest displacement order.
+    #[arg(long, value_name = "N", default_value_t = FitOptions::default().displacement_max_order,
+          value_parser = clap::value_parser!(u32).range(1..=6))]
+    force_order: u32,
+    /// The force maps' largest d_pf order (0 leaves it out).
+    #[arg(long, value_name = "N", default_value_t = FitOptions::default().d_pf_max_order,
+          value_parser = clap::value_parser!(u32).range(0..=4))]
+    dpf_order: u32,
+    /// Caps the shear displacements dx, dy at order N inside the force maps
+    /// (0: no cap, one displacement group).
+    #[arg(long, value_name = "N", default_value_t = FitOptions::default().shear_max_order.unwrap_or(0),
+          value_parser = clap::value_parser!(u32).range(0..=6))]
+    shear_order_force: u32,
+    /// Shear order of the fallback force maps that take over where the full
+    /// maps are not trusted (0: no guard).
+    #[arg(long, value_name = "N",
+          default_value_t = FitOptions::default().guard.map_or(0, |g| g.shear_order),
+          value_parser = clap::value_parser!(u32).range(0..=6))]
+    guard_shear_order: u32,
+    /// Let y2d into the force maps (the rods span the width: it only
+    /// carries noise).
+    #[arg(long)]
+    force_y2d: bool,
+    /// DIS flow preset [default: fine, the sensor's].
+    #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
+    preset: Option<DisPreset>,
+    /// Crop of the frames [default: the whole image].
+    #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
+    crop: Option<Roi>,
+    /// Write the test set's predictions (JSON Lines) to FILE, or to stdout
+    /// with `-`.
+    #[arg(long, value_name = "FILE|-")]
+    predictions: Option<TextOut>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+}
 
+/// `--thresholds`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum PresetArg {
+    Low,
+    Mid,
+    High,
+    All,
+}
+
+/// What the command line resolves to.
 struct Args {
     dir: PathBuf,
-    out: PathBuf,
+    out: TextOut,
     presets: Vec<&'static str>,
     custom: Option<(f32, f32)>,
     contact_point: ContactPointMethod,
@@ -70,7 +160,8 @@ struct Args {
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     crop: Option<Roi>,
-    predictions: Option<PathBuf>,
+    predictions: Option<TextOut>,
+    quiet: bool,
 }
 
 /// `slope[:SIGMA]`, `centroid[:HALF]` or `argmin`.
@@ -87,9 +178,7 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
                 .parse::<f64>()
                 .ok()
                 .filter(|x| *x > 0.0 && x.is_finite())
-                .ok_or(format!(
-                    "--contact-point: expected a positive number after `:`, got `{x}`"
-                )),
+                .ok_or(format!("expected a positive number after `:`, got `{x}`")),
         }
     };
     match name {
@@ -101,129 +190,68 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
         }),
         "argmin" if !given => Ok(ContactPointMethod::PotentialMinimum),
         _ => Err(format!(
-            "--contact-point: expected slope[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
+            "expected slope[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
         )),
     }
 }
 
-/// A polynomial order option's value, within `range`.
-fn order(name: &str, v: &str, range: std::ops::RangeInclusive<u32>) -> Result<u32, String> {
-    v.parse().ok().filter(|n| range.contains(n)).ok_or(format!(
-        "{name}: expected {}..={}, got `{v}`",
-        range.start(),
-        range.end()
-    ))
+/// `MAGNITUDE,SUM`: a positive flow magnitude and a patch sum >= 0.
+fn parse_custom(v: &str) -> Result<(f32, f32), String> {
+    let parts: Vec<Result<f32, _>> = v.split(',').map(|p| p.trim().parse()).collect();
+    match parts.as_slice() {
+        [Ok(m), Ok(s)] if *m > 0.0 && *s >= 0.0 && m.is_finite() && s.is_finite() => Ok((*m, *s)),
+        _ => Err(format!(
+            "expected MAGNITUDE,SUM (positive numbers), got `{v}`"
+        )),
+    }
 }
 
-fn parse() -> Result<Option<Args>, String> {
-    let mut dir = None;
-    let mut out = None;
-    let mut presets = vec!["high"];
-    let mut flow = None;
-    let mut crop = None;
-    let mut predictions = None;
-    let mut custom = None;
-    let mut contact_point = ContactPointMethod::DEFAULT;
-    let mut shear_order = FitOptions::default().location_shear_order;
-    let mut force_order = FitOptions::default().displacement_max_order;
-    let mut dpf_order = FitOptions::default().d_pf_max_order;
-    let mut shear_force_order = FitOptions::default().shear_max_order;
-    let mut guard = FitOptions::default().guard;
-    // The characterization rods span the skin's width, so y2d carries only
-    // noise into the force maps (measured: Fx 0.082 -> 0.063 N, Fz 0.30 ->
-    // 0.24 N test MAE without it): off unless asked for.
-    let mut force_y2d = false;
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut val = |name: &str| it.next().ok_or(format!("{name} needs a value"));
-        match a.as_str() {
-            "-h" | "--help" => {
-                println!("{USAGE}");
-                return Ok(None);
-            }
-            "--out" => out = Some(PathBuf::from(val("--out")?)),
-            "--thresholds" => {
-                presets = match val("--thresholds")?.as_str() {
-                    "low" => vec!["low"],
-                    "mid" => vec!["mid"],
-                    "high" => vec!["high"],
-                    "all" => vec!["high", "mid", "low"],
-                    v => {
-                        return Err(format!(
-                            "--thresholds: expected low, mid, high or all, got `{v}`"
-                        ));
-                    }
-                }
-            }
-            "--thresholds-custom" => {
-                let v = val("--thresholds-custom")?;
-                let parts: Vec<Result<f32, _>> = v.split(',').map(|p| p.trim().parse()).collect();
-                match parts.as_slice() {
-                    [Ok(m), Ok(s)] if *m > 0.0 && *s >= 0.0 => {
-                        custom = Some((*m, *s));
-                        presets = vec!["custom"];
-                    }
-                    _ => {
-                        return Err(format!(
-                            "--thresholds-custom: expected MAGNITUDE,SUM (positive numbers), got `{v}`"
-                        ));
-                    }
-                }
-            }
-            "--force-y2d" => force_y2d = true,
-            "--contact-window" => {
-                let v = val("--contact-window")?;
-                let w: u32 = v
-                    .parse()
-                    .map_err(|_| format!("--contact-window: expected pixels >= 0, got `{v}`"))?;
-                contact_point = match w {
-                    0 => ContactPointMethod::PotentialMinimum,
-                    w => ContactPointMethod::EnergyCentroid {
-                        half_window_px: f64::from(w),
-                    },
-                };
-            }
-            "--contact-point" => contact_point = parse_contact_point(&val("--contact-point")?)?,
-            "--shear-order" => shear_order = order("--shear-order", &val("--shear-order")?, 0..=5)?,
-            "--force-order" => force_order = order("--force-order", &val("--force-order")?, 1..=6)?,
-            "--dpf-order" => dpf_order = order("--dpf-order", &val("--dpf-order")?, 0..=4)?,
-            "--shear-order-force" => {
-                let n = order("--shear-order-force", &val("--shear-order-force")?, 0..=6)?;
-                shear_force_order = (n > 0).then_some(n);
-            }
-            "--guard-shear-order" => {
-                let n = order("--guard-shear-order", &val("--guard-shear-order")?, 0..=6)?;
-                guard = (n > 0).then(|| GuardOptions {
-                    shear_order: n,
-                    ..GuardOptions::default()
-                });
-            }
-            "--preset" => {
-                flow = Some(DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?)
-            }
-            "--crop" => crop = Some(Roi::parse(&val("--crop")?).map_err(|e| e.to_string())?),
-            "--predictions" => predictions = Some(PathBuf::from(val("--predictions")?)),
-            _ if a.starts_with("--") => return Err(format!("unknown option {a}\n{USAGE}")),
-            _ if dir.is_none() => dir = Some(PathBuf::from(a)),
-            _ => return Err(format!("unexpected argument `{a}`\n{USAGE}")),
+impl Cli {
+    fn resolve(self) -> Result<Args, String> {
+        let presets = match (self.thresholds_custom, self.thresholds) {
+            (Some(_), _) => vec!["custom"],
+            (None, PresetArg::Low) => vec!["low"],
+            (None, PresetArg::Mid) => vec!["mid"],
+            (None, PresetArg::High) => vec!["high"],
+            (None, PresetArg::All) => vec!["high", "mid", "low"],
+        };
+        if self.out.is_stdout() && presets.len() > 1 {
+            return Err(
+                "--thresholds all writes one calibration file per preset: give --out a file name"
+                    .into(),
+            );
         }
+        if self.out.is_stdout() && self.predictions.as_ref().is_some_and(TextOut::is_stdout) {
+            return Err("--out and --predictions cannot both go to stdout (-)".into());
+        }
+        let contact_point = match self.contact_window {
+            Some(0) => ContactPointMethod::PotentialMinimum,
+            Some(w) => ContactPointMethod::EnergyCentroid {
+                half_window_px: f64::from(w),
+            },
+            None => self.contact_point,
+        };
+        Ok(Args {
+            dir: self.dir,
+            out: self.out,
+            presets,
+            custom: self.thresholds_custom,
+            contact_point,
+            shear_order: self.shear_order,
+            force_order: self.force_order,
+            dpf_order: self.dpf_order,
+            shear_force_order: (self.shear_order_force > 0).then_some(self.shear_order_force),
+            guard: (self.guard_shear_order > 0).then(|| GuardOptions {
+                shear_order: self.guard_shear_order,
+                ..GuardOptions::default()
+            }),
+            force_y2d: self.force_y2d,
+            flow: self.preset,
+            crop: self.crop,
+            predictions: self.predictions,
+            quiet: self.quiet,
+        })
     }
-    Ok(Some(Args {
-        dir: dir.ok_or(USAGE)?,
-        out: out.ok_or(format!("--out is required\n{USAGE}"))?,
-        presets,
-        custom,
-        contact_point,
-        shear_order,
-        force_order,
-        dpf_order,
-        shear_force_order,
-        guard,
-        force_y2d,
-        flow,
-        crop,
-        predictions,
-    }))
 }
 
 fn thresholds(name: &str, custom: Option<(f32, f32)>) -> Thresholds {
@@ -251,9 +279,11 @@ fn sibling(out: &Path, preset: &str) -> PathBuf {
     out.with_file_name(format!("{stem}.{preset}.json"))
 }
 
-fn run() -> Result<(), String> {
-    let Some(args) = parse()? else { return Ok(()) };
+fn run(args: Args) -> Result<(), Failure> {
     let err = |e: optical_tactile::Error| e.to_string();
+    let data_on_stdout =
+        args.out.is_stdout() || args.predictions.as_ref().is_some_and(TextOut::is_stdout);
+    let mut report = Sink::report(data_on_stdout);
     let rows = read_dataset(&args.dir).map_err(err)?;
     // The crop the pixel coordinates refer to: given, or the whole image.
     let crop = match args.crop {
@@ -273,23 +303,16 @@ fn run() -> Result<(), String> {
     let mut table_i = Vec::new();
     let mut table_ii = Vec::new();
     for (k, preset) in args.presets.iter().enumerate() {
-        let mut config = ExtractorConfig {
-            thresholds: thresholds(preset, args.custom),
-            ..ExtractorConfig::default()
-        };
+        let mut config =
+            ExtractorConfig::default().with_thresholds(thresholds(preset, args.custom));
         if let Some(p) = args.flow {
             config.flow = DisParams::preset(p);
         }
         let t0 = Instant::now();
-        let step = (rows.len() / 20).max(1);
-        let progress = |done: usize, total: usize| {
-            if done % step == 0 || done == total {
-                eprint!(
-                    "\r[{preset}] {done}/{total} tests, {:.0} s  ",
-                    t0.elapsed().as_secs_f64()
-                );
-                let _ = std::io::stderr().flush();
-            }
+        let bar =
+            cli_support::progress_bar(&format!("[{preset}] tests"), rows.len() as u64, args.quiet);
+        let progress = |done: usize, _total: usize| {
+            bar.set_position((done as u64).max(bar.position()));
         };
         let ex = extract_dataset(
             &args.dir,
@@ -298,9 +321,9 @@ fn run() -> Result<(), String> {
             args.contact_point,
             args.crop,
             &progress,
-        )
-        .map_err(err)?;
-        eprintln!();
+        );
+        bar.finish();
+        let ex = ex.map_err(err)?;
         let options = FitOptions {
             location_shear_order: args.shear_order,
             displacement_max_order: args.force_order,
@@ -345,16 +368,25 @@ fn run() -> Result<(), String> {
                 test.len()
             );
         }
-        let path = if k == 0 {
-            args.out.clone()
-        } else {
-            sibling(&args.out, preset)
-        };
-        fit.calibration.save(&path).map_err(err)?;
-        eprintln!("[{preset}] wrote {}", path.display());
+        match &args.out {
+            TextOut::Stdout => {
+                let mut out = Sink::stdout();
+                out.write_all(fit.calibration.to_json_string().as_bytes())?;
+                out.flush()?;
+            }
+            TextOut::File(p) => {
+                let path = if k == 0 {
+                    p.clone()
+                } else {
+                    sibling(p, preset)
+                };
+                fit.calibration.save(&path).map_err(err)?;
+                eprintln!("[{preset}] wrote {}", path.display());
+            }
+        }
         if k == 0 {
             if let Some(pred) = &args.predictions {
-                let mut w = JsonlWriter::create(pred).map_err(err)?;
+                let mut w = pred.create()?;
                 for (e, s) in ex
                     .iter()
                     .zip(&fit.samples)
@@ -379,13 +411,12 @@ fn run() -> Result<(), String> {
                             ..Default::default()
                         });
                     }
-                    w.write(&FrameRecord {
+                    w.json_line(&FrameRecord {
                         frame: e.row.frame.clone(),
                         t_s: 0.0,
                         contacts,
                         latency_ms: None,
-                    })
-                    .map_err(err)?;
+                    })?;
                 }
             }
         }
@@ -396,32 +427,35 @@ fn run() -> Result<(), String> {
         });
         table_ii.push((preset.to_string(), fit.test_table));
     }
-    println!("## Table I: test-set errors per threshold preset\n");
-    println!("{}", calibration::table_i_markdown(&table_i));
+    writeln!(report, "## Table I: test-set errors per threshold preset\n")?;
+    writeln!(report, "{}", calibration::table_i_markdown(&table_i))?;
     if let Some(s) = load_cell_spread(&rows) {
         let [sx, sy, sz] = s.sigma_n;
         let [mx, my, mz] = s.mae_floor_n();
-        println!(
+        writeln!(
+            report,
             "Load cell: its readings scatter by Fx {sx:.4}, Fy {sy:.4}, Fz {sz:.4} N (standard \
              deviation) between repetitions of the same test ({} groups). A sensor that read the \
              applied force exactly would score about Fx {mx:.4}, Fy {my:.4}, Fz {mz:.4} N MAE \
              against these recordings: the floor under the force columns above.\n",
             s.groups
-        );
+        )?;
     }
     for (preset, t) in &table_ii {
-        println!("## Table II: test-set errors per point ({preset} thresholds)\n");
-        println!("{}", calibration::table_ii_markdown(t));
+        writeln!(
+            report,
+            "## Table II: test-set errors per point ({preset} thresholds)\n"
+        )?;
+        writeln!(report, "{}", calibration::table_ii_markdown(t))?;
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    let args = Cli::parse().resolve();
+    cli_support::finish(
+        args.map_err(Failure::from)
+            .and_then(run)
+            .map(|()| ExitCode::SUCCESS),
+    )
 }

@@ -16,18 +16,24 @@
 //!
 //! ```text
 //! cargo run --release --example experiments -- [--out DIR] [--quick] [--json FILE]
-//!     [--seed N] [--subset N]
+//!     [--seed N] [--subset N] [--quiet]
 //! ```
 //!
 //! `--quick` uses small subsets (about 1-2 minutes); the full run takes
-//! about 10-20 minutes on 2 cores. Progress goes to stderr.
+//! about 10-20 minutes on 2 cores. A progress bar per stage, with an ETA,
+//! shows on a terminal (`--quiet` hides it). `--json -` writes the report as
+//! JSON to stdout and the markdown to stderr.
+
+#[path = "cli_support/mod.rs"]
+mod cli_support;
 
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Mutex;
 use std::time::Instant;
 
+use clap::Parser;
+use cli_support::{Failure, Sink, Stages, TextOut};
 use serde::Serialize;
 
 use optical_tactile::calibration::fit::{
@@ -49,55 +55,33 @@ use optical_tactile_sim::experiments::{
 use optical_tactile_sim::scenario::{self, Characterization, Common, Scenario};
 use optical_tactile_sim::{SimConfig, SyntheticSensor};
 
-const USAGE: &str = "usage: experiments [--out DIR (default: $TMPDIR/optical-tactile-experiments)] \
-[--quick] [--json FILE] [--seed N (default 1)] [--subset N (characterization tests; default 2500, 300 with --quick)]";
-
+/// The paper's "Sensor Performance" section on the simulator, printed as
+/// markdown beside the paper's figures and our targets: Tables I and II from
+/// a simulated characterization, the minimum spacing of two contacts, the
+/// minimum detectable force, false contacts at rest, and the touch-mapping
+/// error.
+#[derive(Parser, Debug)]
+#[command(name = "experiments")]
 struct Args {
+    /// Folder for the simulated data.
+    #[arg(long, value_name = "DIR", default_value_os_t = std::env::temp_dir().join("optical-tactile-experiments"))]
     out: PathBuf,
+    /// Small subsets (about 1-2 minutes instead of 10-20 on 2 cores).
+    #[arg(long)]
     quick: bool,
-    json: Option<PathBuf>,
+    /// Write the report as JSON to FILE, or to stdout with `-` (the markdown
+    /// then goes to stderr).
+    #[arg(long, value_name = "FILE|-")]
+    json: Option<TextOut>,
+    /// Simulator seed (the mapping runs take this one and the next four).
+    #[arg(long, value_name = "N", default_value_t = 1)]
     seed: u64,
-    subset: Option<usize>,
-}
-
-fn parse() -> Result<Option<Args>, String> {
-    let mut a = Args {
-        out: std::env::temp_dir().join("optical-tactile-experiments"),
-        quick: false,
-        json: None,
-        seed: 1,
-        subset: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut val = |name: &str| it.next().ok_or(format!("{name} needs a value\n{USAGE}"));
-        match arg.as_str() {
-            "-h" | "--help" => {
-                println!("{USAGE}");
-                return Ok(None);
-            }
-            "--out" => a.out = PathBuf::from(val("--out")?),
-            "--quick" => a.quick = true,
-            "--json" => a.json = Some(PathBuf::from(val("--json")?)),
-            "--seed" => {
-                let v = val("--seed")?;
-                a.seed = v
-                    .parse()
-                    .map_err(|_| format!("--seed: expected an integer, got `{v}`"))?;
-            }
-            "--subset" => {
-                let v = val("--subset")?;
-                a.subset = Some(
-                    v.parse()
-                        .ok()
-                        .filter(|&n: &usize| n >= 50)
-                        .ok_or(format!("--subset: expected an integer >= 50, got `{v}`"))?,
-                );
-            }
-            _ => return Err(format!("unknown argument `{arg}`\n{USAGE}")),
-        }
-    }
-    Ok(Some(a))
+    /// Characterization tests [default: 2500, 300 with --quick].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(50..))]
+    subset: Option<u64>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
 /// What the run measures, by mode.
@@ -112,7 +96,7 @@ impl Plan {
     fn new(a: &Args) -> Plan {
         if a.quick {
             Plan {
-                subset: a.subset.unwrap_or(300),
+                subset: a.subset.map_or(300, |n| n as usize),
                 rest_pairs: 60,
                 mdf: MdfPlan {
                     positions_mm: vec![-80.0, 0.0, 80.0],
@@ -127,7 +111,7 @@ impl Plan {
             }
         } else {
             Plan {
-                subset: a.subset.unwrap_or(2500),
+                subset: a.subset.map_or(2500, |n| n as usize),
                 rest_pairs: 1500,
                 mdf: MdfPlan::default(),
                 spacing: SpacingPlan::default(),
@@ -214,30 +198,10 @@ struct Report {
     wall_s: f64,
 }
 
-/// A progress line on stderr, at most every 2% of the stage.
-fn progress_printer(t0: Instant) -> impl Fn(&str, usize, usize) + Sync {
-    let last = Mutex::new(0usize);
-    move |stage: &str, done: usize, total: usize| {
-        let step = (total / 20).max(1);
-        let mut l = last.lock().unwrap_or_else(|e| e.into_inner());
-        if done == total || done >= *l + step || done < *l {
-            *l = done;
-            eprint!(
-                "\r[{stage}] {done}/{total}, {:.0} s elapsed   ",
-                t0.elapsed().as_secs_f64()
-            );
-            if done == total {
-                eprintln!();
-            }
-            let _ = std::io::stderr().flush();
-        }
-    }
-}
-
 fn characterization(
     a: &Args,
     plan: &Plan,
-    t0: Instant,
+    stages: &Stages,
 ) -> optical_tactile::Result<(usize, Vec<PresetFit>, Option<LoadCellSpread>)> {
     let dir = a.out.join("characterization");
     let mut common = Common::new(&dir);
@@ -248,24 +212,21 @@ fn characterization(
         plan.subset,
         dir.display()
     );
-    scenario::run(
+    scenario::run_with_progress(
         &Scenario::Characterization(Characterization {
             subset: Some(plan.subset),
             ..Default::default()
         }),
         &common,
+        &|_, d, n| stages.update("characterization, rendering", d, n),
     )?;
     let rows = read_dataset(&dir)?;
     let img = io::read_gray(dir.join(&rows[0].reference))?;
     let crop = Roi::full(img.ncols(), img.nrows());
-    let progress = progress_printer(t0);
     let mut fits = Vec::new();
     for (name, thresholds) in PRESETS {
         let t = Instant::now();
-        let config = ExtractorConfig {
-            thresholds,
-            ..ExtractorConfig::default()
-        };
+        let config = ExtractorConfig::default().with_thresholds(thresholds);
         let stage = format!("characterization, {name}");
         let ex = extract_dataset(
             &dir,
@@ -273,7 +234,7 @@ fn characterization(
             &config,
             ContactPointMethod::DEFAULT,
             None,
-            &|d, n| progress(&stage, d, n),
+            &|d, n| stages.update(&stage, d, n),
         )?;
         // As `calibrate` does by default: y2d out of the force maps.
         let options = FitOptions {
@@ -301,47 +262,51 @@ fn characterization(
     Ok((rows.len(), fits, load_cell_spread(&rows)))
 }
 
-fn print_table_i(fits: &[PresetFit], tests: usize) {
-    println!("## Table I: test-set errors per threshold preset\n");
-    println!(
+fn print_table_i(out: &mut Sink, fits: &[PresetFit], tests: usize) -> std::io::Result<()> {
+    writeln!(out, "## Table I: test-set errors per threshold preset\n")?;
+    writeln!(
+        out,
         "Simulated characterization, {tests} tests (a random subset of the protocol's 7200), \
          each preset's own calibration fitted on its detections. Paper = real sensor (Table I); \
          target = our aim (SPEC.md).\n"
-    );
-    print!("| Variable |");
+    )?;
+    write!(out, "| Variable |")?;
     for f in fits {
-        print!(" {} (ours) | {} (paper) |", f.preset, f.preset);
+        write!(out, " {} (ours) | {} (paper) |", f.preset, f.preset)?;
     }
-    println!(" target |");
-    println!("|---|{}---|", "---|---|".repeat(fits.len()));
-    print!("| F_min [N] |");
+    writeln!(out, " target |")?;
+    writeln!(out, "|---|{}---|", "---|---|".repeat(fits.len()))?;
+    write!(out, "| F_min [N] |")?;
     for (k, f) in fits.iter().enumerate() {
-        print!(" {} | {} |", f.min_force, bar::TABLE_I[k].0);
+        write!(out, " {} | {} |", f.min_force, bar::TABLE_I[k].0)?;
     }
-    println!(" <= 0.3 (low) |");
+    writeln!(out, " <= 0.3 (low) |")?;
     for (v, name) in VARS.iter().enumerate() {
-        print!("| {name} |");
+        write!(out, "| {name} |")?;
         for (k, f) in fits.iter().enumerate() {
             let ours = maes(&f.test.total)[v];
-            print!(
+            write!(
+                out,
                 " {} ({}) | {} |",
                 fmt4(ours),
                 met(ours <= bar::TARGET[v]),
                 paper_fmt(v, bar::TABLE_I[k].1[v])
-            );
+            )?;
         }
-        println!(" <= {} |", bar::TARGET[v]);
+        writeln!(out, " <= {} |", bar::TARGET[v])?;
     }
-    print!("| test samples (misses) |");
+    write!(out, "| test samples (misses) |")?;
     for f in fits {
-        print!(" {} ({}) | |", f.test.total.n, f.misses[2]);
+        write!(out, " {} ({}) | |", f.test.total.n, f.misses[2])?;
     }
-    println!(" |\n");
-    println!(
+    writeln!(out, " |\n")?;
+    writeln!(
+        out,
         "F_min here is on the protocol's force levels (0.5, 1, ..., 3 N): the smallest \
          level from which >= 95% of the tests at each level are detected. The finer ladder \
          below measures it to 0.1-0.2 N.\n"
-    );
+    )?;
+    Ok(())
 }
 
 /// A paper figure as the paper prints it: x in mm to 0.1, forces to 0.001 N.
@@ -361,11 +326,12 @@ fn fmt4(x: f64) -> String {
     }
 }
 
-fn print_table_ii(f: &PresetFit) {
-    println!(
+fn print_table_ii(out: &mut Sink, f: &PresetFit) -> std::io::Result<()> {
+    writeln!(
+        out,
         "## Table II: test-set errors per point ({} thresholds, the paper's flight setting)\n",
         f.preset
-    );
+    )?;
     let mut cols: Vec<(String, &QuantityMae)> = vec![("Total".into(), &f.test.total)];
     cols.extend(
         f.test
@@ -373,32 +339,37 @@ fn print_table_ii(f: &PresetFit) {
             .iter()
             .map(|(p, m)| (format!("Point {p}"), m)),
     );
-    print!("| Variable |");
+    write!(out, "| Variable |")?;
     for (name, _) in &cols {
-        print!(" {name} ours | paper |");
+        write!(out, " {name} ours | paper |")?;
     }
-    println!();
-    println!("|---|{}", "---|---|".repeat(cols.len()));
+    writeln!(out)?;
+    writeln!(out, "|---|{}", "---|---|".repeat(cols.len()))?;
     for (v, name) in VARS.iter().enumerate() {
-        print!("| {name} |");
+        write!(out, "| {name} |")?;
         for (c, (_, m)) in cols.iter().enumerate() {
             let paper = bar::TABLE_II[v]
                 .get(c)
                 .map_or("-".to_string(), |&p| paper_fmt(v, p));
-            print!(" {} | {paper} |", fmt4(maes(m)[v]));
+            write!(out, " {} | {paper} |", fmt4(maes(m)[v]))?;
         }
-        println!();
+        writeln!(out)?;
     }
-    print!("| samples |");
+    write!(out, "| samples |")?;
     for (_, m) in &cols {
-        print!(" {} | |", m.n);
+        write!(out, " {} | |", m.n)?;
     }
-    println!("\n");
+    writeln!(out, "\n")?;
+    Ok(())
 }
 
-fn print_rest_mdf(rest: &RestResult, mdf: &MdfResult) {
-    println!("## Minimum detectable force and false contacts at rest\n");
-    println!(
+fn print_rest_mdf(out: &mut Sink, rest: &RestResult, mdf: &MdfResult) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "## Minimum detectable force and false contacts at rest\n"
+    )?;
+    writeln!(
+        out,
         "Single rods at {} arc positions ({:?} mm) x the protocol's {} tilts per indenter, \
          force ladder {:.1}..{:.1} N; MDF = smallest ladder force from which >= 95% of \
          the presses of every indenter are detected (a patch covering the rod). Rest: {} \
@@ -409,11 +380,12 @@ fn print_rest_mdf(rest: &RestResult, mdf: &MdfResult) {
         mdf.plan.forces_n[0],
         mdf.plan.forces_n[mdf.plan.forces_n.len() - 1],
         rest.pairs
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "| preset | MDF ours (>= 95%) | every press from | paper | in the paper's range | false contacts at rest | target |"
-    );
-    println!("|---|---|---|---|---|---|---|");
+    )?;
+    writeln!(out, "|---|---|---|---|---|---|---|")?;
     let fmt = |v: Option<f64>| v.map_or("> ladder".to_string(), |f| format!("{f:.1} N"));
     for (k, set) in mdf.sets.iter().enumerate() {
         let m = mdf.min_force(k, None, 0.95);
@@ -428,7 +400,8 @@ fn print_rest_mdf(rest: &RestResult, mdf: &MdfResult) {
         } else {
             format!("no false contact: {}", met(rest.false_frames[k] == 0))
         };
-        println!(
+        writeln!(
+            out,
             "| {} | {} | {} | {} | {} | {} / {} | {target} |",
             set.name,
             fmt(m),
@@ -437,9 +410,10 @@ fn print_rest_mdf(rest: &RestResult, mdf: &MdfResult) {
             if in_range { "yes" } else { "no" },
             rest.false_frames[k],
             rest.pairs
-        );
+        )?;
     }
-    println!(
+    writeln!(
+        out,
         "\nPeak |flow| of a rest pair (full-resolution px): median {:.3}, 99th percentile {:.3}, max {:.3}; \
          largest contour sum at rest per preset: {}.\n",
         rest.peak_quantile(0.5),
@@ -451,98 +425,112 @@ fn print_rest_mdf(rest: &RestResult, mdf: &MdfResult) {
             .map(|(s, v)| format!("{} {v:.0}", s.name))
             .collect::<Vec<_>>()
             .join(", ")
-    );
-    print!("Detection rate per force (all indenters):\n\n| preset |");
+    )?;
+    write!(
+        out,
+        "Detection rate per force (all indenters):\n\n| preset |"
+    )?;
     for f in &mdf.plan.forces_n {
-        print!(" {f:.1} N |");
+        write!(out, " {f:.1} N |")?;
     }
-    println!("\n|---|{}", "---|".repeat(mdf.plan.forces_n.len()));
+    writeln!(out, "\n|---|{}", "---|".repeat(mdf.plan.forces_n.len()))?;
     for (k, set) in mdf.sets.iter().enumerate() {
-        print!("| {} |", set.name);
+        write!(out, "| {} |", set.name)?;
         for fi in 0..mdf.plan.forces_n.len() {
-            print!(" {:.0}% |", 100.0 * mdf.rate(k, fi));
+            write!(out, " {:.0}% |", 100.0 * mdf.rate(k, fi))?;
         }
-        println!();
+        writeln!(out)?;
     }
-    println!();
+    writeln!(out)?;
+    Ok(())
 }
 
-fn print_spacing(sp: &SpacingResult) {
+fn print_spacing(out: &mut Sink, sp: &SpacingResult) -> std::io::Result<()> {
     let p = &sp.plan;
-    println!("## Two contacts: minimum spacing\n");
-    println!(
+    writeln!(out, "## Two contacts: minimum spacing\n")?;
+    writeln!(
+        out,
         "Two straight rods of equal force ({:?} N) at spacings {:?} mm around midpoints {:?} mm; \
          told apart = exactly two contacts, each within {} mm of its rod. Minimum spacing = \
          smallest spacing of the list from which every larger one is told apart at every force \
          and midpoint (`> {}` = not even the largest).\n",
         p.forces_n, p.spacings_mm, p.centres_mm, p.tol_mm, p.spacings_mm[0]
-    );
+    )?;
     let centre = p.centres_mm.iter().position(|&c| c == 0.0);
     let fmt =
         |v: Option<f64>| v.map_or(format!("> {} mm", p.spacings_mm[0]), |s| format!("{s} mm"));
-    print!("| preset |");
+    write!(out, "| preset |")?;
     for d in INDENTERS_MM {
-        print!(" {d} mm indenter |");
+        write!(out, " {d} mm indenter |")?;
         if centre.is_some() && p.centres_mm.len() > 1 {
-            print!(" {d} mm, midpoint 0 only |");
+            write!(out, " {d} mm, midpoint 0 only |")?;
         }
     }
-    println!();
+    writeln!(out)?;
     let per = if centre.is_some() && p.centres_mm.len() > 1 {
         2
     } else {
         1
     };
-    println!("|---|{}", "---|".repeat(per * INDENTERS_MM.len()));
+    writeln!(out, "|---|{}", "---|".repeat(per * INDENTERS_MM.len()))?;
     for (k, set) in sp.sets.iter().enumerate() {
-        print!("| {} |", set.name);
+        write!(out, "| {} |", set.name)?;
         for ii in 0..INDENTERS_MM.len() {
             let all = sp.min_spacing(k, ii, None, None);
-            print!(
+            write!(
+                out,
                 " {} ({}) |",
                 fmt(all),
                 met(all.is_some_and(|s| s <= bar::TARGET_SPACING))
-            );
+            )?;
             if per == 2 {
-                print!(" {} |", fmt(sp.min_spacing(k, ii, None, centre)));
+                write!(out, " {} |", fmt(sp.min_spacing(k, ii, None, centre)))?;
             }
         }
-        println!();
+        writeln!(out)?;
     }
-    print!("| paper (real sensor) |");
+    write!(out, "| paper (real sensor) |")?;
     for ii in 0..INDENTERS_MM.len() {
-        print!(" {} mm |", bar::SPACING[ii]);
+        write!(out, " {} mm |", bar::SPACING[ii])?;
         if per == 2 {
-            print!(" |");
+            write!(out, " |")?;
         }
     }
-    println!();
-    println!(
+    writeln!(out)?;
+    writeln!(
+        out,
         "\nTarget: <= {} mm for every indenter; the paper's method reproduced in Python: \
          30-40 mm (high).\n",
         bar::TARGET_SPACING
-    );
+    )?;
+    Ok(())
 }
 
 fn print_summary(
+    out: &mut Sink,
     fits: &[PresetFit],
     load_cell: Option<&LoadCellSpread>,
     rest: &RestResult,
     mdf: &MdfResult,
     sp: &SpacingResult,
     mapping: &[MappingRun],
-) {
-    println!("## Summary: the bar the paper sets (SPEC.md)\n");
-    println!("| quantity | paper (real sensor) | paper's method in Python | our aim | ours | |");
-    println!("|---|---|---|---|---|---|");
+) -> std::io::Result<()> {
+    writeln!(out, "## Summary: the bar the paper sets (SPEC.md)\n")?;
+    writeln!(
+        out,
+        "| quantity | paper (real sensor) | paper's method in Python | our aim | ours | |"
+    )?;
+    writeln!(out, "|---|---|---|---|---|---|")?;
     if let Some(high) = fits.iter().find(|f| f.preset == "high") {
         let m = maes(&high.test.total);
-        println!(
+        writeln!(
+            out,
             "| contact location MAE (high) | 1.5 mm | 1.55 mm | <= 0.5 mm | {:.2} mm | {} |",
             m[0],
             met(m[0] <= bar::TARGET[0])
-        );
-        println!(
+        )?;
+        writeln!(
+            out,
             "| Fx / Fy / Fz MAE (high) | 0.070 / 0.026 / 0.172 N | 0.038 / 0.008 / 0.121 N | <= 0.02 / 0.005 / 0.05 N | {} / {} / {} N | {} |",
             fmt4(m[1]),
             fmt4(m[2]),
@@ -553,32 +541,35 @@ fn print_summary(
                 .map(|(i, n)| format!("{n} {}", met(m[i + 1] <= bar::TARGET[i + 1])))
                 .collect::<Vec<_>>()
                 .join(", ")
-        );
+        )?;
     }
     if let Some(s) = load_cell {
         let [x, y, z] = s.mae_floor_n();
-        println!(
+        writeln!(
+            out,
             "| the load cell's floor: an exact sensor's Fx / Fy / Fz MAE against its readings | | | | {} / {} / {} N | |",
             fmt4(x),
             fmt4(y),
             fmt4(z)
-        );
+        )?;
     }
     let low = mdf.min_force(0, None, 0.95);
-    println!(
+    writeln!(
+        out,
         "| minimum detectable force (low) | < 0.5 N | 0.4 N | <= 0.3 N, no false contact at rest | {}, {} / {} rest pairs with a false contact | {} |",
         low.map_or("> ladder".into(), |f| format!("{f:.1} N")),
         rest.false_frames[0],
         rest.pairs,
         met(low.is_some_and(|f| f <= bar::TARGET_MDF_LOW) && rest.false_frames[0] == 0)
-    );
+    )?;
     if let Some(high) = mdf.sets.iter().position(|s| s.name == "HIGH") {
         let h = mdf.min_force(high, None, 0.95);
-        println!(
+        writeln!(
+            out,
             "| minimum detectable force (high) | 1-1.5 N | 1.2-1.4 N | 1-1.5 N | {} | {} |",
             h.map_or("> ladder".into(), |f| format!("{f:.1} N")),
             met(h.is_some_and(|f| (1.0..1.5).contains(&f)))
-        );
+        )?;
     }
     // Per indenter, the best preset at every force and midpoint, and (if the
     // plan has it) at the skin's centre only.
@@ -618,29 +609,34 @@ fn print_summary(
         }
         cells.push(cell);
     }
-    println!(
+    writeln!(
+        out,
         "| two contacts told apart at (best preset, every midpoint {:?} mm) | 20 / 40 / 40 mm | 30-40 mm | <= 15 mm | {} | {} |",
         sp.plan.centres_mm,
         cells.join("; "),
         met(ok)
-    );
+    )?;
     let (mean, worst) = mapping_summary(mapping);
-    println!(
+    writeln!(
+        out,
         "| mapping by touch, error per obstacle ({} runs) | < 40 mm | mean 0.8 mm, worst 9 mm | worst <= 2 mm | mean {}, worst {} | {} |",
         mapping.len(),
         mean.map_or("-".into(), |m| format!("{:.1} mm", m * 1e3)),
         worst.map_or("a rod missed".into(), |w| format!("{:.1} mm", w * 1e3)),
         met(worst.is_some_and(|w| w <= bar::TARGET_MAPPING_M))
-    );
-    println!();
+    )?;
+    writeln!(out)?;
+    Ok(())
 }
 
-fn print_mapping(runs: &[MappingRun], o: &MappingOptions) {
-    println!(
+fn print_mapping(out: &mut Sink, runs: &[MappingRun], o: &MappingOptions) -> std::io::Result<()> {
+    writeln!(
+        out,
         "## Mapping by touch: error per obstacle over {} runs\n",
         runs.len()
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "The simulator's `mapping` scenario (rods along world y at x = {:?} m, {} touches per rod at \
          random places on the skin, up to {} N, {} mm rods), one seed per run; the `high` calibration \
          fitted above in a `TactileSensor` (frame 0 as reference); the contacts detected in each \
@@ -655,40 +651,44 @@ fn print_mapping(runs: &[MappingRun], o: &MappingOptions) {
         o.map.min_force_n,
         o.map.radius_m,
         o.gate_m
-    );
-    print!("| seed | contacts | clusters | false clusters |");
+    )?;
+    write!(out, "| seed | contacts | clusters | false clusters |")?;
     for k in 0..o.scenario.rods_x_m.len() {
-        print!(" rod {} [mm] |", k + 1);
+        write!(out, " rod {} [mm] |", k + 1)?;
     }
-    println!(" worst [mm] |");
-    println!(
+    writeln!(out, " worst [mm] |")?;
+    writeln!(
+        out,
         "|---|---|---|---|{}---|",
         "---|".repeat(o.scenario.rods_x_m.len())
-    );
+    )?;
     let mm = |e: Option<f64>| e.map_or("missed".to_string(), |e| format!("{:.1}", e * 1e3));
     let mm_unit =
         |e: Option<f64>| e.map_or("a rod missed".to_string(), |e| format!("{:.1} mm", e * 1e3));
     for r in runs {
-        print!(
+        write!(
+            out,
             "| {} | {} | {} | {} |",
             r.seed,
             r.contacts,
             r.clusters.len(),
             r.false_clusters
-        );
+        )?;
         for e in &r.errors_m {
-            print!(" {} |", mm(*e));
+            write!(out, " {} |", mm(*e))?;
         }
-        println!(" {} |", mm(r.worst_m()));
+        writeln!(out, " {} |", mm(r.worst_m()))?;
     }
     let (mean, worst) = mapping_summary(runs);
-    println!(
+    writeln!(
+        out,
         "\nOver all runs: mean {}, worst {} (paper: < 40 mm; the paper's method in Python: mean 0.8 mm, \
          worst 9 mm; our aim: worst <= 2 mm: {}).\n",
         mean.map_or("-".into(), |m| format!("{:.1} mm", m * 1e3)),
         mm_unit(worst),
         met(worst.is_some_and(|w| w <= bar::TARGET_MAPPING_M))
-    );
+    )?;
+    Ok(())
 }
 
 /// Mean over every found rod of every run, and the worst (`None` if a rod
@@ -701,11 +701,12 @@ fn mapping_summary(runs: &[MappingRun]) -> (Option<f64>, Option<f64>) {
     (mean, worst)
 }
 
-fn run() -> Result<(), String> {
-    let Some(a) = parse()? else { return Ok(()) };
+fn run(a: &Args) -> Result<(), Failure> {
     let err = |e: optical_tactile::Error| e.to_string();
+    let mut out = Sink::report(a.json.as_ref().is_some_and(TextOut::is_stdout));
+    let stages = Stages::new(a.quiet);
     let t0 = Instant::now();
-    let plan = Plan::new(&a);
+    let plan = Plan::new(a);
     eprintln!(
         "experiments: {} mode, seed {}, {} threads, output in {}",
         if a.quick { "quick" } else { "full" },
@@ -713,13 +714,19 @@ fn run() -> Result<(), String> {
         rayon::current_num_threads(),
         a.out.display()
     );
-    let (tests, fits, load_cell) = characterization(&a, &plan, t0).map_err(err)?;
+    let (tests, fits, load_cell) = characterization(a, &plan, &stages).map_err(err)?;
+    stages.finish();
     let sensor = SyntheticSensor::new(SimConfig::default(), a.seed).map_err(err)?;
     let o = SweepOptions::default();
-    let progress = progress_printer(t0);
+    let progress = |stage: &str, d: usize, n: usize| stages.update(stage, d, n);
+    // Each stage's bar is finished before the next starts (and left on
+    // screen); on an error the bars are dropped, which leaves them too.
     let rest = rest_sweep(&sensor, &o, plan.rest_pairs, &progress).map_err(err)?;
+    stages.finish();
     let mdf = mdf_sweep(&sensor, &o, &plan.mdf, &progress).map_err(err)?;
+    stages.finish();
     let spacing = spacing_sweep(&sensor, &o, &plan.spacing, &progress).map_err(err)?;
+    stages.finish();
     let mapping_options = MappingOptions::default();
     let high = fits
         .iter()
@@ -732,41 +739,54 @@ fn run() -> Result<(), String> {
         mapping.push(mapping_run(&high.calibration, seed, &dir, &mapping_options).map_err(err)?);
         progress("mapping", k as usize + 1, MAPPING_RUNS as usize);
     }
+    stages.finish();
     let wall = t0.elapsed().as_secs_f64();
 
-    println!(
+    writeln!(
+        out,
         "# Sensor performance on the simulator ({} run, seed {})\n",
         if a.quick { "quick" } else { "full" },
         a.seed
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "Simulator defaults (1600 x 200 px strip, 5 px/mm), `{}` DIS flow (the sensor's default), \
          extractor margin {} px. Wall time {:.0} s on {} threads.\n",
         optical_tactile::calibration::fit::preset_name(&ExtractorConfig::default()),
         o.margin_px,
         wall,
         rayon::current_num_threads()
-    );
-    print_summary(&fits, load_cell.as_ref(), &rest, &mdf, &spacing, &mapping);
-    print_table_i(&fits, tests);
+    )?;
+    print_summary(
+        &mut out,
+        &fits,
+        load_cell.as_ref(),
+        &rest,
+        &mdf,
+        &spacing,
+        &mapping,
+    )?;
+    print_table_i(&mut out, &fits, tests)?;
     if let Some(high) = fits.iter().find(|f| f.preset == "high") {
-        print_table_ii(high);
+        print_table_ii(&mut out, high)?;
     }
-    print_rest_mdf(&rest, &mdf);
-    print_spacing(&spacing);
-    print_mapping(&mapping, &mapping_options);
-    println!(
+    print_rest_mdf(&mut out, &rest, &mdf)?;
+    print_spacing(&mut out, &spacing)?;
+    print_mapping(&mut out, &mapping, &mapping_options)?;
+    writeln!(
+        out,
         "### Presets\n\n| preset | magnitude (px) | sum (px^3) | erode | dilate |\n|---|---|---|---|---|"
-    );
+    )?;
     for s in &o.sets {
         let t = &s.thresholds;
-        println!(
+        writeln!(
+            out,
             "| {} | {} | {} | {} | {} |",
             s.name, t.magnitude, t.sum, t.erode, t.dilate
-        );
+        )?;
     }
-    println!();
-    if let Some(path) = &a.json {
+    writeln!(out)?;
+    if let Some(json) = &a.json {
         let report = Report {
             quick: a.quick,
             seed: a.seed,
@@ -779,19 +799,11 @@ fn run() -> Result<(), String> {
             mapping,
             wall_s: wall,
         };
-        let s = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-        std::fs::write(path, s + "\n").map_err(|e| format!("{}: {e}", path.display()))?;
-        eprintln!("wrote {}", path.display());
+        json.write_json(&report)?;
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    cli_support::finish(run(&Args::parse()).map(|()| ExitCode::SUCCESS))
 }

@@ -15,100 +15,53 @@
 //! the planned solver and prints the wall-clock minimum and median and the
 //! thread's CPU time per call (which stays meaningful on a loaded machine).
 
+#[path = "cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::Parser;
+use cli_support::{Failure, Sink};
 use ndarray::Array2;
 use optical_tactile::flow::FlowField;
 use optical_tactile::hhd::{Decomposition, Field2, NaturalHhd};
-use optical_tactile::{Error, Result, io};
+use optical_tactile::{Error, io};
 
-const HELP: &str = "\
-Natural Helmholtz-Hodge decomposition of a flow field.
-
-USAGE:
-    hhd FIELD.flo --out DIR [--dx DX] [--dy DY] [--repeat N]
-    hhd --demo WxH [--out DIR] [--dx DX] [--dy DY] [--repeat N]
-
-Writes into DIR:
-    d.flo, r.flo, h.flo   curl-free, divergence-free and harmonic parts (f32 .flo)
-    D.npy, R.npy          the potentials D and R, float64 (<f8), shape (height, width)
-
-OPTIONS:
-    --out DIR      output directory (created if missing)
-    --dx DX        grid spacing along columns (x), default 1
-    --dy DY        grid spacing along rows (y), default 1
-    --demo WxH     decompose a synthetic press of that size instead of a file
-    --repeat N     time N decompositions (planned solver): wall-clock min and
-                   median, and this thread's CPU time per call (Linux)
-    -h, --help     this text
-";
-
+/// Natural Helmholtz-Hodge decomposition of a flow field. Writes into DIR:
+/// d.flo, r.flo, h.flo (curl-free, divergence-free and harmonic parts, f32
+/// .flo) and D.npy, R.npy (the potentials D and R, float64 <f8, shape
+/// (height, width)).
+#[derive(Parser, Debug)]
+#[command(name = "hhd")]
 struct Args {
+    /// Flow field to decompose (Middlebury .flo: u along columns, v along
+    /// rows, pixels).
+    #[arg(
+        value_name = "FIELD.flo",
+        required_unless_present = "demo",
+        conflicts_with = "demo"
+    )]
     input: Option<PathBuf>,
+    /// Decompose a synthetic press of that size (outward flow with a twist)
+    /// instead of a file.
+    #[arg(long, value_name = "WxH", value_parser = cli_support::size)]
     demo: Option<(usize, usize)>,
+    /// Output directory (created if missing; required with a file).
+    #[arg(long, value_name = "DIR", required_unless_present = "demo")]
     out: Option<PathBuf>,
+    /// Grid spacing along columns (x).
+    #[arg(long, value_name = "DX", default_value_t = 1.0, value_parser = cli_support::finite)]
     dx: f64,
+    /// Grid spacing along rows (y).
+    #[arg(long, value_name = "DY", default_value_t = 1.0, value_parser = cli_support::finite)]
     dy: f64,
+    /// Time N decompositions (planned solver): wall-clock min and median,
+    /// and this thread's CPU time per call (Linux).
+    #[arg(long, value_name = "N", default_value_t = 0)]
     repeat: usize,
-}
-
-fn parse_args() -> Result<Option<Args>> {
-    let mut a = Args {
-        input: None,
-        demo: None,
-        out: None,
-        dx: 1.0,
-        dy: 1.0,
-        repeat: 0,
-    };
-    let mut it = std::env::args().skip(1);
-    let value = |it: &mut dyn Iterator<Item = String>, name: &str| {
-        it.next().ok_or_else(|| Error::param(name, "needs a value"))
-    };
-    let number = |s: String, name: &str| -> Result<f64> {
-        s.parse()
-            .map_err(|_| Error::param(name, format!("not a number: {s}")))
-    };
-    while let Some(arg) = it.next() {
-        match arg.as_str() {
-            "-h" | "--help" => return Ok(None),
-            "--out" => a.out = Some(value(&mut it, "--out")?.into()),
-            "--dx" => a.dx = number(value(&mut it, "--dx")?, "--dx")?,
-            "--dy" => a.dy = number(value(&mut it, "--dy")?, "--dy")?,
-            "--repeat" => {
-                let s = value(&mut it, "--repeat")?;
-                a.repeat = s
-                    .parse()
-                    .map_err(|_| Error::param("--repeat", format!("not a count: {s}")))?;
-            }
-            "--demo" => {
-                let s = value(&mut it, "--demo")?;
-                let parsed = s
-                    .split_once('x')
-                    .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)));
-                match parsed {
-                    Some((w, h)) if w > 0 && h > 0 => a.demo = Some((w, h)),
-                    _ => return Err(Error::param("--demo", format!("expected WxH, got {s}"))),
-                }
-            }
-            s if s.starts_with('-') => {
-                return Err(Error::param(s, "unknown option (see --help)"));
-            }
-            s => {
-                if a.input.replace(s.into()).is_some() {
-                    return Err(Error::param("FIELD", "only one input file"));
-                }
-            }
-        }
-    }
-    match (&a.input, &a.demo) {
-        (None, None) => Err(Error::param("FIELD", "give a .flo file or --demo WxH")),
-        (Some(_), Some(_)) => Err(Error::param("--demo", "give either a file or --demo")),
-        (Some(_), None) if a.out.is_none() => Err(Error::param("--out", "is required")),
-        _ => Ok(Some(a)),
-    }
 }
 
 /// Outward flow around the centre with a small twist: a press with shear.
@@ -143,11 +96,12 @@ fn to_flow(f: &Field2) -> FlowField {
     }
 }
 
-fn run(a: Args) -> Result<()> {
+fn run(a: Args) -> Result<(), Failure> {
+    let mut out = Sink::stdout();
     let flow = match (&a.input, a.demo) {
         (Some(p), _) => io::read_flo(p)?,
         (None, Some((w, h))) => demo_field(w, h),
-        (None, None) => unreachable!("checked in parse_args"),
+        (None, None) => unreachable!("clap requires a file or --demo"),
     };
     let (w, h) = flow.size();
     let mut hhd = NaturalHhd::new();
@@ -156,16 +110,18 @@ fn run(a: Args) -> Result<()> {
     hhd.decompose_into(flow.u.view(), flow.v.view(), a.dx, a.dy, &mut dec)?;
     let first = t0.elapsed();
     let (r, c) = dec.argmin_d();
-    println!(
+    writeln!(
+        out,
         "{w}x{h}, dx {} dy {}: argmin D at row {r}, column {c}; max D - min D = {:.6}",
         a.dx,
         a.dy,
         dec.d_range()
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "first call (plans the size): {:.3} ms",
         first.as_secs_f64() * 1e3
-    );
+    )?;
     if a.repeat > 0 {
         let cpu0 = thread_cpu_ns();
         let mut times = Vec::with_capacity(a.repeat);
@@ -175,52 +131,39 @@ fn run(a: Args) -> Result<()> {
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }
         times.sort_by(f64::total_cmp);
-        println!(
+        writeln!(
+            out,
             "{} planned decompositions: min {:.3} ms, median {:.3} ms",
             a.repeat,
             times[0],
             times[times.len() / 2]
-        );
+        )?;
         if let (Some(c0), Some(c1)) = (cpu0, thread_cpu_ns()) {
             // CPU time of this thread: what the call costs on one core, even
             // when other processes share the machine.
-            println!(
+            writeln!(
+                out,
                 "  thread CPU time: {:.3} ms per decomposition (mean)",
                 (c1 - c0) as f64 / a.repeat as f64 * 1e-6
-            );
+            )?;
         }
     }
-    if let Some(out) = &a.out {
-        std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-        io::write_flo(out.join("d.flo"), &to_flow(&dec.d))?;
-        io::write_flo(out.join("r.flo"), &to_flow(&dec.r))?;
-        io::write_flo(out.join("h.flo"), &to_flow(&dec.h))?;
-        io::write_npy_f64(out.join("D.npy"), &dec.potential_d)?;
-        io::write_npy_f64(out.join("R.npy"), &dec.potential_r)?;
-        println!(
+    if let Some(dir) = &a.out {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        io::write_flo(dir.join("d.flo"), &to_flow(&dec.d))?;
+        io::write_flo(dir.join("r.flo"), &to_flow(&dec.r))?;
+        io::write_flo(dir.join("h.flo"), &to_flow(&dec.h))?;
+        io::write_npy_f64(dir.join("D.npy"), &dec.potential_d)?;
+        io::write_npy_f64(dir.join("R.npy"), &dec.potential_r)?;
+        writeln!(
+            out,
             "wrote d.flo r.flo h.flo (f32), D.npy R.npy (f64) to {}",
-            out.display()
-        );
+            dir.display()
+        )?;
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
-    match parse_args() {
-        Ok(None) => {
-            print!("{HELP}");
-            ExitCode::SUCCESS
-        }
-        Ok(Some(a)) => match run(a) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e}");
-                ExitCode::FAILURE
-            }
-        },
-        Err(e) => {
-            eprintln!("error: {e}\n\n{HELP}");
-            ExitCode::from(2)
-        }
-    }
+    cli_support::finish(run(Args::parse()).map(|()| ExitCode::SUCCESS))
 }
