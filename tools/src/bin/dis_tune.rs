@@ -2,45 +2,61 @@
 //! the speed knobs (`early_stop`, `refine_levels`, ...).
 //!
 //! ```text
-//! cargo run --release --example dis_tune -- DIR [--preset P] [--threads N] [--repeat N] \
-//!     [--set name=value]...
+//! cargo run --release -p optical-tactile-tools --bin dis_tune -- DIR [--preset P] [--threads N] \
+//!     [--repeat N] [--set name=value]...
 //! ```
 //! `DIR` holds `ref.png`, `cur.png` and `truth.flo` (as written by
 //! `examples/flow synth`). Prints `compute_ms` (median of `--repeat` runs after
 //! one warm-up), the average endpoint error and the mean error (bias) with a
 //! 16-px border excluded.
 
-use std::path::Path;
+#[path = "../../../examples/cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::Parser;
+use cli_support::{Failure, Sink};
 use optical_tactile::error::{Error, Result};
 use optical_tactile::flow::FlowField;
 use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
 use optical_tactile::io::{read_flo, read_gray};
 
-fn main() -> Result<()> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let mut dir = None;
-    let (mut preset, mut threads, mut repeat) = (DisPreset::Fast, 1usize, 5usize);
-    let mut p_sets = Vec::new();
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut val = || {
-            it.next()
-                .cloned()
-                .ok_or_else(|| Error::param("args", format!("{a} needs a value")))
-        };
-        match a.as_str() {
-            "--preset" => preset = DisPreset::parse(&val()?)?,
-            "--threads" => threads = num("threads", &val()?)?,
-            "--repeat" => repeat = num::<usize>("repeat", &val()?)?.max(1),
-            "--set" => p_sets.push(val()?),
-            _ => dir = Some(a.clone()),
-        }
-    }
-    let dir = dir.ok_or_else(|| Error::param("args", "DIR is required"))?;
+/// Accuracy and time of one DIS parameter set on a synthetic pair.
+#[derive(Parser, Debug)]
+#[command(name = "dis_tune")]
+struct Cli {
+    /// Folder with ref.png, cur.png and truth.flo (`flow synth` writes them).
+    #[arg(value_name = "DIR")]
+    dir: PathBuf,
+    /// DIS preset to start from.
+    #[arg(long, value_name = "PRESET", default_value = "fast", ignore_case = true,
+          value_parser = cli_support::dis_preset())]
+    preset: DisPreset,
+    /// Worker threads (0: one per core).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    threads: usize,
+    /// Timed runs after one warm-up (the median is printed).
+    #[arg(long, value_name = "N", default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..))]
+    repeat: u64,
+    /// Override one parameter (repeatable): early_stop, refine_levels,
+    /// iterations, refine_iterations, sor_iterations, normalized_gradients,
+    /// step_on_stop, min_stripe_rows, coarsest_min_patches.
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    sets: Vec<String>,
+}
+
+fn main() -> ExitCode {
+    cli_support::finish(run(&Cli::parse()).map(|()| ExitCode::SUCCESS))
+}
+
+fn run(cli: &Cli) -> std::result::Result<(), Failure> {
+    let (preset, threads, repeat) = (cli.preset, cli.threads, cli.repeat as usize);
     let mut p = DisParams::preset(preset);
-    for s in &p_sets {
+    for s in &cli.sets {
         let (k, v) = s
             .split_once('=')
             .ok_or_else(|| Error::param("set", format!("`{s}` is not name=value")))?;
@@ -54,10 +70,10 @@ fn main() -> Result<()> {
             "step_on_stop" => p.step_on_stop = v == "1",
             "min_stripe_rows" => p.min_stripe_rows = num(k, v)?,
             "coarsest_min_patches" => p.coarsest_min_patches = num(k, v)?,
-            _ => return Err(Error::param("set", format!("unknown parameter `{k}`"))),
+            _ => return Err(Error::param("set", format!("unknown parameter `{k}`")).into()),
         }
     }
-    let d = Path::new(&dir);
+    let d = Path::new(&cli.dir);
     let reference = read_gray(d.join("ref.png"))?;
     let current = read_gray(d.join("cur.png"))?;
     let truth = read_flo(d.join("truth.flo"))?;
@@ -90,11 +106,12 @@ fn main() -> Result<()> {
         }
     }
     let n = n.max(1) as f64;
-    println!(
+    writeln!(
+        Sink::stdout(),
         "compute_ms: {ms:.3} aepe: {aepe:.4} bias: {:+.4} {:+.4}",
         bu / n,
         bv / n
-    );
+    )?;
     Ok(())
 }
 

@@ -3,7 +3,7 @@
 //! `/proc/self/status` along the way, to show memory stays flat after warm-up.
 //!
 //! ```text
-//! cargo run --release --example longrun -- [--frames 10000] [--preset fast|accurate|...]
+//! cargo run --release -p optical-tactile-tools --bin longrun -- [--frames 10000] [--preset fast|accurate|...]
 //!     [--full-frame] [--every 1000]
 //! ```
 //!
@@ -14,8 +14,15 @@
 //! contacts start, are tracked, end, and new ids are taken all run long.
 //! Linux only (reads `/proc/self/status`).
 
+#[path = "../../../examples/cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
 use std::process::ExitCode;
 use std::time::Instant;
+
+use clap::Parser;
+use cli_support::{Failure, Sink};
 
 use ndarray::Array2;
 use optical_tactile::calibration::poly::Polynomial;
@@ -68,38 +75,29 @@ fn calibration(crop: Roi) -> Result<Calibration, String> {
     Calibration::new(setup, [g1, g2, lin(0)?, lin(1)?, lin(2)?], None).map_err(e)
 }
 
-fn run() -> Result<(), String> {
-    let mut frames = 10_000usize;
-    let mut every = 1_000usize;
-    let mut preset = DisPreset::Fast;
-    let mut full_frame = false;
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        let mut val = |n: &str| args.next().ok_or(format!("{n} needs a value"));
-        match a.as_str() {
-            "--frames" => {
-                frames = val("--frames")?
-                    .parse()
-                    .map_err(|e| format!("--frames: {e}"))?
-            }
-            "--every" => {
-                every = val("--every")?
-                    .parse()
-                    .map_err(|e| format!("--every: {e}"))?
-            }
-            "--preset" => {
-                preset = DisPreset::parse(&val("--preset")?).map_err(|e| e.to_string())?
-            }
-            "--full-frame" => full_frame = true,
-            "-h" | "--help" => {
-                println!(
-                    "usage: longrun [--frames 10000] [--every 1000] [--preset fast|accurate|...] [--full-frame]"
-                );
-                return Ok(());
-            }
-            _ => return Err(format!("unknown argument {a}")),
-        }
-    }
+/// Many frames through TactileSensor::process, reporting the resident
+/// memory (VmRSS) and its peak (VmHWM) along the way (Linux).
+#[derive(Parser, Debug)]
+#[command(name = "longrun")]
+struct Cli {
+    /// Frames to process.
+    #[arg(long, value_name = "N", default_value_t = 10_000)]
+    frames: usize,
+    /// Report every N frames.
+    #[arg(long, value_name = "N", default_value_t = 1_000)]
+    every: usize,
+    /// DIS flow preset.
+    #[arg(long, value_name = "PRESET", default_value = "fast", ignore_case = true,
+          value_parser = cli_support::dis_preset())]
+    preset: DisPreset,
+    /// Render the full 1920x1080 camera frame (the sensor crops the strip).
+    #[arg(long)]
+    full_frame: bool,
+}
+
+fn run(cli: &Cli) -> Result<(), Failure> {
+    let mut out = Sink::stdout();
+    let (frames, every, preset, full_frame) = (cli.frames, cli.every, cli.preset, cli.full_frame);
     let every = every.max(1);
     let (rss0, _) = memory_kb()?;
 
@@ -134,26 +132,23 @@ fn run() -> Result<(), String> {
         })
         .collect::<Result<_, _>>()?;
 
-    let sensor_config = SensorConfig {
-        crop: Some(crop),
-        extractor: ExtractorConfig {
-            flow: DisParams::preset(preset),
-            thresholds: Thresholds {
-                magnitude: 0.5,
-                sum: 600.0,
-                ..Thresholds::LOW
-            },
-            ..ExtractorConfig::default()
-        },
-        ..SensorConfig::default()
-    };
+    let mut sensor_config = SensorConfig::default();
+    sensor_config.crop = Some(crop);
+    sensor_config.extractor = ExtractorConfig::default()
+        .with_flow(DisParams::preset(preset))
+        .with_thresholds(Thresholds {
+            magnitude: 0.5,
+            sum: 600.0,
+            ..Thresholds::LOW
+        });
     let mut sensor =
         TactileSensor::new(sensor_config, calibration(crop)?).map_err(|e| e.to_string())?;
     sensor
         .set_reference(&reference)
         .map_err(|e| e.to_string())?;
     let (rss_ready, _) = memory_kb()?;
-    println!(
+    writeln!(
+        out,
         "{} frames of {}x{} (crop {w}x{h}), preset {}; RSS {} kB at start, {} kB with frames rendered and the sensor built",
         frames,
         reference.ncols(),
@@ -161,11 +156,12 @@ fn run() -> Result<(), String> {
         preset.name(),
         rss0,
         rss_ready
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "{:>7} {:>10} {:>10} {:>9} {:>8} {:>11} {:>8}",
         "frames", "VmRSS_kB", "VmHWM_kB", "contacts", "max_id", "references", "ms/frame"
-    );
+    )?;
     let (mut contacts, mut max_id) = (0usize, 0u64);
     let mut busy = 0.0f64;
     let start = Instant::now();
@@ -185,28 +181,24 @@ fn run() -> Result<(), String> {
         max_id = cs.iter().map(|c| c.id).fold(max_id, u64::max);
         if n % every == 0 || n == frames {
             let (rss, hwm) = memory_kb()?;
-            println!(
+            writeln!(
+                out,
                 "{n:>7} {rss:>10} {hwm:>10} {contacts:>9} {max_id:>8} {:>11} {:>8.2}",
                 sensor.reference_count(),
                 1e3 * busy / n as f64
-            );
+            )?;
         }
     }
-    println!(
+    writeln!(
+        out,
         "{} frames in {:.1} s ({:.1} fps in process())",
         frames,
         start.elapsed().as_secs_f64(),
         frames as f64 / busy
-    );
+    )?;
     Ok(())
 }
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    cli_support::finish(run(&Cli::parse()).map(|()| ExitCode::SUCCESS))
 }

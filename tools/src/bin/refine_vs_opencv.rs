@@ -2,7 +2,7 @@
 //!
 //! 1. Write the input and OpenCV's result (needs `numpy` and `opencv-python` 5):
 //!    save the script below as `gen.py`, run `python3 gen.py DIR`;
-//! 2. `cargo run --release --example refine_vs_opencv -- DIR`.
+//! 2. `cargo run --release -p optical-tactile-tools --bin refine_vs_opencv -- DIR`.
 //!
 //! Prints, for `opencv()`, `opencv()` with OpenCV 5.0's actual default epsilon 0.001
 //! (DIS does not set it), and `accurate()`: AEPE against the true flow and the mean
@@ -39,20 +39,41 @@
 //! print("AEPE init", e((u0, v0), (tu, tv)), "opencv VR", e((u, v), (tu, tv)))
 //! ```
 
+#[path = "../../../examples/cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::Parser;
+use cli_support::{Failure, Sink};
 use ndarray::Array2;
 use optical_tactile::flow::refine::{RefineParams, VariationalRefiner};
 
 const W: usize = 160;
 const H: usize = 120;
 
-fn load(dir: &str, name: &str) -> Array2<f32> {
-    let path = format!("{dir}/{name}.f32");
-    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
+/// Compares our variational refinement with OpenCV's on the same input
+/// (written by the script in this tool's documentation).
+#[derive(Parser, Debug)]
+#[command(name = "refine_vs_opencv")]
+struct Cli {
+    /// Folder with i0, i1, u0, v0, tu, tv, cv_u, cv_v as little-endian f32
+    /// files (160x120).
+    #[arg(value_name = "DIR")]
+    dir: PathBuf,
+}
+
+fn load(dir: &Path, name: &str) -> Result<Array2<f32>, String> {
+    let path = dir.join(format!("{name}.f32"));
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let v: Vec<f32> = bytes
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
-    Array2::from_shape_vec((H, W), v).expect("160x120 f32 file")
+    Array2::from_shape_vec((H, W), v)
+        .map_err(|_| format!("{}: expected a 160x120 f32 file", path.display()))
 }
 
 /// Mean endpoint distance between two flows, 16 px border excluded.
@@ -69,12 +90,19 @@ fn aepe(u: &Array2<f32>, v: &Array2<f32>, ru: &Array2<f32>, rv: &Array2<f32>) ->
     s / n as f64
 }
 
-fn main() {
-    let dir = std::env::args()
-        .nth(1)
-        .expect("usage: refine_vs_opencv DIR");
-    let [i0, i1, u0, v0, tu, tv, cu, cv] =
-        ["i0", "i1", "u0", "v0", "tu", "tv", "cv_u", "cv_v"].map(|n| load(&dir, n));
+fn main() -> ExitCode {
+    cli_support::finish(run(&Cli::parse()).map(|()| ExitCode::SUCCESS))
+}
+
+fn run(cli: &Cli) -> Result<(), Failure> {
+    let mut out = Sink::stdout();
+    let mut arrays = Vec::with_capacity(8);
+    for name in ["i0", "i1", "u0", "v0", "tu", "tv", "cv_u", "cv_v"] {
+        arrays.push(load(&cli.dir, name)?);
+    }
+    let Ok([i0, i1, u0, v0, tu, tv, cu, cv]) = <[Array2<f32>; 8]>::try_from(arrays) else {
+        unreachable!("eight names, eight arrays");
+    };
     let configs = [
         ("opencv()", RefineParams::opencv()),
         (
@@ -86,17 +114,19 @@ fn main() {
         ),
         ("accurate()", RefineParams::accurate()),
     ];
-    println!("initial flow: AEPE {:.4}", aepe(&u0, &v0, &tu, &tv));
-    println!("OpenCV VR: AEPE {:.4}", aepe(&cu, &cv, &tu, &tv));
+    writeln!(out, "initial flow: AEPE {:.4}", aepe(&u0, &v0, &tu, &tv))?;
+    writeln!(out, "OpenCV VR: AEPE {:.4}", aepe(&cu, &cv, &tu, &tv))?;
     for (name, p) in configs {
         let mut vr = VariationalRefiner::new(p);
-        vr.set_reference(i0.view()).expect("reference");
+        vr.set_reference(i0.view())?;
         let (mut u, mut v) = (u0.clone(), v0.clone());
-        vr.refine(i1.view(), &mut u, &mut v).expect("refine");
-        println!(
+        vr.refine(i1.view(), &mut u, &mut v)?;
+        writeln!(
+            out,
             "{name}: AEPE {:.4}, mean distance to OpenCV VR {:.2e} px",
             aepe(&u, &v, &tu, &tv),
             aepe(&u, &v, &cu, &cv)
-        );
+        )?;
     }
+    Ok(())
 }

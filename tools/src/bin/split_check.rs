@@ -18,21 +18,114 @@
 //! the extractor's.
 //!
 //! ```text
-//! cargo run --release --example split_check -- all
-//! cargo run --release --example split_check -- singles --split 9,0.25,0.2 --split none
+//! cargo run --release -p optical-tactile-tools --bin split_check -- all
+//! cargo run --release -p optical-tactile-tools --bin split_check -- singles --split 9,0.25,0.2 --split none
 //! ```
 
+#[path = "../../../examples/cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
+use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::{Parser, ValueEnum};
+use cli_support::{Failure, Numbers, Sink};
+use optical_tactile::Error;
 use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
 use optical_tactile::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use optical_tactile::sensor::ExtractorConfig;
-use optical_tactile::{Error, Result};
 use optical_tactile_sim::scenario::{INDENTERS_MM, TILTS_DEG, tilted_force};
 use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
+type Result<T, E = Failure> = std::result::Result<T, E>;
+
+/// The segmenter's split rule on the simulator, per preset with and without
+/// the rule (or with the rules given by --split), printed as markdown.
+#[derive(Parser, Debug)]
+#[command(
+    name = "split_check",
+    after_help = "SPLIT_DEBUG=1 prints every cut press to stderr; SPLIT_PROFILE=d,f,s1[,s2[,pitch]] \
+                  prints the column sums of u and their smoothed derivative for one case instead."
+)]
+struct Cli {
+    /// Which check to run.
+    #[arg(value_enum, default_value_t = Mode::All)]
+    mode: Mode,
+    /// Simulator seed.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    seed: u64,
+    /// Rest pairs.
+    #[arg(long, value_name = "N", default_value_t = 300)]
+    rest: usize,
+    /// Arc positions of the single presses, mm.
+    #[arg(long, value_name = "a,b,..", allow_hyphen_values = true,
+          default_value_t = Numbers(vec![-120.0, -80.0, -40.0, 0.0, 40.0, 80.0, 120.0]))]
+    positions: Numbers,
+    /// Single-press forces, N.
+    #[arg(long, value_name = "a,b,..", default_value_t = Numbers(vec![0.5, 1.0, 1.5, 2.0, 3.0]))]
+    forces: Numbers,
+    /// Two-rod spacings, mm.
+    #[arg(long, value_name = "a,b,..",
+          default_value_t = Numbers(vec![40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0]))]
+    spacings: Numbers,
+    /// Equal force of both rods, N.
+    #[arg(long, value_name = "a,b,..", default_value_t = Numbers(vec![1.5, 3.0]))]
+    spacing_forces: Numbers,
+    /// Arc positions of the pair's midpoint, mm.
+    #[arg(long, value_name = "a,b,..", allow_hyphen_values = true,
+          default_value_t = Numbers(vec![-60.0, 0.0, 60.0]))]
+    spacing_centres: Numbers,
+    /// Patch margin, full-resolution px.
+    #[arg(long, value_name = "PX", default_value_t = ExtractorConfig::default().margin_px)]
+    margin: usize,
+    /// A split rule to evaluate: smooth px, depth, min_peak[, border px], or
+    /// none (repeatable) [default: SplitRule::DEFAULT and none].
+    #[arg(long = "split", value_name = "s,d,m[,b]|none", value_parser = split_rule)]
+    splits: Vec<SplitArg>,
+}
+
+/// The checks.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    /// Every check.
+    All,
+    /// Single-rod presses: spurious splits.
+    Singles,
+    /// False contacts on rest pairs.
+    Rest,
+    /// Two rods at decreasing spacing.
+    Spacing,
+}
+
+/// One `--split`: a rule, or none.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SplitArg(Option<SplitRule>);
+
+/// `s,d,m[,b]` or `none`.
+fn split_rule(v: &str) -> Result<SplitArg, String> {
+    if v == "none" {
+        return Ok(SplitArg(None));
+    }
+    let p = cli_support::number_list(v)?;
+    if !(3..=4).contains(&p.len()) {
+        return Err(format!(
+            "expected smooth,depth,min_peak[,border] or none, got `{v}`"
+        ));
+    }
+    let r = SplitRule {
+        smooth: p[0] as usize,
+        depth: p[1] as f32,
+        min_peak: p[2] as f32,
+        border: p.get(3).map_or(SplitRule::DEFAULT.border, |&b| b as usize),
+    };
+    r.validate().map_err(|e| e.to_string())?;
+    Ok(SplitArg(Some(r)))
+}
+
+/// What the command line resolves to.
 struct Args {
-    mode: String,
+    mode: Mode,
     seed: u64,
     rest: usize,
     positions: Vec<f64>,
@@ -44,89 +137,25 @@ struct Args {
     margin: usize,
 }
 
-const HELP: &str = "usage: split_check [all|singles|rest|spacing] [options]
-  --seed N              simulator seed, default 1
-  --rest N              rest pairs, default 300
-  --positions a,b,..    arc positions of single presses, mm (default -120,-80,-40,0,40,80,120)
-  --forces a,b,..       single-press forces, N (default 0.5,1,1.5,2,3)
-  --spacings a,b,..     two-rod spacings, mm (default 40,35,30,25,20,17.5,15,12.5,10,7.5,5)
-  --spacing-forces      equal force of both rods, N (default 1.5,3)
-  --spacing-centres     arc positions of the pair's midpoint, mm (default -60,0,60)
-  --margin PX           patch margin, full-resolution px (default: the extractor's)
-  --split s,d,m[,b]|none  split rule (smooth px, depth, min_peak, border px) to evaluate (repeatable;
-                        default: SplitRule::DEFAULT and none)";
-
-fn list(s: &str) -> Result<Vec<f64>> {
-    s.split(',').map(num).collect()
-}
-
-fn num(s: &str) -> Result<f64> {
-    s.trim()
-        .parse::<f64>()
-        .map_err(|e| Error::param("number", format!("`{s}`: {e}")))
-}
-
-fn parse_args() -> Result<Args> {
-    let mut a = Args {
-        mode: "all".into(),
-        seed: 1,
-        rest: 300,
-        positions: vec![-120.0, -80.0, -40.0, 0.0, 40.0, 80.0, 120.0],
-        forces: vec![0.5, 1.0, 1.5, 2.0, 3.0],
-        spacings: vec![
-            40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0,
-        ],
-        spacing_forces: vec![1.5, 3.0],
-        spacing_centres: vec![-60.0, 0.0, 60.0],
-        splits: Vec::new(),
-        margin: ExtractorConfig::default().margin_px,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut val = |name: &str| it.next().ok_or_else(|| Error::param(name, "missing value"));
-        match arg.as_str() {
-            "-h" | "--help" => {
-                println!("{HELP}");
-                std::process::exit(0);
-            }
-            "all" | "singles" | "rest" | "spacing" => a.mode = arg.clone(),
-            "--seed" => a.seed = num(&val("--seed")?)? as u64,
-            "--rest" => a.rest = num(&val("--rest")?)? as usize,
-            "--positions" => a.positions = list(&val("--positions")?)?,
-            "--forces" => a.forces = list(&val("--forces")?)?,
-            "--spacings" => a.spacings = list(&val("--spacings")?)?,
-            "--spacing-forces" => a.spacing_forces = list(&val("--spacing-forces")?)?,
-            "--spacing-centres" => a.spacing_centres = list(&val("--spacing-centres")?)?,
-            "--margin" => a.margin = num(&val("--margin")?)? as usize,
-            "--split" => {
-                let v = val("--split")?;
-                if v == "none" {
-                    a.splits.push(None);
-                } else {
-                    let p = list(&v)?;
-                    if p.len() < 3 {
-                        return Err(Error::param(
-                            "--split",
-                            "need smooth,depth,min_peak[,border]",
-                        ));
-                    }
-                    let r = SplitRule {
-                        smooth: p[0] as usize,
-                        depth: p[1] as f32,
-                        min_peak: p[2] as f32,
-                        border: p.get(3).map_or(SplitRule::DEFAULT.border, |&b| b as usize),
-                    };
-                    r.validate()?;
-                    a.splits.push(Some(r));
-                }
-            }
-            _ => return Err(Error::param("argument", format!("unknown `{arg}`\n{HELP}"))),
+impl Cli {
+    fn resolve(self) -> Args {
+        let mut splits: Vec<Option<SplitRule>> = self.splits.iter().map(|s| s.0).collect();
+        if splits.is_empty() {
+            splits = vec![Some(SplitRule::DEFAULT), None];
+        }
+        Args {
+            mode: self.mode,
+            seed: self.seed,
+            rest: self.rest,
+            positions: self.positions.0,
+            forces: self.forces.0,
+            spacings: self.spacings.0,
+            spacing_forces: self.spacing_forces.0,
+            spacing_centres: self.spacing_centres.0,
+            splits,
+            margin: self.margin,
         }
     }
-    if a.splits.is_empty() {
-        a.splits = vec![Some(SplitRule::DEFAULT), None];
-    }
-    Ok(a)
 }
 
 fn split_name(s: &Option<SplitRule>) -> String {
@@ -206,7 +235,7 @@ fn covering(p: &[ContactPatch], scale: f64, x_px: f64) -> Option<usize> {
     })
 }
 
-fn singles(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
+fn singles(out: &mut Sink, args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     let t = Instant::now();
     let mut b = Bench::new(args)?;
     let n = b.segs.len();
@@ -256,30 +285,33 @@ fn singles(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
             }
         }
     }
-    println!(
+    writeln!(
+        out,
         "### Single presses ({} presses: {} positions x {} tilts x forces {:?} N x 3 rods, seed {})\n",
         total,
         args.positions.len(),
         TILTS_DEG.len(),
         args.forces,
         args.seed
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "| thresholds | presses cut by the split rule (spurious splits) | detected | presses with > 1 patch | patches |"
-    );
-    println!("|---|---|---|---|---|");
+    )?;
+    writeln!(out, "|---|---|---|---|---|")?;
     for k in 0..n {
-        println!(
+        writeln!(
+            out,
             "| {} | {} / {total} | {} / {total} | {} | {} |",
             b.names[k], cut[k], det[k], multi[k], patches[k]
-        );
+        )?;
     }
-    println!();
+    writeln!(out)?;
     eprintln!("singles: {:.1} s", t.elapsed().as_secs_f64());
     Ok(())
 }
 
-fn rest(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
+fn rest(out: &mut Sink, args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     let mut b = Bench::new(args)?;
     let n = b.segs.len();
     let mut frames = vec![0; n];
@@ -294,20 +326,21 @@ fn rest(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
             }
         })?;
     }
-    println!(
+    writeln!(
+        out,
         "### False contacts at rest ({} rest pairs, seed {})\n",
         args.rest, args.seed
-    );
-    println!("| thresholds | frames with a false contact |");
-    println!("|---|---|");
+    )?;
+    writeln!(out, "| thresholds | frames with a false contact |")?;
+    writeln!(out, "|---|---|")?;
     for i in 0..n {
-        println!("| {} | {} / {} |", b.names[i], frames[i], args.rest);
+        writeln!(out, "| {} | {} / {} |", b.names[i], frames[i], args.rest)?;
     }
-    println!();
+    writeln!(out)?;
     Ok(())
 }
 
-fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
+fn spacing(out: &mut Sink, args: &Args, sensor: &SyntheticSensor) -> Result<()> {
     let t = Instant::now();
     let mut b = Bench::new(args)?;
     let n = b.segs.len();
@@ -354,27 +387,29 @@ fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
         }
     }
     let nc = args.spacing_centres.len();
-    println!(
+    writeln!(
+        out,
         "### Two rods told apart by the patches (each rod covered by its own patch), midpoints {:?} mm, seed {}\n",
         args.spacing_centres, args.seed
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "Smallest spacing from which every larger spacing of the list is told apart at every midpoint:\n"
-    );
-    print!("| thresholds |");
+    )?;
+    write!(out, "| thresholds |")?;
     for &d in &INDENTERS_MM {
         for &f in &args.spacing_forces {
-            print!(" {d} mm, {f} N |");
+            write!(out, " {d} mm, {f} N |")?;
         }
     }
-    println!();
-    print!("|---|");
+    writeln!(out)?;
+    write!(out, "|---|")?;
     for _ in 0..3 * nf {
-        print!("---|");
+        write!(out, "---|")?;
     }
-    println!();
+    writeln!(out)?;
     for k in 0..n {
-        print!("| {} |", b.names[k]);
+        write!(out, "| {} |", b.names[k])?;
         for ii in 0..3 {
             for fi in 0..nf {
                 let mut best = None;
@@ -386,41 +421,48 @@ fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
                     }
                 }
                 match best {
-                    Some(s) => print!(" {s} mm |"),
-                    None => print!(" > {} mm |", args.spacings[0]),
+                    Some(s) => write!(out, " {s} mm |")?,
+                    None => write!(out, " > {} mm |", args.spacings[0])?,
                 }
             }
         }
-        println!();
+        writeln!(out)?;
     }
-    println!();
+    writeln!(out)?;
     eprintln!("spacing: {:.1} s", t.elapsed().as_secs_f64());
     Ok(())
 }
 
-fn main() -> Result<()> {
-    let args = parse_args()?;
+fn run(args: Args) -> Result<()> {
+    let mut out = Sink::stdout();
     let sensor = SyntheticSensor::new(SimConfig::default(), args.seed)?;
     if let Ok(spec) = std::env::var("SPLIT_PROFILE") {
-        return profile(&spec, &sensor);
+        return profile(&mut out, &spec, &sensor);
     }
-    let m = args.mode.as_str();
-    if m == "all" || m == "spacing" {
-        spacing(&args, &sensor)?;
+    let m = args.mode;
+    if matches!(m, Mode::All | Mode::Spacing) {
+        spacing(&mut out, &args, &sensor)?;
     }
-    if m == "all" || m == "singles" {
-        singles(&args, &sensor)?;
+    if matches!(m, Mode::All | Mode::Singles) {
+        singles(&mut out, &args, &sensor)?;
     }
-    if m == "all" || m == "rest" {
-        rest(&args, &sensor)?;
+    if matches!(m, Mode::All | Mode::Rest) {
+        rest(&mut out, &args, &sensor)?;
     }
     Ok(())
 }
 
+fn main() -> ExitCode {
+    cli_support::finish(run(Cli::parse().resolve()).map(|()| ExitCode::SUCCESS))
+}
+
 /// `SPLIT_PROFILE=d,f,s1[,s2[,pitch]]`: prints the column sums of `u` over
 /// the whole native flow and their smoothed derivative, for one case.
-fn profile(spec: &str, sensor: &SyntheticSensor) -> Result<()> {
-    let p = list(spec)?;
+fn profile(out: &mut Sink, spec: &str, sensor: &SyntheticSensor) -> Result<()> {
+    let p = cli_support::number_list(spec).map_err(|e| format!("SPLIT_PROFILE: {e}"))?;
+    if !(3..=5).contains(&p.len()) {
+        return Err("SPLIT_PROFILE: expected d,f,s1[,s2[,pitch]]".into());
+    }
     let (d, f) = (p[0], p[1]);
     let pitch = p.get(4).copied().unwrap_or(0.0);
     let skin = &sensor.config().skin;
@@ -450,9 +492,9 @@ fn profile(spec: &str, sensor: &SyntheticSensor) -> Result<()> {
         .iter()
         .map(|&s| rod_px(sensor, s) / 2.0)
         .collect();
-    println!("# rods at native x {rods_px:?}");
+    writeln!(out, "# rods at native x {rods_px:?}")?;
     for x in (0..prof.len()).step_by(2) {
-        println!("{x} {:.2} {:.3}", prof[x], dv[x]);
+        writeln!(out, "{x} {:.2} {:.3}", prof[x], dv[x])?;
     }
     Ok(())
 }

@@ -12,203 +12,233 @@
 //! analysis grid, as in [`ContactExtractor`].
 //!
 //! ```text
-//! cargo run --release --example sweep -- all
-//! cargo run --release --example sweep -- rest --rest 400
-//! cargo run --release --example sweep -- mdf --candidate 0.25,900,5,15
+//! cargo run --release -p optical-tactile-tools --bin sweep -- all
+//! cargo run --release -p optical-tactile-tools --bin sweep -- rest --rest 400
+//! cargo run --release -p optical-tactile-tools --bin sweep -- mdf --candidate 0.25,900,5,15
 //! ```
+//!
+//! Each sweep shows a progress bar with an ETA on a terminal (`--quiet`
+//! hides it); a closed stdout ends the run quietly.
 //!
 //! With `SWEEP_DEBUG=1` in the environment, the missed presses (from 0.8 N)
 //! and every spacing case are printed to stderr with their patches and
 //! contour boxes (full-resolution px).
 
+#[path = "../../../examples/cli_support/mod.rs"]
+mod cli_support;
+
+use std::io::Write as _;
+use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::{Parser, ValueEnum};
+use cli_support::{Failure, Numbers, Sink, Stages};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::segment::morphology::Shape;
 use optical_tactile::sensor::ExtractorConfig;
-use optical_tactile::{Error, Result};
 use optical_tactile_sim::experiments::{
     DebugLog, INDENTERS_MM, MdfPlan, SpacingPlan, SweepOptions, TILTS_DEG, ThresholdSet, mdf_sweep,
-    no_progress, rest_sweep, spacing_sweep,
+    rest_sweep, spacing_sweep,
 };
 use optical_tactile_sim::{SimConfig, SyntheticSensor};
 
+/// Segmentation experiments on the simulator (false contacts at rest,
+/// minimum detectable force, two-rod spacing), printed as markdown.
+#[derive(Parser, Debug)]
+#[command(
+    name = "sweep",
+    after_help = "With SWEEP_DEBUG=1 in the environment, the missed presses (from 0.8 N) and \
+                  every spacing case are printed to stderr with their patches and contour boxes."
+)]
 struct Args {
-    mode: String,
+    /// Which sweep to run.
+    #[arg(value_enum, default_value_t = Mode::All)]
+    mode: Mode,
+    /// Simulator seed (marker layout).
+    #[arg(long, value_name = "N", default_value_t = 1)]
     seed: u64,
+    /// Rest pairs.
+    #[arg(long, value_name = "N", default_value_t = 200)]
     rest: usize,
-    /// Arc positions of the presses, mm from the centre.
-    positions: Vec<f64>,
-    forces: Vec<f64>,
-    spacings: Vec<f64>,
-    spacing_forces: Vec<f64>,
-    spacing_centres: Vec<f64>,
+    /// Arc positions of the single presses, mm from the centre.
+    #[arg(long, value_name = "a,b,..", allow_hyphen_values = true,
+          default_value_t = Numbers(vec![-120.0, -80.0, -40.0, 0.0, 40.0, 80.0, 120.0]))]
+    positions: Numbers,
+    /// Force ladder, N.
+    #[arg(long, value_name = "a,b,..",
+          default_value_t = Numbers((1..=20).map(|k| k as f64 / 10.0).collect()))]
+    forces: Numbers,
+    /// Two-rod spacings, mm.
+    #[arg(long, value_name = "a,b,..",
+          default_value_t = Numbers(vec![40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0]))]
+    spacings: Numbers,
+    /// Equal force of both rods, N.
+    #[arg(long, value_name = "a,b,..", default_value_t = Numbers(vec![1.5, 3.0]))]
+    spacing_forces: Numbers,
+    /// Arc positions of the pair's midpoint, mm.
+    #[arg(long, value_name = "a,b,..", allow_hyphen_values = true,
+          default_value_t = Numbers(vec![-60.0, 0.0, 60.0]))]
+    spacing_centres: Numbers,
+    /// A contact counts for a rod within this distance, mm.
+    #[arg(long, value_name = "X", default_value_t = 3.0, value_parser = cli_support::positive)]
     tol_mm: f64,
+    /// Patch margin, full-resolution px.
+    #[arg(long, value_name = "PX", default_value_t = ExtractorConfig::default().margin_px)]
     margin: usize,
-    /// Named threshold sets to evaluate (the presets unless `--candidate`).
-    sets: Vec<ThresholdSet>,
+    /// Evaluate these thresholds (magnitude, sum, erode, dilate, kernel
+    /// shape rect|cross|ellipse) instead of the presets (repeatable).
+    #[arg(long = "candidate", value_name = "m,s,e,d[,shape]", value_parser = candidate)]
+    candidates: Vec<ThresholdSet>,
+    /// Also keep the presets when candidates are given.
+    #[arg(long)]
+    with_presets: bool,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
-const HELP: &str = "usage: sweep [all|rest|mdf|spacing] [options]
-  --seed N            simulator seed (marker layout), default 1
-  --rest N            rest pairs, default 200
-  --positions a,b,..  arc positions of single presses, mm (default -120,-80,-40,0,40,80,120)
-  --forces a,b,..     force ladder, N (default 0.1,0.2,..,2.0)
-  --spacings a,b,..   two-rod spacings, mm (default 40,35,30,25,20,17.5,15,12.5,10,7.5,5)
-  --spacing-forces    equal force of both rods, N (default 1.5,3)
-  --spacing-centres   arc positions of the pair's midpoint, mm (default -60,0,60)
-  --tol-mm X          a contact counts for a rod within X mm (default 3)
-  --margin PX         patch margin, full-resolution px (default: ExtractorConfig's)
-  --candidate m,s,e,d[,shape]  evaluate these thresholds instead of the presets (repeatable)
-  --with-presets      also keep the presets when candidates are given";
-
-fn list(s: &str) -> Result<Vec<f64>> {
-    s.split(',')
-        .map(|t| {
-            t.trim()
-                .parse::<f64>()
-                .map_err(|e| Error::param("list", format!("`{t}`: {e}")))
-        })
-        .collect()
+/// The sweeps.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    /// Every sweep.
+    All,
+    /// False contacts on rest pairs.
+    Rest,
+    /// Minimum detectable force.
+    Mdf,
+    /// Two rods at decreasing spacing.
+    Spacing,
 }
 
-fn parse_args() -> Result<Args> {
-    let presets = ThresholdSet::presets();
-    let mut a = Args {
-        mode: "all".into(),
-        seed: 1,
-        rest: 200,
-        positions: vec![-120.0, -80.0, -40.0, 0.0, 40.0, 80.0, 120.0],
-        forces: (1..=20).map(|k| k as f64 / 10.0).collect(),
-        spacings: vec![
-            40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0,
-        ],
-        spacing_forces: vec![1.5, 3.0],
-        spacing_centres: vec![-60.0, 0.0, 60.0],
-        tol_mm: 3.0,
-        margin: ExtractorConfig::default().margin_px,
-        sets: Vec::new(),
+impl Args {
+    /// The threshold sets to evaluate: the candidates, or the presets (also
+    /// with the candidates when asked).
+    fn sets(&self) -> Vec<ThresholdSet> {
+        let mut sets = if self.candidates.is_empty() || self.with_presets {
+            ThresholdSet::presets()
+        } else {
+            Vec::new()
+        };
+        sets.extend(self.candidates.iter().cloned());
+        sets
+    }
+}
+
+/// `m,s,e,d[,shape]`.
+fn candidate(v: &str) -> Result<ThresholdSet, String> {
+    let parts: Vec<&str> = v.split(',').map(str::trim).collect();
+    if !(4..=5).contains(&parts.len()) {
+        return Err(format!("expected m,s,e,d[,shape], got `{v}`"));
+    }
+    let shape = match parts.get(4).copied().unwrap_or("rect") {
+        "rect" => Shape::Rect,
+        "cross" => Shape::Cross,
+        "ellipse" => Shape::Ellipse,
+        s => return Err(format!("shape `{s}`: expected rect, cross or ellipse")),
     };
-    let mut with_presets = false;
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut val = |name: &str| it.next().ok_or_else(|| Error::param(name, "missing value"));
-        match arg.as_str() {
-            "-h" | "--help" => {
-                println!("{HELP}");
-                std::process::exit(0);
-            }
-            "all" | "rest" | "mdf" | "spacing" => a.mode = arg.clone(),
-            "--seed" => a.seed = num(&val("--seed")?)? as u64,
-            "--rest" => a.rest = num(&val("--rest")?)? as usize,
-            "--positions" => a.positions = list(&val("--positions")?)?,
-            "--forces" => a.forces = list(&val("--forces")?)?,
-            "--spacings" => a.spacings = list(&val("--spacings")?)?,
-            "--spacing-forces" => a.spacing_forces = list(&val("--spacing-forces")?)?,
-            "--spacing-centres" => a.spacing_centres = list(&val("--spacing-centres")?)?,
-            "--tol-mm" => a.tol_mm = num(&val("--tol-mm")?)?,
-            "--margin" => a.margin = num(&val("--margin")?)? as usize,
-            "--with-presets" => with_presets = true,
-            "--candidate" => {
-                let v = val("--candidate")?;
-                let parts: Vec<&str> = v.split(',').collect();
-                if parts.len() < 4 {
-                    return Err(Error::param("--candidate", "need m,s,e,d[,shape]"));
-                }
-                let shape = match parts.get(4).copied().unwrap_or("rect") {
-                    "rect" => Shape::Rect,
-                    "cross" => Shape::Cross,
-                    "ellipse" => Shape::Ellipse,
-                    s => return Err(Error::param("--candidate", format!("shape `{s}`"))),
-                };
-                let t = Thresholds {
-                    magnitude: num(parts[0])? as f32,
-                    sum: num(parts[1])? as f32,
-                    erode: num(parts[2])? as usize,
-                    dilate: num(parts[3])? as usize,
-                    shape,
-                };
-                t.validate()?;
-                a.sets.push(ThresholdSet {
-                    name: v.clone(),
-                    thresholds: t,
-                });
-            }
-            _ => return Err(Error::param("argument", format!("unknown `{arg}`\n{HELP}"))),
-        }
-    }
-    if a.sets.is_empty() || with_presets {
-        let mut sets = presets;
-        sets.append(&mut a.sets);
-        a.sets = sets;
-    }
-    Ok(a)
-}
-
-fn num(s: &str) -> Result<f64> {
-    s.parse::<f64>()
-        .map_err(|e| Error::param("number", format!("`{s}`: {e}")))
+    let num = |s: &str| -> Result<f64, String> {
+        s.parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite() && *x >= 0.0)
+            .ok_or_else(|| format!("`{s}`: expected a number >= 0"))
+    };
+    let t = Thresholds {
+        magnitude: num(parts[0])? as f32,
+        sum: num(parts[1])? as f32,
+        erode: num(parts[2])? as usize,
+        dilate: num(parts[3])? as usize,
+        shape,
+    };
+    t.validate().map_err(|e| e.to_string())?;
+    Ok(ThresholdSet {
+        name: v.to_string(),
+        thresholds: t,
+    })
 }
 
 fn options(args: &Args) -> SweepOptions {
     SweepOptions {
-        sets: args.sets.clone(),
+        sets: args.sets(),
         margin_px: args.margin,
         debug: std::env::var_os("SWEEP_DEBUG").map(|_| DebugLog(|l| eprintln!("{l}"))),
     }
 }
 
-fn rest(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
+fn rest(
+    out: &mut Sink,
+    stages: &Stages,
+    args: &Args,
+    sensor: &SyntheticSensor,
+) -> Result<(), Failure> {
     let t = Instant::now();
-    let r = rest_sweep(sensor, &options(args), args.rest, &no_progress)?;
-    println!(
+    let r = rest_sweep(sensor, &options(args), args.rest, &|s, d, n| {
+        stages.update(s, d, n)
+    })?;
+    stages.finish();
+    writeln!(
+        out,
         "### False contacts at rest ({} rest pairs, seed {})\n",
         args.rest, args.seed
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "Peak |flow| per rest pair (full-resolution px): median {:.3}, 99th percentile {:.3}, max {:.3}.\n",
         r.peak_quantile(0.5),
         r.peak_quantile(0.99),
         r.peak_quantile(1.0)
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "| thresholds | frames with a false contact | false patches | largest contour sum at rest |"
-    );
-    println!("|---|---|---|---|");
-    for (i, set) in args.sets.iter().enumerate() {
-        println!(
+    )?;
+    writeln!(out, "|---|---|---|---|")?;
+    for (i, set) in args.sets().iter().enumerate() {
+        writeln!(
+            out,
             "| {} | {} / {} | {} | {:.0} |",
             set.name, r.false_frames[i], args.rest, r.false_patches[i], r.max_contour_sum[i]
-        );
+        )?;
     }
     eprintln!("rest: {:.1} s", t.elapsed().as_secs_f64());
-    println!();
+    writeln!(out)?;
     Ok(())
 }
 
-fn mdf(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
+fn mdf(
+    out: &mut Sink,
+    stages: &Stages,
+    args: &Args,
+    sensor: &SyntheticSensor,
+) -> Result<(), Failure> {
     let t = Instant::now();
     let plan = MdfPlan {
-        positions_mm: args.positions.clone(),
-        forces_n: args.forces.clone(),
+        positions_mm: args.positions.0.clone(),
+        forces_n: args.forces.0.clone(),
     };
-    let r = mdf_sweep(sensor, &options(args), &plan, &no_progress)?;
-    println!(
+    let r = mdf_sweep(sensor, &options(args), &plan, &|s, d, n| {
+        stages.update(s, d, n)
+    })?;
+    stages.finish();
+    writeln!(
+        out,
         "### Minimum detectable force ({} positions x {} tilts per indenter and force, seed {})\n",
-        args.positions.len(),
+        args.positions.0.len(),
         TILTS_DEG.len(),
         args.seed
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "Smallest force of the ladder from which >= 95% of presses are detected (a patch covering the rod).\n"
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "| thresholds | 2 mm | 5 mm | 10 mm | all indenters | every press (100%) from | patches away from the rod |"
-    );
-    println!("|---|---|---|---|---|---|---|");
+    )?;
+    writeln!(out, "|---|---|---|---|---|---|---|")?;
     let fmt = |v: Option<f64>| v.map_or("> ladder".to_string(), |f| format!("{f:.1} N"));
-    for (k, set) in args.sets.iter().enumerate() {
-        println!(
+    for (k, set) in args.sets().iter().enumerate() {
+        writeln!(
+            out,
             "| {} | {} | {} | {} | **{}** | {} | {} |",
             set.name,
             fmt(r.min_force(k, Some(0), 0.95)),
@@ -217,117 +247,137 @@ fn mdf(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
             fmt(r.min_force(k, None, 0.95)),
             fmt(r.min_force(k, None, 1.0)),
             r.stray[k]
-        );
+        )?;
     }
-    println!("\nDetection rate per force (all indenters):\n");
-    print!("| thresholds |");
-    for f in &args.forces {
-        print!(" {f:.1} N |");
+    writeln!(out, "\nDetection rate per force (all indenters):\n")?;
+    write!(out, "| thresholds |")?;
+    for f in &args.forces.0 {
+        write!(out, " {f:.1} N |")?;
     }
-    println!();
-    print!("|---|");
-    for _ in &args.forces {
-        print!("---|");
+    writeln!(out)?;
+    write!(out, "|---|")?;
+    for _ in &args.forces.0 {
+        write!(out, "---|")?;
     }
-    println!();
-    for (k, set) in args.sets.iter().enumerate() {
-        print!("| {} |", set.name);
-        for fi in 0..args.forces.len() {
-            print!(" {:.0}% |", 100.0 * r.rate(k, fi));
+    writeln!(out)?;
+    for (k, set) in args.sets().iter().enumerate() {
+        write!(out, "| {} |", set.name)?;
+        for fi in 0..args.forces.0.len() {
+            write!(out, " {:.0}% |", 100.0 * r.rate(k, fi))?;
         }
-        println!();
+        writeln!(out)?;
     }
-    println!();
+    writeln!(out)?;
     eprintln!("mdf: {:.1} s", t.elapsed().as_secs_f64());
     Ok(())
 }
 
-fn spacing(args: &Args, sensor: &SyntheticSensor) -> Result<()> {
+fn spacing(
+    out: &mut Sink,
+    stages: &Stages,
+    args: &Args,
+    sensor: &SyntheticSensor,
+) -> Result<(), Failure> {
     let t = Instant::now();
     let plan = SpacingPlan {
-        spacings_mm: args.spacings.clone(),
-        forces_n: args.spacing_forces.clone(),
-        centres_mm: args.spacing_centres.clone(),
+        spacings_mm: args.spacings.0.clone(),
+        forces_n: args.spacing_forces.0.clone(),
+        centres_mm: args.spacing_centres.0.clone(),
         tol_mm: args.tol_mm,
     };
-    let r = spacing_sweep(sensor, &options(args), &plan, &no_progress)?;
-    let nc = args.spacing_centres.len();
-    println!(
+    let r = spacing_sweep(sensor, &options(args), &plan, &|s, d, n| {
+        stages.update(s, d, n)
+    })?;
+    stages.finish();
+    let nc = args.spacing_centres.0.len();
+    writeln!(
+        out,
         "### Two-rod spacing sweep (equal straight presses, midpoints at {:?} mm, seed {})\n",
-        args.spacing_centres, args.seed
-    );
-    println!(
+        args.spacing_centres.0, args.seed
+    )?;
+    writeln!(
+        out,
         "Told apart = exactly two contacts, each within {} mm of its rod, at every midpoint. \
          Smallest spacing from which every larger spacing of the list is told apart:\n",
         args.tol_mm
-    );
+    )?;
     let columns = || {
         let mut s = String::new();
         for &d in &INDENTERS_MM {
-            for &f in &args.spacing_forces {
+            for &f in &args.spacing_forces.0 {
                 s += &format!(" {d} mm, {f} N |");
             }
         }
         s
     };
-    let rule = "---|".repeat(INDENTERS_MM.len() * args.spacing_forces.len());
-    println!("| thresholds |{}", columns());
-    println!("|---|{rule}");
-    for (k, set) in args.sets.iter().enumerate() {
-        print!("| {} |", set.name);
+    let rule = "---|".repeat(INDENTERS_MM.len() * args.spacing_forces.0.len());
+    writeln!(out, "| thresholds |{}", columns())?;
+    writeln!(out, "|---|{rule}")?;
+    for (k, set) in args.sets().iter().enumerate() {
+        write!(out, "| {} |", set.name)?;
         for ii in 0..INDENTERS_MM.len() {
-            for fi in 0..args.spacing_forces.len() {
+            for fi in 0..args.spacing_forces.0.len() {
                 match r.min_spacing(k, ii, Some(fi), None) {
-                    Some(s) => print!(" {s} mm |"),
-                    None => print!(" > {} mm |", args.spacings[0]),
+                    Some(s) => write!(out, " {s} mm |")?,
+                    None => write!(out, " > {} mm |", args.spacings.0[0])?,
                 }
             }
         }
-        println!();
+        writeln!(out)?;
     }
-    println!(
+    writeln!(
+        out,
         "\nPairs told apart per spacing (out of {nc} midpoints), indenter/force in the column order above:\n"
-    );
-    println!("| thresholds | spacing |{}", columns());
-    println!("|---|---|{rule}");
-    for (k, set) in args.sets.iter().enumerate() {
-        for (si, sp) in args.spacings.iter().enumerate() {
-            print!("| {} | {sp} mm |", set.name);
+    )?;
+    writeln!(out, "| thresholds | spacing |{}", columns())?;
+    writeln!(out, "|---|---|{rule}")?;
+    for (k, set) in args.sets().iter().enumerate() {
+        for (si, sp) in args.spacings.0.iter().enumerate() {
+            write!(out, "| {} | {sp} mm |", set.name)?;
             for ii in 0..INDENTERS_MM.len() {
-                for fi in 0..args.spacing_forces.len() {
-                    print!(" {} |", r.count(k, ii, fi, si));
+                for fi in 0..args.spacing_forces.0.len() {
+                    write!(out, " {} |", r.count(k, ii, fi, si))?;
                 }
             }
-            println!();
+            writeln!(out)?;
         }
     }
-    println!();
+    writeln!(out)?;
     eprintln!("spacing: {:.1} s", t.elapsed().as_secs_f64());
     Ok(())
 }
 
-fn main() -> Result<()> {
-    let args = parse_args()?;
+fn run(args: &Args) -> Result<(), Failure> {
+    let mut out = Sink::stdout();
+    let stages = Stages::new(args.quiet);
     let sensor = SyntheticSensor::new(SimConfig::default(), args.seed)?;
-    println!("| thresholds | magnitude (px) | sum (px^3) | erode | dilate | shape |");
-    println!("|---|---|---|---|---|---|");
-    for set in &args.sets {
+    writeln!(
+        out,
+        "| thresholds | magnitude (px) | sum (px^3) | erode | dilate | shape |"
+    )?;
+    writeln!(out, "|---|---|---|---|---|---|")?;
+    for set in &args.sets() {
         let t = &set.thresholds;
-        println!(
+        writeln!(
+            out,
             "| {} | {} | {} | {} | {} | {:?} |",
             set.name, t.magnitude, t.sum, t.erode, t.dilate, t.shape
-        );
+        )?;
     }
-    println!();
-    let m = args.mode.as_str();
-    if m == "all" || m == "rest" {
-        rest(&args, &sensor)?;
+    writeln!(out)?;
+    let m = args.mode;
+    if matches!(m, Mode::All | Mode::Rest) {
+        rest(&mut out, &stages, args, &sensor)?;
     }
-    if m == "all" || m == "mdf" {
-        mdf(&args, &sensor)?;
+    if matches!(m, Mode::All | Mode::Mdf) {
+        mdf(&mut out, &stages, args, &sensor)?;
     }
-    if m == "all" || m == "spacing" {
-        spacing(&args, &sensor)?;
+    if matches!(m, Mode::All | Mode::Spacing) {
+        spacing(&mut out, &stages, args, &sensor)?;
     }
     Ok(())
+}
+
+fn main() -> ExitCode {
+    cli_support::finish(run(&Args::parse()).map(|()| ExitCode::SUCCESS))
 }
