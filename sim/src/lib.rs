@@ -44,6 +44,6 @@ pub mod scenario;
 mod sensor;
 
 pub use camera::{CameraModel, Skin};
-pub use elastic::Material;
 pub use config::{MarkerConfig, NoiseConfig, Rendered, SimConfig};
+pub use elastic::Material;
 pub use sensor::{Press, SyntheticSensor};

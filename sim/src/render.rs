@@ -9,8 +9,8 @@
 use ndarray::Array2;
 use rayon::prelude::*;
 
-use super::rng::{SplitMix64, approx_normal_from_bits, hash64};
 use super::config::{Markers, Rendered, SimConfig};
+use super::rng::{SplitMix64, approx_normal_from_bits, hash64};
 use optical_tactile::flow::FlowField;
 
 /// Sampling steps (strip px, along x and y) of the mean-depth motion field used

@@ -17,8 +17,8 @@ use rayon::prelude::*;
 
 use serde::Serialize;
 
-use super::rng::{SplitMix64, mix64};
 use super::config::SimConfig;
+use super::rng::{SplitMix64, mix64};
 use super::sensor::{Press, SyntheticSensor};
 use optical_tactile::error::{Error, Result};
 use optical_tactile::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
