@@ -374,7 +374,7 @@ pub fn progress_bar(label: &str, total: u64, quiet: bool) -> ProgressBar {
     let bar = ProgressBar::new(total);
     bar.set_style(
         ProgressStyle::with_template(
-            "{prefix:>18} [{bar:30}] {pos}/{len} {elapsed:>4} elapsed, ETA {eta:>4}",
+            "{prefix:>27} [{bar:30}] {pos}/{len} {elapsed:>4} elapsed, ETA {eta:>4}",
         )
         .expect("a valid template")
         .progress_chars("=> "),
@@ -424,15 +424,6 @@ impl Stages {
         let mut cur = self.current.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, bar)) = cur.take() {
             bar.finish();
-        }
-    }
-
-    /// Prints a line on stderr without breaking the current bar.
-    pub fn note(&self, line: &str) {
-        let cur = self.current.lock().unwrap_or_else(|e| e.into_inner());
-        match cur.as_ref() {
-            Some((_, bar)) => bar.suspend(|| eprintln!("{line}")),
-            None => eprintln!("{line}"),
         }
     }
 }

@@ -1,7 +1,8 @@
-//! Experiments on the simulator (issues 5 and 8): false contacts on rest
-//! frames, the minimum detectable force, the two-contact spacing sweep, and
-//! the touch-mapping error. Shared by `examples/sweep.rs` (exploring thresholds) and
-//! `examples/experiments.rs` (the paper's sensor-performance section).
+//! Experiments on the simulator: false contacts on rest frames, the minimum
+//! detectable force, the two-contact spacing sweep, and the touch-mapping
+//! error. Shared by the developer tool `sweep` (exploring thresholds) and
+//! `examples/experiments.rs` (the paper's sensor-performance section). The
+//! library prints nothing: progress and debug lines go to callbacks.
 //!
 //! Frames are rendered with [`SyntheticSensor::render_indexed`] (no PNGs) and
 //! go through the sensor's default DIS flow (`fine`) on the extractor's
