@@ -50,10 +50,11 @@ use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
+use optical_tactile::calibration::fit::{FitOptions, GuardOptions};
 use optical_tactile::calibration::fit::{
     extract_dataset, fit_dataset, load_cell_spread, read_dataset,
 };
-use optical_tactile::calibration::{self, FitOptions, GuardOptions, ThresholdRow};
+use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
@@ -428,7 +429,7 @@ fn run(args: Args) -> Result<(), Failure> {
         table_ii.push((preset.to_string(), fit.test_table));
     }
     writeln!(report, "## Table I: test-set errors per threshold preset\n")?;
-    writeln!(report, "{}", calibration::table_i_markdown(&table_i))?;
+    writeln!(report, "{}", report::table_i_markdown(&table_i))?;
     if let Some(s) = load_cell_spread(&rows) {
         let [sx, sy, sz] = s.sigma_n;
         let [mx, my, mz] = s.mae_floor_n();
@@ -446,7 +447,7 @@ fn run(args: Args) -> Result<(), Failure> {
             report,
             "## Table II: test-set errors per point ({preset} thresholds)\n"
         )?;
-        writeln!(report, "{}", calibration::table_ii_markdown(t))?;
+        writeln!(report, "{}", report::table_ii_markdown(t))?;
     }
     Ok(())
 }

@@ -36,12 +36,12 @@ use clap::Parser;
 use cli_support::{Failure, Sink, Stages, TextOut};
 use serde::Serialize;
 
+use optical_tactile::calibration::Calibration;
+use optical_tactile::calibration::fit::FitOptions;
 use optical_tactile::calibration::fit::{
     LoadCellSpread, extract_dataset, fit_dataset, load_cell_spread, read_dataset,
 };
-use optical_tactile::calibration::{
-    Calibration, DetectionLimit, FitOptions, PointTable, QuantityMae,
-};
+use optical_tactile::calibration::report::{DetectionLimit, PointTable, QuantityMae};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;

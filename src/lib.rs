@@ -34,7 +34,7 @@
 //! Frames are `ndarray::Array2<f32>` grayscale images; [`frame`] converts
 //! `image` crate buffers and raw camera buffers (gray, RGB, BGR, YUYV; 8 or 16
 //! bit) into them, with `_into` variants that reuse a buffer. A
-//! [`SequenceSource`] reads a directory of PNG frames; [`capture::v4l`]
+//! [`SequenceSource`] reads a directory of PNG frames; `capture::v4l`
 //! (feature `v4l`) a V4L2 camera. Without a calibration,
 //! [`sensor::ContactExtractor`] gives each patch's raw quantities in pixels.
 //!
@@ -83,7 +83,7 @@
 //! ## Features
 //! | feature | what |
 //! |---|---|
-//! | `v4l` | [`capture::v4l`]: frames from a V4L2 camera (Linux; needs libclang to build) |
+//! | `v4l` | `capture::v4l`: frames from a V4L2 camera (Linux; needs libclang to build) |
 
 #![cfg_attr(docsrs, feature(doc_cfg))]
 

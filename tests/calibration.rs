@@ -4,12 +4,16 @@
 use std::path::PathBuf;
 
 use optical_tactile::Error;
-use optical_tactile::calibration::fit::load_cell_spread;
+use optical_tactile::calibration::fit::{
+    self, FitOptions, GuardOptions, force_spec, load_cell_spread,
+};
 use optical_tactile::calibration::poly::{CrossTerms, Polynomial};
-use optical_tactile::calibration::{
-    self, Calibration, DetectionLimit, FitOptions, ForceGuard, GUARD_BOX_MARGIN, GuardOptions,
-    Sample, SensorSetup, ThresholdRow, evaluate, min_detectable_force, table_i_markdown,
+use optical_tactile::calibration::report::{
+    DetectionLimit, ThresholdRow, evaluate, min_detectable_force, table_i_markdown,
     table_ii_markdown,
+};
+use optical_tactile::calibration::{
+    self, Calibration, ForceGuard, GUARD_BOX_MARGIN, Sample, SensorSetup,
 };
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;
@@ -108,7 +112,7 @@ fn tmp(name: &str) -> PathBuf {
 #[test]
 fn fit_on_the_protocol_reaches_small_test_errors() {
     let samples = protocol_samples(0.1, 1);
-    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
     let rep = cal.report.as_ref().unwrap();
     let test = rep.test.as_ref().unwrap();
     assert_eq!(test.split, Split::Test);
@@ -185,7 +189,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
         d_pf_max_order: 2,
         ..FitOptions::default()
     };
-    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let cal = fit::fit(&samples, &setup(), &opts).unwrap();
     let rep = cal.report.as_ref().unwrap();
     // x2d order 3; the shear group (all zero here) takes its smallest order.
     assert_eq!(rep.g1.orders, vec![3, 1]);
@@ -201,7 +205,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
 #[test]
 fn location_and_force_evaluate_the_maps() {
     let samples = protocol_samples(0.1, 2);
-    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
     let g = SensorGeometry::default();
     for s in samples.iter().step_by(97) {
         let [x, y, z] = cal.location(s.x2d, s.y2d).unwrap();
@@ -240,7 +244,7 @@ fn location_and_force_evaluate_the_maps() {
 #[test]
 fn json_round_trip_is_bit_exact() {
     let samples = protocol_samples(0.1, 3);
-    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
     let path = tmp("roundtrip.json");
     cal.save(&path).unwrap();
     let text = std::fs::read_to_string(&path).unwrap();
@@ -437,12 +441,12 @@ fn fit_rejects_bad_samples() {
     let s = setup();
     let o = small_options();
     assert!(matches!(
-        calibration::fit(&[], &s, &o),
+        fit::fit(&[], &s, &o),
         Err(Error::InvalidParameter { .. })
     ));
     let mut bad = samples.clone();
     bad[17].dz = f64::NAN;
-    match calibration::fit(&bad, &s, &o).unwrap_err() {
+    match fit::fit(&bad, &s, &o).unwrap_err() {
         Error::NonFinite { what, row, .. } => {
             assert_eq!(row, 17);
             assert!(what.contains("dz"), "{what}");
@@ -454,7 +458,7 @@ fn fit_rejects_bad_samples() {
         .filter(|s| s.split != Split::Val)
         .copied()
         .collect();
-    let e = calibration::fit(&no_val, &s, &o).unwrap_err();
+    let e = fit::fit(&no_val, &s, &o).unwrap_err();
     assert!(e.to_string().contains("0 val"), "{e}");
     // Too few training samples for even the smallest force map.
     let mut few: Vec<Sample> = samples
@@ -463,19 +467,19 @@ fn fit_rejects_bad_samples() {
         .copied()
         .collect();
     few.extend(samples.iter().filter(|s| s.split == Split::Train).take(5));
-    let e = calibration::fit(&few, &s, &o).unwrap_err();
+    let e = fit::fit(&few, &s, &o).unwrap_err();
     let msg = e.to_string();
     assert!(msg.contains("`gx`") && msg.contains("at least"), "{msg}");
     // Invalid setup.
     let mut s2 = setup();
     s2.thresholds.magnitude = f32::NAN;
-    assert!(calibration::fit(&samples, &s2, &o).is_err());
+    assert!(fit::fit(&samples, &s2, &o).is_err());
     // An unsupported order.
     let o2 = FitOptions {
         displacement_max_order: 40,
         ..small_options()
     };
-    assert!(calibration::fit(&samples, &s, &o2).is_err());
+    assert!(fit::fit(&samples, &s, &o2).is_err());
 }
 
 #[test]
@@ -485,7 +489,7 @@ fn tables_render_as_markdown() {
         cross: CrossTerms::None,
         ..small_options()
     };
-    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let cal = fit::fit(&samples, &setup(), &opts).unwrap();
     let t = evaluate(&cal, &samples, Split::Test).unwrap();
     assert_eq!(&t, cal.report.as_ref().unwrap().test.as_ref().unwrap());
     let md = table_ii_markdown(&t);
@@ -593,7 +597,7 @@ fn y2d_can_be_kept_out_of_the_force_maps() {
         force_use_y2d: false,
         ..small_options()
     };
-    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let cal = fit::fit(&samples, &setup(), &opts).unwrap();
     for g in [cal.gx(), cal.gy(), cal.gz()] {
         assert_eq!(g.n_variables(), 6);
         for k in 0..g.n_terms() {
@@ -626,7 +630,7 @@ fn y2d_can_be_kept_out_of_the_force_maps() {
 #[test]
 fn a_report_with_non_finite_numbers_still_loads() {
     let samples = protocol_samples(0.1, 8);
-    let mut cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let mut cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
     let rep = cal.report.as_mut().unwrap();
     rep.test.as_mut().unwrap().total.fx = f64::NAN;
     rep.gy.train_mae = f64::INFINITY;
@@ -717,7 +721,7 @@ fn g1_corrects_a_shear_dependent_offset() {
             fz: 0.0,
         });
     }
-    let cal = calibration::fit(&samples, &setup(), &FitOptions::default()).unwrap();
+    let cal = fit::fit(&samples, &setup(), &FitOptions::default()).unwrap();
     let rep = cal.report.as_ref().unwrap();
     assert_eq!(rep.g1.orders, vec![2, 1]);
     let t = rep.test.as_ref().unwrap().total;
@@ -726,7 +730,7 @@ fn g1_corrects_a_shear_dependent_offset() {
         location_shear_order: 0,
         ..FitOptions::default()
     };
-    let cal0 = calibration::fit(&samples, &setup(), &legacy).unwrap();
+    let cal0 = fit::fit(&samples, &setup(), &legacy).unwrap();
     assert_eq!(cal0.g1().variables(), ["x2d", "shear"]);
     let t0 = cal0.report.as_ref().unwrap().test.as_ref().unwrap().total;
     assert!(t0.x_mm > 1.0, "{t0:?}");
@@ -781,11 +785,11 @@ fn the_shipped_fixture_loads_with_its_settings() {
 #[test]
 fn shear_cap_splits_the_displacement_group() {
     // One group {dx, dy, dz} by default: dx^5 is a term.
-    let one = calibration::force_spec(&FitOptions::default()).unwrap();
+    let one = force_spec(&FitOptions::default()).unwrap();
     let terms = one.terms().unwrap();
     assert!(terms.iter().any(|t| t[0] == 5));
     // Capped: dx and dy together at most order 2, dz still up to 5.
-    let capped = calibration::force_spec(&FitOptions {
+    let capped = force_spec(&FitOptions {
         shear_max_order: Some(2),
         ..FitOptions::default()
     })
@@ -796,7 +800,7 @@ fn shear_cap_splits_the_displacement_group() {
     assert!(terms.iter().any(|t| t[2] == 5));
     assert!(terms.iter().any(|t| t[0] == 2 && t[2] >= 1));
     // A cap at or above the displacement order changes nothing.
-    let same = calibration::force_spec(&FitOptions {
+    let same = force_spec(&FitOptions {
         shear_max_order: Some(5),
         ..FitOptions::default()
     })
@@ -928,7 +932,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
         }),
         ..small_options()
     };
-    let cal = calibration::fit(&samples, &setup(), &opts).unwrap();
+    let cal = fit::fit(&samples, &setup(), &opts).unwrap();
     let g = cal.guard.as_ref().expect("a guard");
     assert_eq!(g.report.as_ref().unwrap().len(), 3);
     // The fallback maps are linear in the shear displacements.
@@ -965,7 +969,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
     );
     // With the default rule (1.5 times the 99th percentile) at most 1% of
     // the training and validation rows fall back.
-    let cal = calibration::fit(&samples, &setup(), &small_options()).unwrap();
+    let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
     let seen: Vec<_> = samples.iter().filter(|s| s.split != Split::Test).collect();
     let fell = seen
         .iter()
@@ -991,7 +995,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
             guard: Some(bad),
             ..small_options()
         };
-        let e = calibration::fit(&samples, &setup(), &opts).unwrap_err();
+        let e = fit::fit(&samples, &setup(), &opts).unwrap_err();
         assert!(e.to_string().contains("guard"), "{e}");
     }
     // Without guard options, no guard.
@@ -999,12 +1003,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
         guard: None,
         ..small_options()
     };
-    assert!(
-        calibration::fit(&samples, &setup(), &opts)
-            .unwrap()
-            .guard
-            .is_none()
-    );
+    assert!(fit::fit(&samples, &setup(), &opts).unwrap().guard.is_none());
 }
 
 #[test]

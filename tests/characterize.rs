@@ -4,8 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use optical_tactile::Error;
-use optical_tactile::calibration::FitOptions;
-use optical_tactile::calibration::fit::{extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::calibration::fit::{FitOptions, extract_dataset, fit_dataset, read_dataset};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;

@@ -1,0 +1,253 @@
+//! How good a calibration is: errors per split and per measuring point, the
+//! minimum detectable force, and the paper's Table I and Table II.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use serde::{Deserialize, Serialize};
+
+use super::poly;
+use super::{Calibration, Prediction, Sample};
+use crate::error::{Error, Result};
+use crate::io::Split;
+
+/// Mean absolute errors of one group of samples.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct QuantityMae {
+    /// Number of samples.
+    pub n: usize,
+    /// MAE of x3D, mm.
+    #[serde(deserialize_with = "poly::nullable_f64")]
+    pub x_mm: f64,
+    /// MAE of y3D, mm.
+    #[serde(deserialize_with = "poly::nullable_f64")]
+    pub y_mm: f64,
+    /// MAE of Fx, N.
+    #[serde(deserialize_with = "poly::nullable_f64")]
+    pub fx: f64,
+    /// MAE of Fy, N.
+    #[serde(deserialize_with = "poly::nullable_f64")]
+    pub fy: f64,
+    /// MAE of Fz, N.
+    #[serde(deserialize_with = "poly::nullable_f64")]
+    pub fz: f64,
+}
+
+/// Errors on a split, in total and per measuring point (the paper's Table II).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PointTable {
+    /// The split the errors are measured on.
+    pub split: Split,
+    /// Over all samples of the split.
+    pub total: QuantityMae,
+    /// Per measuring point, ascending.
+    pub per_point: Vec<(u32, QuantityMae)>,
+}
+
+/// MAE of the calibration's predictions on the samples of `split`, in total
+/// and per measuring point (the paper's Table II). Errors if the split has no
+/// sample or a prediction fails.
+pub fn evaluate(cal: &Calibration, samples: &[Sample], split: Split) -> Result<PointTable> {
+    #[derive(Default)]
+    struct Acc {
+        n: usize,
+        s: [f64; 5],
+    }
+    impl Acc {
+        fn add(&mut self, p: &Prediction, s: &Sample) {
+            self.n += 1;
+            let e = [
+                p.x_mm - s.x_mm,
+                p.y_mm - s.y_mm,
+                p.fx - s.fx,
+                p.fy - s.fy,
+                p.fz - s.fz,
+            ];
+            for (a, e) in self.s.iter_mut().zip(e) {
+                *a += e.abs();
+            }
+        }
+        fn mae(&self) -> QuantityMae {
+            let n = self.n.max(1) as f64;
+            QuantityMae {
+                n: self.n,
+                x_mm: self.s[0] / n,
+                y_mm: self.s[1] / n,
+                fx: self.s[2] / n,
+                fy: self.s[3] / n,
+                fz: self.s[4] / n,
+            }
+        }
+    }
+    let mut total = Acc::default();
+    let mut per: BTreeMap<u32, Acc> = BTreeMap::new();
+    for s in samples.iter().filter(|s| s.split == split) {
+        let p = cal.predict(s)?;
+        total.add(&p, s);
+        per.entry(s.point).or_default().add(&p, s);
+    }
+    if total.n == 0 {
+        return Err(Error::param(
+            "split",
+            format!("no `{}` sample to evaluate on", split.as_str()),
+        ));
+    }
+    Ok(PointTable {
+        split,
+        total: total.mae(),
+        per_point: per.into_iter().map(|(k, a)| (k, a.mae())).collect(),
+    })
+}
+
+/// Where the minimum detectable force lies, from the commanded force levels
+/// of the characterization (the paper's Table I, row `F_min`): above
+/// `above_n` (the largest level not reliably detected, 0 if none) and at most
+/// `at_most_n` (the smallest level from which every level is reliably
+/// detected; `None` if even the largest is not).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DetectionLimit {
+    /// Exclusive lower bound, N.
+    pub above_n: f64,
+    /// Inclusive upper bound, N.
+    pub at_most_n: Option<f64>,
+}
+
+impl std::fmt::Display for DetectionLimit {
+    /// `(0, 0.5]`, `(0.5, 1]`, or `> 3` when nothing is reliably detected.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.at_most_n {
+            Some(hi) => write!(f, "({}, {}]", self.above_n, hi),
+            None => write!(f, "> {}", self.above_n),
+        }
+    }
+}
+
+/// The minimum detectable force from per-test detection results
+/// `(commanded force N, contact detected)`: a force level counts as reliably
+/// detected when at least `min_fraction` of its tests found a contact (1.0:
+/// all of them), and the limit is the smallest level from which every level
+/// up is reliably detected.
+pub fn min_detectable_force(
+    detections: &[(f64, bool)],
+    min_fraction: f64,
+) -> Result<DetectionLimit> {
+    if detections.is_empty() {
+        return Err(Error::param("detections", "no test results"));
+    }
+    if !(min_fraction > 0.0 && min_fraction <= 1.0) {
+        return Err(Error::param(
+            "min_fraction",
+            format!("must be in (0, 1], got {min_fraction}"),
+        ));
+    }
+    if let Some(i) = detections
+        .iter()
+        .position(|d| !(d.0.is_finite() && d.0 > 0.0))
+    {
+        return Err(Error::param(
+            "detections",
+            format!(
+                "test {i} has commanded force {}, expected > 0",
+                detections[i].0
+            ),
+        ));
+    }
+    // Per level: (tests, detected). Levels are exact commanded values.
+    let mut levels: Vec<(f64, usize, usize)> = Vec::new();
+    for &(f, hit) in detections {
+        match levels.iter_mut().find(|l| l.0 == f) {
+            Some(l) => {
+                l.1 += 1;
+                l.2 += usize::from(hit);
+            }
+            None => levels.push((f, 1, usize::from(hit))),
+        }
+    }
+    levels.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let ok = |l: &(f64, usize, usize)| l.2 as f64 >= min_fraction * l.1 as f64;
+    // The first level of the all-reliable tail.
+    let mut start = levels.len();
+    while start > 0 && ok(&levels[start - 1]) {
+        start -= 1;
+    }
+    let above_n = if start == 0 { 0.0 } else { levels[start - 1].0 };
+    Ok(DetectionLimit {
+        above_n,
+        at_most_n: levels.get(start).map(|l| l.0),
+    })
+}
+
+/// One column of the paper's Table I: a threshold preset, its minimum
+/// detectable force and the test errors of the calibration fitted with it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ThresholdRow {
+    /// Preset name.
+    pub preset: String,
+    /// Minimum detectable force as text, e.g. a [`DetectionLimit`] printed
+    /// (`"(1, 1.5]"`) from the pipeline's detections with
+    /// [`min_detectable_force`].
+    pub min_force_n: String,
+    /// Test MAE.
+    pub mae: QuantityMae,
+}
+
+/// The paper's Table I in markdown: one column per threshold preset; rows
+/// `F_min`, MAE of x (mm), Fx, Fy, Fz (N).
+pub fn table_i_markdown(rows: &[ThresholdRow]) -> String {
+    let mut s = table_header(rows.iter().map(|r| r.preset.as_str()));
+    let _ = write!(s, "| F_min [N] |");
+    for r in rows {
+        let _ = write!(s, " {} |", r.min_force_n);
+    }
+    s.push('\n');
+    mae_rows(&mut s, rows.iter().map(|r| &r.mae));
+    s
+}
+
+/// The paper's Table II in markdown: columns Total and one per measuring
+/// point; rows MAE of x (mm), Fx, Fy, Fz (N), and the sample count.
+pub fn table_ii_markdown(t: &PointTable) -> String {
+    let mut cols: Vec<(String, QuantityMae)> = vec![("Total".into(), t.total)];
+    cols.extend(t.per_point.iter().map(|(p, m)| (format!("Point {p}"), *m)));
+    let mut s = table_header(cols.iter().map(|(name, _)| name.as_str()));
+    mae_rows(&mut s, cols.iter().map(|(_, m)| m));
+    let _ = write!(s, "| samples |");
+    for (_, m) in &cols {
+        let _ = write!(s, " {} |", m.n);
+    }
+    s.push('\n');
+    s
+}
+
+/// A markdown header row `| Variable | a | b | ... |` and its separator.
+fn table_header<'a>(columns: impl Iterator<Item = &'a str>) -> String {
+    let mut s = String::from("| Variable |");
+    let mut n = 0;
+    for name in columns {
+        let _ = write!(s, " {name} |");
+        n += 1;
+    }
+    s.push_str("\n|---|");
+    s.push_str(&"---|".repeat(n));
+    s.push('\n');
+    s
+}
+
+/// The MAE rows of x (mm), Fx, Fy, Fz (N) shared by Tables I and II, one
+/// column per item of `columns`.
+fn mae_rows<'a>(s: &mut String, columns: impl Iterator<Item = &'a QuantityMae> + Clone) {
+    type Get = fn(&QuantityMae) -> f64;
+    let lines: [(&str, Get, usize); 4] = [
+        ("MAE x3D [mm]", |m| m.x_mm, 2),
+        ("MAE Fx [N]", |m| m.fx, 4),
+        ("MAE Fy [N]", |m| m.fy, 4),
+        ("MAE Fz [N]", |m| m.fz, 4),
+    ];
+    for (name, get, prec) in lines {
+        let _ = write!(s, "| {name} |");
+        for m in columns.clone() {
+            let _ = write!(s, " {:.*} |", prec, get(m));
+        }
+        s.push('\n');
+    }
+}
