@@ -85,6 +85,11 @@ impl Roi {
         Roi::new(0, 0, width, height)
     }
 
+    /// The region as `"x,y,w,h"` (the form [`Roi::parse`] reads).
+    pub fn to_arg(&self) -> String {
+        format!("{},{},{},{}", self.x, self.y, self.w, self.h)
+    }
+
     /// Parses `"x,y,w,h"` (as given on a command line).
     pub fn parse(text: &str) -> Result<Self> {
         let parts: Vec<&str> = text.split(',').map(str::trim).collect();

@@ -377,6 +377,14 @@ pub struct ContactRecord {
     /// Patch area in pixels.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub area_px: Option<u64>,
+    /// Whether the force came from the calibration's low-order fallback maps
+    /// (`Contact::fallback`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<bool>,
+    /// Whether the contact lies outside what the calibration knows
+    /// (`Contact::out_of_domain`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub out_of_domain: Option<bool>,
 }
 
 /// One line of a contacts JSON Lines file: a processed frame and its contacts.

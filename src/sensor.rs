@@ -568,8 +568,14 @@ pub fn max_tile_mean_where(flow: &FlowField, tile: usize, mask: &[bool], tiles_x
 #[non_exhaustive]
 pub struct SensorConfig {
     /// Crop of the camera frame to the sensing area; `None` takes the
-    /// calibration's crop.
+    /// calibration's crop. Another crop than the calibration's is an error
+    /// unless `force_crop` is set: the calibration's pixel coordinates refer
+    /// to its own crop, so its locations and forces would not hold.
     pub crop: Option<Roi>,
+    /// Accept a `crop` that differs from the calibration's (the contacts are
+    /// then marked [`Contact::out_of_domain`] wherever they leave what the
+    /// calibration knows).
+    pub force_crop: bool,
     /// Flow, segmentation and patch settings.
     pub extractor: ExtractorConfig,
     /// Tracking: identity, hysteresis, smoothing.
@@ -600,6 +606,7 @@ pub struct TactileSensor {
     last_t: Option<f64>,
     rereferenced: bool,
     references: u64,
+    non_finite: u64,
     timings: StageTimings,
 }
 
@@ -611,6 +618,7 @@ impl SensorConfig {
     pub fn from_calibration(calibration: &Calibration) -> Result<Self> {
         Ok(SensorConfig {
             crop: Some(calibration.setup.crop),
+            force_crop: false,
             extractor: ExtractorConfig::from_setup(&calibration.setup)?,
             tracker: TrackerConfig::default(),
             rereference: ReferencePolicy::default(),
@@ -663,10 +671,16 @@ impl SensorBuilder {
         self.with(|c| c.extractor.flow = params)
     }
 
-    /// Crop of the camera frame; the calibration's pixel coordinates refer to
-    /// its own crop.
+    /// Crop of the camera frame. The calibration's pixel coordinates refer
+    /// to its own crop: another one is an error at `build` unless
+    /// [`SensorBuilder::force_crop`].
     pub fn crop(self, crop: Roi) -> Self {
         self.with(|c| c.crop = Some(crop))
+    }
+
+    /// Accept a crop that differs from the calibration's.
+    pub fn force_crop(self, force: bool) -> Self {
+        self.with(|c| c.force_crop = force)
     }
 
     /// Tracking: identity, hysteresis and smoothing.
@@ -719,6 +733,19 @@ impl TactileSensor {
     /// calibration was fitted with (see [`SensorConfig::from_calibration`]).
     pub fn new(config: SensorConfig, calibration: Calibration) -> Result<Self> {
         let crop = config.crop.unwrap_or(calibration.setup.crop);
+        let fitted = calibration.setup.crop;
+        if crop != fitted && !config.force_crop {
+            return Err(Error::param(
+                "crop",
+                format!(
+                    "{} differs from the calibration's crop {}: its pixel coordinates \
+                     refer to that crop, so locations and forces would not hold \
+                     (set force_crop to use it anyway)",
+                    crop.to_arg(),
+                    fitted.to_arg()
+                ),
+            ));
+        }
         Ok(TactileSensor {
             extractor: ContactExtractor::new(config.extractor.clone())?,
             tracker: Tracker::new(config.tracker)?,
@@ -737,6 +764,7 @@ impl TactileSensor {
             last_t: None,
             rereferenced: false,
             references: 0,
+            non_finite: 0,
             timings: StageTimings::default(),
         })
     }
@@ -827,7 +855,14 @@ impl TactileSensor {
                 .calibration
                 .location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
             raw.d_sensor = sensor_displacements(&geometry, loc[0], raw);
-            self.detections.push(self.calibration.contact(raw)?);
+            let contact = self.calibration.contact(raw)?;
+            // Nothing non-finite leaves the sensor: such a contact (a
+            // calibration evaluated far outside its range) is dropped and counted.
+            if contact.is_finite() {
+                self.detections.push(contact);
+            } else {
+                self.non_finite += 1;
+            }
         }
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);
@@ -865,6 +900,12 @@ impl TactileSensor {
     /// The tracked contacts of the last frame.
     pub fn contacts(&self) -> &[Contact] {
         self.tracker.last()
+    }
+
+    /// How many contacts were dropped so far because their location or force
+    /// was not a finite number.
+    pub fn non_finite_dropped(&self) -> u64 {
+        self.non_finite
     }
 
     /// Per-stage timings of the last frame.

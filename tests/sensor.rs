@@ -153,9 +153,10 @@ fn bad_frames_are_errors_and_change_nothing() {
     nan[[10, 10]] = f32::NAN;
     assert!(s.process(&nan, 0.16).is_err());
     assert_eq!(s.contacts(), &before[..]);
-    // A crop outside the frame.
+    // A crop outside the frame (forced: it is not the calibration's either).
     let mut config = SensorConfig::default();
     config.crop = Some(Roi::new(100, 0, 1600, 200));
+    config.force_crop = true;
     config.extractor = sensitive();
     let mut s =
         TactileSensor::new(config, linear_calibration(Roi::new(0, 0, 1600, 200), None)).unwrap();
@@ -201,4 +202,103 @@ fn the_quiet_check_skips_untextured_tiles() {
         max_tile_mean_where(&flow, 4, &[], 0),
         max_tile_mean(&flow, 4)
     );
+}
+
+/// A sensor on the bundled calibration, by the main path.
+fn bundled(
+    builder: impl FnOnce(optical_tactile::SensorBuilder) -> optical_tactile::SensorBuilder,
+) -> optical_tactile::Result<TactileSensor> {
+    let cal = optical_tactile::Calibration::load("fixtures/calibration.json")?;
+    builder(TactileSensor::builder(cal)).build()
+}
+
+#[test]
+fn a_crop_other_than_the_calibrations_is_an_error_unless_forced() {
+    // The calibration's crop is the whole 1600x200 strip image.
+    let other = Roi::new(690, 0, 20, 200);
+    match bundled(|b| b.crop(other)) {
+        Err(Error::InvalidParameter { name, message }) => {
+            assert_eq!(name, "crop");
+            assert!(
+                message.contains("690,0,20,200") && message.contains("0,0,1600,200"),
+                "{message}"
+            );
+        }
+        other => panic!("expected a crop error, got {other:?}"),
+    }
+    // The calibration's own crop, given explicitly, is fine; forced, another one too.
+    assert!(bundled(|b| b.crop(Roi::new(0, 0, 1600, 200))).is_ok());
+    let mut sensor = bundled(|b| b.crop(Roi::new(100, 0, 1500, 200)).force_crop(true)).unwrap();
+    let frames = frames();
+    sensor.set_reference(&frames[0].image).unwrap();
+    for f in &frames[1..] {
+        for c in sensor.process(&f.image, f.t_s).unwrap() {
+            assert!(c.is_finite(), "{c:?}");
+        }
+    }
+}
+
+#[test]
+fn contacts_say_when_they_leave_the_calibrations_domain() {
+    let crop = Roi::new(0, 0, 1600, 200);
+    let cal = linear_calibration(crop, None);
+    let raw = |x_px: f64| optical_tactile::contact::RawContact {
+        x_px,
+        y_px: 100.0,
+        dn: 100.0,
+        d_pf: 2.0,
+        d_sensor: [1.0, 0.0, -200.0],
+        ..Default::default()
+    };
+    // x = (x_px - 799.5) / 5 mm: the skin's half chord is 150 mm (x_px 1549.5).
+    assert!(!cal.contact(&raw(800.0)).unwrap().out_of_domain);
+    assert!(!cal.contact(&raw(1500.0)).unwrap().out_of_domain);
+    let off = cal.contact(&raw(1590.0)).unwrap();
+    assert!(off.out_of_domain && off.location_mm[0] > 150.0, "{off:?}");
+    // The mark and the fallback flag are written to JSON Lines.
+    let rec = serde_json::to_value(off.to_record()).unwrap();
+    assert_eq!(rec["out_of_domain"], true);
+    assert_eq!(rec["fallback"], false);
+    // The bundled calibration has a guard: inputs far outside its training box are marked.
+    let bundled_cal = optical_tactile::Calibration::load("fixtures/calibration.json").unwrap();
+    let mut strong = raw(800.0);
+    strong.d_sensor = [0.0, 0.0, -1e6];
+    strong.dn = 1e6;
+    assert!(bundled_cal.contact(&strong).unwrap().out_of_domain);
+}
+
+#[test]
+fn non_finite_contacts_never_leave_the_sensor() {
+    use optical_tactile::calibration::poly::Polynomial;
+    // A calibration whose Fz map overflows on any press: F = 1e308 * dz.
+    let crop = Roi::new(0, 0, 1600, 200);
+    let base = linear_calibration(crop, None);
+    let vars = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+    let map = |k: usize, c: f64| {
+        let mut e = vec![0u32; 6];
+        e[k] = 1;
+        Polynomial::raw(&vars, vec![e], vec![c]).unwrap()
+    };
+    let cal = optical_tactile::Calibration::new(
+        base.setup.clone(),
+        [
+            base.g1().clone(),
+            base.g2().clone(),
+            map(0, 1e-4),
+            map(1, 1e-4),
+            map(2, 1e308),
+        ],
+        None,
+    )
+    .unwrap();
+    let mut config = SensorConfig::from_calibration(&cal).unwrap();
+    config.extractor = sensitive();
+    let mut sensor = TactileSensor::new(config, cal).unwrap();
+    let frames = frames();
+    sensor.set_reference(&frames[0].image).unwrap();
+    for f in &frames[1..] {
+        let contacts = sensor.process(&f.image, f.t_s).unwrap();
+        assert!(contacts.iter().all(|c| c.is_finite()), "{contacts:?}");
+    }
+    assert!(sensor.non_finite_dropped() > 0);
 }

@@ -642,15 +642,22 @@ impl Calibration {
     /// are 0: identity is the tracker's business).
     pub fn contact(&self, raw: &RawContact) -> Result<Contact> {
         let [dx, dy, dz] = raw.d_sensor;
-        let (force_n, fallback) =
-            self.force_checked(&[dx, dy, dz, raw.x_px, raw.y_px, raw.d_pf])?;
+        let inputs = [dx, dy, dz, raw.x_px, raw.y_px, raw.d_pf];
+        let (force_n, fallback) = self.force_checked(&inputs)?;
+        let location_mm = self.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
+        let outside_training = self
+            .guard
+            .as_ref()
+            .is_some_and(|g| !g.contains(&inputs, GUARD_BOX_MARGIN));
+        let off_surface = !self.setup.geometry.contains(location_mm[0], location_mm[1]);
         Ok(Contact {
             id: 0,
-            location_mm: self.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?,
+            location_mm,
             force_n,
             raw: *raw,
             missed: 0,
             fallback,
+            out_of_domain: outside_training || off_surface,
         })
     }
 

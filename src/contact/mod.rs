@@ -76,6 +76,15 @@ pub struct Contact {
     /// training data; its force is the robust estimate, not the finest.
     #[serde(default)]
     pub fallback: bool,
+    /// Whether the contact lies outside what its calibration knows: force
+    /// inputs outside the box of the training data (beyond the guard's
+    /// margin, [`crate::calibration::GUARD_BOX_MARGIN`]), or a location off
+    /// the sensor's surface ([`crate::geometry::SensorGeometry::contains`]).
+    /// Its location and force are extrapolations: use them with care (a
+    /// calibration from another sensor, a crop that is not the calibration's,
+    /// a press far stronger than any in the characterization).
+    #[serde(default)]
+    pub out_of_domain: bool,
 }
 
 impl Contact {
@@ -83,6 +92,15 @@ impl Contact {
     pub fn force_magnitude(&self) -> f64 {
         let [x, y, z] = self.force_n;
         (x * x + y * y + z * z).sqrt()
+    }
+
+    /// Whether its location and force are finite numbers (the sensor never
+    /// reports a contact that is not).
+    pub fn is_finite(&self) -> bool {
+        self.location_mm
+            .iter()
+            .chain(&self.force_n)
+            .all(|v| v.is_finite())
     }
 
     /// The JSON Lines record of docs/formats.md.
@@ -103,6 +121,8 @@ impl Contact {
             dy: Some(r.d_sensor[1]),
             dz: Some(r.d_sensor[2]),
             area_px: Some(r.area_px),
+            fallback: Some(self.fallback),
+            out_of_domain: Some(self.out_of_domain),
         }
     }
 }
