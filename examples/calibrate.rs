@@ -284,7 +284,7 @@ fn run(args: Args) -> Result<(), Failure> {
     let err = |e: optical_tactile::Error| e.to_string();
     let data_on_stdout =
         args.out.is_stdout() || args.predictions.as_ref().is_some_and(TextOut::is_stdout);
-    let mut report = Sink::report(data_on_stdout);
+    let mut out = Sink::report(data_on_stdout);
     let rows = read_dataset(&args.dir).map_err(err)?;
     // The crop the pixel coordinates refer to: given, or the whole image.
     let crop = match args.crop {
@@ -371,9 +371,9 @@ fn run(args: Args) -> Result<(), Failure> {
         }
         match &args.out {
             TextOut::Stdout => {
-                let mut out = Sink::stdout();
-                out.write_all(fit.calibration.to_json_string().as_bytes())?;
-                out.flush()?;
+                let mut stdout = Sink::stdout();
+                stdout.write_all(fit.calibration.to_json_string().as_bytes())?;
+                stdout.flush()?;
             }
             TextOut::File(p) => {
                 let path = if k == 0 {
@@ -428,13 +428,13 @@ fn run(args: Args) -> Result<(), Failure> {
         });
         table_ii.push((preset.to_string(), fit.test_table));
     }
-    writeln!(report, "## Table I: test-set errors per threshold preset\n")?;
-    writeln!(report, "{}", report::table_i_markdown(&table_i))?;
+    writeln!(out, "## Table I: test-set errors per threshold preset\n")?;
+    writeln!(out, "{}", report::table_i_markdown(&table_i))?;
     if let Some(s) = load_cell_spread(&rows) {
         let [sx, sy, sz] = s.sigma_n;
         let [mx, my, mz] = s.mae_floor_n();
         writeln!(
-            report,
+            out,
             "Load cell: its readings scatter by Fx {sx:.4}, Fy {sy:.4}, Fz {sz:.4} N (standard \
              deviation) between repetitions of the same test ({} groups). A sensor that read the \
              applied force exactly would score about Fx {mx:.4}, Fy {my:.4}, Fz {mz:.4} N MAE \
@@ -444,10 +444,10 @@ fn run(args: Args) -> Result<(), Failure> {
     }
     for (preset, t) in &table_ii {
         writeln!(
-            report,
+            out,
             "## Table II: test-set errors per point ({preset} thresholds)\n"
         )?;
-        writeln!(report, "{}", report::table_ii_markdown(t))?;
+        writeln!(out, "{}", report::table_ii_markdown(t))?;
     }
     Ok(())
 }
