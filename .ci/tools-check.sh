@@ -150,6 +150,26 @@ if [[ -x $track ]]; then
     fi
   fi
 
+  # Raw mode: no calibration (a missing file does not matter), patches in
+  # pixels, the same JSON Lines layout with raw keys.
+  if check_status "track --raw" 0 "$track" --raw --thresholds low --calibration "$work/none.json" --out -; then
+    if [[ $(grep -c '^{"frame":' "$work/out") == 7 ]] && grep -q '"box_px":' "$work/out" &&
+      grep -q '"dn":' "$work/out" && ! grep -q '"x_mm"' "$work/out"; then
+      pass "track --raw writes patches without a calibration"
+    else
+      fail "track --raw: no raw patches in the JSON Lines" "$(cat "$work/out" "$work/err")"
+    fi
+  fi
+
+  # A crop other than the calibration's: refused unless forced.
+  if check_status "track --crop (not the calibration's)" 1 "$track" --crop 690,0,20,200; then
+    if grep -q "force-crop" "$work/err"; then
+      pass "track refuses a crop other than the calibration's"
+    else
+      fail "track --crop: the error does not say how to force it" "$(cat "$work/err")"
+    fi
+  fi
+
   # A runtime error: one line, status 1.
   if check_status "track with a missing calibration" 1 "$track" --calibration "$work/none.json"; then
     if [[ $(grep -c '^error: ' "$work/err") == 1 ]] && ! grep -q "panicked" "$work/err"; then

@@ -2,8 +2,9 @@
 //!
 //! ```text
 //! cargo run --release --features v4l --example live -- [--device /dev/video0]
-//!     [--size 1920x1080] [--fps 50] [--calibration fixtures/calibration.json]
-//!     [--crop x,y,w,h] [--frames N] [--out contacts.jsonl|-]
+//!     [--size 1920x1080] [--fps 50] [--channel green|luma]
+//!     [--calibration fixtures/calibration.json | --raw] [--crop x,y,w,h] [--force-crop]
+//!     [--thresholds low|mid|high] [--preset PRESET] [--frames N] [--out contacts.jsonl|-]
 //! ```
 //!
 //! The first frame is the reference: start with nothing touching the skin.
@@ -13,7 +14,9 @@
 //! capture times out instead of hanging); lines already written to `--out`
 //! are kept. `--out -` writes the JSON Lines to stdout and the contacts'
 //! lines to stderr; a closed stdout ends the run quietly. The default
-//! calibration is this crate's `fixtures/calibration.json`.
+//! calibration is this crate's `fixtures/calibration.json`. `--raw` needs no
+//! calibration and reports each frame's patches in pixels with their raw
+//! quantities, as `track --raw` does.
 
 #[path = "cli_support/mod.rs"]
 mod cli_support;
@@ -24,12 +27,16 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::Parser;
+use cli_support::pipeline::{Found, Pipeline, Raw, contact_row, patch_row};
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::FrameSource;
 use optical_tactile::capture::v4l::{Camera, CameraConfig};
-use optical_tactile::frame::Roi;
+use optical_tactile::contact::{Contact, RawContact};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
+use optical_tactile::segment::ThresholdPreset;
 use optical_tactile::sensor::TactileSensor;
 
 /// The calibration used unless `--calibration` names another: this crate's.
@@ -49,12 +56,27 @@ struct Cli {
     /// Requested frame rate.
     #[arg(long, value_name = "FPS", default_value_t = CameraConfig::default().fps)]
     fps: u32,
+    /// Which channel of colour frames becomes the grey image.
+    #[arg(long, value_name = "green|luma", default_value = "green", value_parser = cli_support::pipeline::channel)]
+    channel: Channel,
     /// Calibration file.
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
     calibration: PathBuf,
-    /// Crop of the camera frame [default: the calibration's].
+    /// No calibration: report each frame's patches in pixels with their raw quantities.
+    #[arg(long)]
+    raw: bool,
+    /// Crop of the camera frame [default: the calibration's; with --raw, the whole frame].
     #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     crop: Option<Roi>,
+    /// Use a --crop that differs from the calibration's.
+    #[arg(long)]
+    force_crop: bool,
+    /// Segmentation thresholds [default: the calibration's].
+    #[arg(long, value_name = "PRESET", value_parser = cli_support::threshold_preset())]
+    thresholds: Option<ThresholdPreset>,
+    /// DIS flow preset [default: the calibration's].
+    #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
+    preset: Option<DisPreset>,
     /// Stop after N frames [default: run until stopped].
     #[arg(long, value_name = "N")]
     frames: Option<usize>,
@@ -75,26 +97,43 @@ fn run(a: &Cli) -> Result<(), Failure> {
         u32::try_from(a.size.0).map_err(|_| "--size: width too large")?,
         u32::try_from(a.size.1).map_err(|_| "--size: height too large")?,
     );
-    if !calibration.is_file() {
-        return Err(format!(
-            "calibration file {} not found (fit one with the `calibrate` example, or pass --calibration FILE)",
-            calibration.display()
-        )
-        .into());
-    }
-    let cal = Calibration::load(calibration).map_err(|e| e.to_string())?;
-    let mut builder = TactileSensor::builder(cal);
-    if let Some(crop) = a.crop {
-        builder = builder.crop(crop);
-    }
-    let mut sensor = builder.build().map_err(|e| e.to_string())?;
+    let mut sensor = if a.raw {
+        Pipeline::Raw(Box::new(Raw::new(a.crop, a.preset, a.thresholds)?))
+    } else {
+        if !calibration.is_file() {
+            return Err(format!(
+                "calibration file {} not found (fit one with the `calibrate` example, pass \
+                 --calibration FILE, or run with --raw)",
+                calibration.display()
+            )
+            .into());
+        }
+        let cal = Calibration::load(calibration).map_err(|e| e.to_string())?;
+        let mut builder = TactileSensor::builder(cal);
+        if let Some(crop) = a.crop {
+            builder = builder.crop(crop).force_crop(a.force_crop);
+        }
+        if let Some(p) = a.preset {
+            builder = builder.flow(DisParams::preset(p));
+        }
+        if let Some(t) = a.thresholds {
+            builder = builder.thresholds(t);
+        }
+        let sensor = builder
+            .build()
+            .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))?;
+        Pipeline::Calibrated(Box::new(sensor))
+    };
+    cam.channel = a.channel;
     let mut camera = Camera::open(cam).map_err(|e| e.to_string())?;
     let (w, h) = camera.size();
-    let crop = sensor.crop();
-    eprintln!(
-        "camera {w}x{h}, crop {},{},{},{}",
-        crop.x, crop.y, crop.w, crop.h
-    );
+    let crop = match &sensor {
+        Pipeline::Calibrated(s) => s.crop().to_arg(),
+        Pipeline::Raw(r) => r
+            .crop
+            .map_or_else(|| "whole frame".to_string(), |c| c.to_arg()),
+    };
+    eprintln!("camera {w}x{h}, crop {crop}");
     let mut writer = a.out.as_ref().map(TextOut::create).transpose()?;
     let mut report = Sink::report(a.out.as_ref().is_some_and(TextOut::is_stdout));
 
@@ -115,31 +154,50 @@ fn run(a: &Cli) -> Result<(), Failure> {
             .ok_or("the camera stream ended")?
             .map_err(|e| e.to_string())?;
         let t = Instant::now();
-        let contacts = sensor
+        let found = sensor
             .process(&frame.image, frame.t_s)
-            .map_err(|e| format!("frame {}: {e}", frame.name))?
-            .to_vec();
+            .map_err(|e| format!("frame {}: {e}", frame.name))?;
         let latency_ms = t.elapsed().as_secs_f64() * 1e3;
         n += 1;
-        for c in &contacts {
-            let [x, y, z] = c.location_mm;
-            let [fx, fy, fz] = c.force_n;
-            writeln!(
-                report,
-                "{} t={:.3}s id {} at ({x:.1}, {y:.1}, {z:.1}) mm, F = ({fx:.2}, {fy:.2}, {fz:.2}) N ({latency_ms:.1} ms)",
-                frame.name, frame.t_s, c.id
-            )?;
+        match &found {
+            Found::Contacts(contacts) => {
+                for c in contacts {
+                    writeln!(
+                        report,
+                        "{}",
+                        contact_row(&frame.name, frame.t_s, c, latency_ms)
+                    )?;
+                }
+            }
+            Found::Patches(patches) => {
+                for (k, r) in patches.iter().enumerate() {
+                    writeln!(
+                        report,
+                        "{}",
+                        patch_row(&frame.name, frame.t_s, k, r, latency_ms)
+                    )?;
+                }
+            }
         }
         if sensor.rereferenced() {
             eprintln!("{}: new reference (quiet, small flow)", frame.name);
         }
         if let Some(wr) = &mut writer {
-            wr.json_line(&FrameRecord {
-                frame: frame.name.clone(),
-                t_s: frame.t_s,
-                contacts: contacts.iter().map(|c| c.to_record()).collect(),
-                latency_ms: Some(latency_ms),
-            })?;
+            let (name, t_s, latency_ms) = (frame.name.clone(), frame.t_s, Some(latency_ms));
+            match &found {
+                Found::Contacts(c) => wr.json_line(&FrameRecord {
+                    frame: name,
+                    t_s,
+                    contacts: c.iter().map(Contact::to_record).collect(),
+                    latency_ms,
+                })?,
+                Found::Patches(p) => wr.json_line(&FrameRecord {
+                    frame: name,
+                    t_s,
+                    contacts: p.iter().map(RawContact::to_record).collect(),
+                    latency_ms,
+                })?,
+            }
         }
         if n % 250 == 0 {
             eprintln!(

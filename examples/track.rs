@@ -1,9 +1,9 @@
 //! Runs the tactile sensor over an image sequence: contacts per frame.
 //!
 //! ```text
-//! cargo run --release --example track -- [SEQ_DIR] [--calibration FILE] [--crop x,y,w,h]
-//!     [--thresholds low|mid|high] [--preset fast|accurate|...] [--filter on|off]
-//!     [--rereference on|off] [--hold N] [--out contacts.jsonl|-] [--debug DIR] [--quiet]
+//! cargo run --release --example track -- [SEQ_DIR] [--calibration FILE | --raw] [--crop x,y,w,h]
+//!     [--force-crop] [--channel green|luma] [--thresholds low|mid|high] [--preset fast|accurate|...]
+//!     [--filter on|off] [--rereference on|off] [--hold N] [--out contacts.jsonl|-] [--debug DIR] [--quiet]
 //! ```
 //!
 //! With no arguments it runs on this crate's `fixtures/press` with
@@ -18,11 +18,23 @@
 //! quantities exactly as the calibration was fitted. `--preset` and
 //! `--thresholds` override them (the calibration's accuracy no longer holds).
 //!
+//! `--raw` needs no calibration: the crop defaults to the whole frame, the
+//! flow and thresholds to the library's defaults (or `--preset`,
+//! `--thresholds`), and every frame's patches are printed and written with
+//! their contact point and box in pixels, strength, shear and normal raw
+//! displacements (`ds1`, `ds2`, `dn`) and `d_pf`, in the same per-frame
+//! JSON Lines layout as calibrated contacts (docs/formats.md).
+//!
+//! A contact whose force came from the calibration's fallback maps is marked
+//! `(fallback)`, one outside what the calibration was fitted on
+//! `(out of domain)`; both marks are written to the JSON Lines. A `--crop`
+//! other than the calibration's is refused unless `--force-crop`.
+//!
 //! `--hold N` is how many frames a contact that is no longer detected is
 //! still reported with its last estimate (default 2; 0 for sequences whose
 //! frames are independent presses, such as `simulate presses`).
 //!
-//! `--out` writes JSON Lines per DATASET.md (one line per processed frame,
+//! `--out` writes JSON Lines per docs/formats.md (one line per processed frame,
 //! with `latency_ms`), flushed line by line; `--out -` writes them to stdout
 //! and the table to stderr. `--debug DIR` writes the debug panel (flow,
 //! divergent field, potential, image) of every frame as `DIR/<frame>.png`.
@@ -42,17 +54,20 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{ArgAction, Parser};
+use cli_support::pipeline::{
+    Found, Pipeline, Raw, contact_header, contact_row, patch_header, patch_row,
+};
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::Calibration;
 use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::capture::{FrameSource, SequenceSource};
+use optical_tactile::contact::{Contact, RawContact};
 use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::frame::Roi;
+use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
 use optical_tactile::segment::ThresholdPreset;
 use optical_tactile::sensor::TactileSensor;
 use optical_tactile::track::FilterConfig;
-use optical_tactile::viz;
 
 /// The sequence run with no argument: this crate's fixture.
 const DEFAULT_SEQ: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/press");
@@ -74,9 +89,20 @@ struct Cli {
     /// Calibration file.
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
     calibration: PathBuf,
-    /// Crop of the camera frame [default: the calibration's].
+    /// No calibration: print and write each frame's patches in pixels with
+    /// their raw quantities.
+    #[arg(long)]
+    raw: bool,
+    /// Crop of the camera frame [default: the calibration's; with --raw, the whole frame].
     #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     crop: Option<Roi>,
+    /// Use a --crop that differs from the calibration's (its locations and
+    /// forces then no longer hold).
+    #[arg(long)]
+    force_crop: bool,
+    /// Which channel of colour frames becomes the grey image.
+    #[arg(long, value_name = "green|luma", default_value = "green", value_parser = cli_support::pipeline::channel)]
+    channel: Channel,
     /// Segmentation thresholds [default: the calibration's].
     #[arg(long, value_name = "PRESET", value_parser = cli_support::threshold_preset())]
     thresholds: Option<ThresholdPreset>,
@@ -121,7 +147,7 @@ fn load_calibration(path: &Path) -> Result<Calibration, String> {
 fn sensor(a: &Cli, cal: Calibration) -> Result<TactileSensor, String> {
     let mut b = TactileSensor::builder(cal);
     if let Some(crop) = a.crop {
-        b = b.crop(crop);
+        b = b.crop(crop).force_crop(a.force_crop);
     }
     if let Some(p) = a.preset {
         b = b.flow(DisParams::preset(p));
@@ -137,48 +163,69 @@ fn sensor(a: &Cli, cal: Calibration) -> Result<TactileSensor, String> {
         c.rereference.enabled = a.rereference;
     })
     .build()
-    .map_err(|e| e.to_string())
+    .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))
 }
 
 /// Runs the sensor as `a` asks; `Ok(false)` if some frame was skipped.
 fn run(a: &Cli) -> Result<bool, Failure> {
-    let cal = load_calibration(&a.calibration)?;
-    let mut seq = SequenceSource::open(&a.seq).map_err(|e| format!("cannot open sequence: {e}"))?;
-    let mut sensor = sensor(a, cal)?;
+    let mut seq = SequenceSource::open(&a.seq)
+        .map_err(|e| format!("cannot open sequence: {e}"))?
+        .with_channel(a.channel);
+    let mut sensor = if a.raw {
+        Pipeline::Raw(Box::new(Raw::new(a.crop, a.preset, a.thresholds)?))
+    } else {
+        let cal = load_calibration(&a.calibration)?;
+        Pipeline::Calibrated(Box::new(sensor(a, cal)?))
+    };
     let mut out = a.out.as_ref().map(TextOut::create).transpose()?;
     let mut report = Sink::report(a.out.as_ref().is_some_and(TextOut::is_stdout));
     if let Some(d) = &a.debug {
         std::fs::create_dir_all(d)
             .map_err(|e| format!("cannot create debug directory {}: {e}", d.display()))?;
     }
-    let (c, crop) = (sensor.config(), sensor.crop());
-    eprintln!(
-        "sequence {} ({} frames), calibration {}, crop {},{},{},{}, flow preset {}, thresholds |flow| > {} px sum > {}, \
-         filter {}, re-referencing {}",
-        a.seq.display(),
-        seq.len(),
-        a.calibration.display(),
-        crop.x,
-        crop.y,
-        crop.w,
-        crop.h,
-        preset_name(&c.extractor),
-        c.extractor.thresholds.magnitude,
-        c.extractor.thresholds.sum,
-        if a.filter { "on" } else { "off" },
-        if a.rereference { "on" } else { "off" },
-    );
+    match &sensor {
+        Pipeline::Calibrated(s) => {
+            let (c, crop) = (s.config(), s.crop());
+            eprintln!(
+                "sequence {} ({} frames), calibration {}, crop {}, flow preset {}, thresholds |flow| > {} px sum > {}, \
+                 filter {}, re-referencing {}",
+                a.seq.display(),
+                seq.len(),
+                a.calibration.display(),
+                crop.to_arg(),
+                preset_name(&c.extractor),
+                c.extractor.thresholds.magnitude,
+                c.extractor.thresholds.sum,
+                if a.filter { "on" } else { "off" },
+                if a.rereference { "on" } else { "off" },
+            );
+        }
+        Pipeline::Raw(r) => {
+            let c = r.extractor.config();
+            eprintln!(
+                "sequence {} ({} frames), raw (no calibration), crop {}, flow preset {}, thresholds |flow| > {} px sum > {}",
+                a.seq.display(),
+                seq.len(),
+                r.crop
+                    .map_or_else(|| "whole frame".to_string(), |c| c.to_arg()),
+                preset_name(c),
+                c.thresholds.magnitude,
+                c.thresholds.sum,
+            );
+        }
+    }
 
     let mut skipped = 0usize;
     let mut have_reference = false;
     let (mut processed, mut busy_ms) = (0usize, 0.0f64);
     let wall = Instant::now();
     if !a.quiet {
-        writeln!(
-            report,
-            "{:<14} {:>7} {:>4} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>8}",
-            "frame", "t_s", "id", "x_mm", "y_mm", "z_mm", "fx_n", "fy_n", "fz_n", "ms"
-        )?;
+        let header = if a.raw {
+            patch_header()
+        } else {
+            contact_header()
+        };
+        writeln!(report, "{header}")?;
     }
     while let Some(frame) = seq.next_frame() {
         let frame = match frame {
@@ -208,8 +255,8 @@ fn run(a: &Cli) -> Result<bool, Failure> {
             continue;
         }
         let t = Instant::now();
-        let contacts = match sensor.process(&frame.image, frame.t_s) {
-            Ok(c) => c.to_vec(),
+        let found = match sensor.process(&frame.image, frame.t_s) {
+            Ok(f) => f,
             Err(e) => {
                 eprintln!("skipping frame {}: {e}", frame.name);
                 skipped += 1;
@@ -219,26 +266,34 @@ fn run(a: &Cli) -> Result<bool, Failure> {
         let latency_ms = t.elapsed().as_secs_f64() * 1e3;
         processed += 1;
         busy_ms += latency_ms;
+        let empty = match &found {
+            Found::Contacts(c) => c.is_empty(),
+            Found::Patches(p) => p.is_empty(),
+        };
         if !a.quiet {
-            if contacts.is_empty() {
+            if empty {
                 writeln!(
                     report,
                     "{:<14} {:>7.3} {:>4} {:>60.1}",
                     frame.name, frame.t_s, "-", latency_ms
                 )?;
             }
-            for (k, c) in contacts.iter().enumerate() {
-                let name = if k == 0 { frame.name.as_str() } else { "" };
-                let [x, y, z] = c.location_mm;
-                let [fx, fy, fz] = c.force_n;
-                writeln!(
-                    report,
-                    "{name:<14} {:>7.3} {:>4} {x:>8.2} {y:>8.2} {z:>8.2} {fx:>7.3} {fy:>7.3} {fz:>7.3} {:>8.1}{}",
-                    frame.t_s,
-                    c.id,
-                    latency_ms,
-                    if c.missed > 0 { " (held)" } else { "" }
-                )?;
+            let name = |k: usize| if k == 0 { frame.name.as_str() } else { "" };
+            match &found {
+                Found::Contacts(contacts) => {
+                    for (k, c) in contacts.iter().enumerate() {
+                        writeln!(report, "{}", contact_row(name(k), frame.t_s, c, latency_ms))?;
+                    }
+                }
+                Found::Patches(patches) => {
+                    for (k, r) in patches.iter().enumerate() {
+                        writeln!(
+                            report,
+                            "{}",
+                            patch_row(name(k), frame.t_s, k, r, latency_ms)
+                        )?;
+                    }
+                }
             }
             if sensor.rereferenced() {
                 writeln!(
@@ -249,13 +304,21 @@ fn run(a: &Cli) -> Result<bool, Failure> {
             }
         }
         if let Some(w) = &mut out {
-            let rec = FrameRecord {
-                frame: frame.name.clone(),
-                t_s: frame.t_s,
-                contacts: contacts.iter().map(|c| c.to_record()).collect(),
-                latency_ms: Some(latency_ms),
-            };
-            w.json_line(&rec)?;
+            let (frame_name, t_s, latency_ms) = (frame.name.clone(), frame.t_s, Some(latency_ms));
+            match &found {
+                Found::Contacts(c) => w.json_line(&FrameRecord {
+                    frame: frame_name,
+                    t_s,
+                    contacts: c.iter().map(Contact::to_record).collect(),
+                    latency_ms,
+                })?,
+                Found::Patches(p) => w.json_line(&FrameRecord {
+                    frame: frame_name,
+                    t_s,
+                    contacts: p.iter().map(RawContact::to_record).collect(),
+                    latency_ms,
+                })?,
+            }
         }
         if let Some(d) = &a.debug {
             let stem = Path::new(&frame.name)
@@ -263,7 +326,8 @@ fn run(a: &Cli) -> Result<bool, Failure> {
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_else(|| format!("{:06}", frame.index));
             let path = d.join(format!("{stem}.png"));
-            viz::debug_panel(&sensor)
+            sensor
+                .debug_panel()
                 .save_png(&path)
                 .map_err(|e| e.to_string())?;
         }

@@ -387,15 +387,42 @@ pub struct ContactRecord {
     pub out_of_domain: Option<bool>,
 }
 
-/// One line of a contacts JSON Lines file: a processed frame and its contacts.
+/// One patch of an uncalibrated (raw) run: where it is in the cropped image
+/// and its raw quantities (docs/pipeline.md, step 7), all in full-resolution
+/// pixels of the cropped image.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct FrameRecord {
+pub struct RawContactRecord {
+    /// Contact point column, px.
+    pub x_px: f64,
+    /// Contact point row, px.
+    pub y_px: f64,
+    /// The patch's bounding box `[x, y, w, h]`, px.
+    pub box_px: [usize; 4],
+    /// Detection strength: the patch's summed flow magnitude.
+    pub strength: f64,
+    /// Shear raw displacement along image x (sum of the flow's u), px.
+    pub ds1: f64,
+    /// Shear raw displacement along image y (sum of the flow's v), px.
+    pub ds2: f64,
+    /// Normal raw displacement (sum of the curl-free part's magnitude), px.
+    pub dn: f64,
+    /// Spread of the divergence potential, `max D - min D`.
+    pub d_pf: f64,
+    /// Patch area in pixels.
+    pub area_px: u64,
+}
+
+/// One line of a contacts JSON Lines file: a processed frame and its
+/// contacts, calibrated ([`ContactRecord`], the default) or raw
+/// ([`RawContactRecord`]), with the same layout.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct FrameRecord<C = ContactRecord> {
     /// Frame name (file name within the sequence, or a path).
     pub frame: String,
     /// Time stamp in seconds.
     pub t_s: f64,
     /// Contacts seen in this frame (empty if none).
-    pub contacts: Vec<ContactRecord>,
+    pub contacts: Vec<C>,
     /// Processing time of this frame in ms, if recorded (optional extension).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub latency_ms: Option<f64>,

@@ -308,11 +308,38 @@ const PANEL_GAP: usize = 4;
 ///
 /// Before any frame has been processed the fields are empty (black).
 pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
-    let img = sensor.cropped();
+    let live = sensor
+        .contacts()
+        .iter()
+        .filter(|c| c.missed == 0)
+        .map(|c| (c.raw, Some(c.force_n)));
+    panel(sensor.cropped(), sensor.extractor(), live)
+}
+
+/// [`debug_panel`] without a calibration (raw mode): the same four views of
+/// the last frame `extractor` processed (`cropped` is that frame, as given
+/// to [`ContactExtractor::extract`](crate::sensor::ContactExtractor::extract)),
+/// each patch marked with its box and contact point and no force arrow.
+pub fn raw_debug_panel(
+    extractor: &crate::sensor::ContactExtractor,
+    cropped: &ndarray::ArrayRef2<f32>,
+) -> Canvas {
+    panel(
+        cropped,
+        extractor,
+        extractor.raws().iter().map(|r| (*r, None)),
+    )
+}
+
+/// The four views; `marks` are the patches to mark, with their force when calibrated.
+fn panel(
+    img: &ndarray::ArrayRef2<f32>,
+    ex: &crate::sensor::ContactExtractor,
+    marks: impl Iterator<Item = (crate::contact::RawContact, Option<[f64; 3]>)>,
+) -> Canvas {
     let (w, h) = (img.ncols(), img.nrows());
     let row = (h + PANEL_GAP) as i64;
     let mut c = Canvas::new(w, 4 * h + 3 * PANEL_GAP, Rgb::BLACK);
-    let ex = sensor.extractor();
     let (flow, scale) = ex.flow();
     let s = scale.max(1);
     let sf = s as f64;
@@ -375,11 +402,7 @@ pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
         c.scalar(&mag, x0, row + y0, s);
         c.scalar(&dec.potential_d, x0, 2 * row + y0, s);
     }
-    for contact in sensor.contacts() {
-        if contact.missed > 0 {
-            continue;
-        }
-        let r = &contact.raw;
+    for (r, force) in marks {
         let bx = r.bbox;
         for dy in [row, 2 * row] {
             c.rect(
@@ -391,16 +414,19 @@ pub fn debug_panel(sensor: &crate::sensor::TactileSensor) -> Canvas {
             );
         }
         let (x, y) = (r.x_px, r.y_px + row as f64);
-        let [fx, fy, fz] = contact.force_n;
-        // The arrow first: the dot on top keeps the contact point visible.
-        c.arrow(
-            x,
-            y,
-            x + ARROW_PX_PER_N * fx,
-            y + ARROW_PX_PER_N * fy,
-            Rgb::YELLOW,
-        );
-        c.dot(x, y, 3.0 + 4.0 * fz.abs().min(10.0), Rgb::RED);
+        if let Some([fx, fy, fz]) = force {
+            // The arrow first: the dot on top keeps the contact point visible.
+            c.arrow(
+                x,
+                y,
+                x + ARROW_PX_PER_N * fx,
+                y + ARROW_PX_PER_N * fy,
+                Rgb::YELLOW,
+            );
+            c.dot(x, y, 3.0 + 4.0 * fz.abs().min(10.0), Rgb::RED);
+        } else {
+            c.dot(x, y, 3.0, Rgb::RED);
+        }
         c.dot(r.x_px, r.y_px + 2.0 * row as f64, 2.0, Rgb::RED);
     }
 

@@ -6,7 +6,7 @@
 //! is documented to detect, or stops telling two close rods apart.
 //!
 //! The full measurements (many positions, tilts, rest pairs) are made by
-//! `cargo run --release --example sweep` (docs/results.md).
+//! `cargo run --release -p optical-tactile-tools --bin sweep` (docs/results.md).
 
 use optical_tactile::contact::{ContactLocator, ContactPointMethod};
 use optical_tactile::segment::Thresholds;

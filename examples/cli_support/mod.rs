@@ -18,6 +18,8 @@
 //!   stderr, hidden when stderr is not a terminal or with `--quiet`.
 #![allow(dead_code)]
 
+pub mod pipeline;
+
 use std::fmt;
 use std::io::{self, IsTerminal, Write};
 use std::path::PathBuf;

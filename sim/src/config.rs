@@ -185,7 +185,7 @@ pub(crate) struct Markers {
 pub struct Rendered {
     /// The grey image (0..=255, integer-valued like an 8-bit camera frame).
     pub frame: Array2<f32>,
-    /// True motion from the unloaded state, px (see [`SyntheticSensor::render`]);
+    /// True motion from the unloaded state, px (see [`SyntheticSensor::render`](crate::SyntheticSensor::render));
     /// `None` when not requested.
     pub flow: Option<FlowField>,
 }

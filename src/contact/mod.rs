@@ -10,7 +10,7 @@ use crate::contact::profile::column_profile_into;
 use crate::error::{Error, Result};
 use crate::frame::Roi;
 use crate::geometry::SensorGeometry;
-use crate::io::ContactRecord;
+use crate::io::{ContactRecord, RawContactRecord};
 
 /// The raw, uncalibrated quantities of one contact patch (docs/pipeline.md, step 7), all
 /// in the pixels of the cropped full-resolution image.
@@ -45,6 +45,22 @@ pub struct RawContact {
 }
 
 impl RawContact {
+    /// The JSON Lines record of a raw run (docs/formats.md).
+    pub fn to_record(&self) -> RawContactRecord {
+        let b = self.bbox;
+        RawContactRecord {
+            x_px: self.x_px,
+            y_px: self.y_px,
+            box_px: [b.x, b.y, b.w, b.h],
+            strength: self.strength,
+            ds1: self.ds1,
+            ds2: self.ds2,
+            dn: self.dn,
+            d_pf: self.d_pf,
+            area_px: self.area_px,
+        }
+    }
+
     /// The local shear-to-normal ratio `ds1 / dn` (0 when `dn` is 0): how much
     /// of the load runs along the arc. It tells how far the contact point
     /// estimate is pulled sideways, so the location map takes it as an input.

@@ -154,7 +154,7 @@ impl From<ThresholdPreset> for Thresholds {
 /// [`Thresholds::HIGH`] were chosen on the simulator (default 1600 x 200 px
 /// strip, 5 px/mm) through [`ContactExtractor`](crate::sensor::ContactExtractor)
 /// with the default (accurate) DIS flow at its native resolution (scale 2).
-/// Measured with `cargo run --release --example sweep` (seed 1; tables in
+/// Measured with `cargo run --release -p optical-tactile-tools --bin sweep` (seed 1; tables in
 /// docs/results.md):
 ///
 /// | preset | min. detectable force (>= 95%) | every press from | false contacts at rest |

@@ -9,7 +9,7 @@
 //!
 //! Frames are rendered with the simulator's library API (no PNGs) and go
 //! through the sensor's default DIS flow (`fine`) on the extractor's
-//! analysis grid, as in [`ContactExtractor`].
+//! analysis grid, as in [`ContactExtractor`](optical_tactile::sensor::ContactExtractor).
 //!
 //! ```text
 //! cargo run --release -p optical-tactile-tools --bin sweep -- all

@@ -1,0 +1,175 @@
+//! The pipeline the `track` and `live` tools run: the calibrated sensor or,
+//! with `--raw`, the extractor alone; and how they print what they find.
+
+use ndarray::Array2;
+use optical_tactile::contact::{Contact, RawContact};
+use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::frame::{Channel, Roi};
+use optical_tactile::segment::ThresholdPreset;
+use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, TactileSensor};
+use optical_tactile::viz;
+
+/// Parses `--channel`: `green` or `luma`.
+pub fn channel(s: &str) -> Result<Channel, String> {
+    match s.to_ascii_lowercase().as_str() {
+        "green" => Ok(Channel::Green),
+        "luma" => Ok(Channel::Luma),
+        _ => Err(format!("expected green or luma, got `{s}`")),
+    }
+}
+
+/// The header of the calibrated table.
+pub fn contact_header() -> String {
+    format!(
+        "{:<14} {:>7} {:>4} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>8}",
+        "frame", "t_s", "id", "x_mm", "y_mm", "z_mm", "fx_n", "fy_n", "fz_n", "ms"
+    )
+}
+
+/// The header of the raw table.
+pub fn patch_header() -> String {
+    format!(
+        "{:<14} {:>7} {:>3} {:>8} {:>7} {:>18} {:>9} {:>9} {:>9} {:>9} {:>7} {:>8}",
+        "frame",
+        "t_s",
+        "k",
+        "x_px",
+        "y_px",
+        "box x,y,w,h",
+        "strength",
+        "ds1",
+        "ds2",
+        "dn",
+        "d_pf",
+        "ms"
+    )
+}
+
+/// Without a calibration: the extractor on the crop (the whole frame unless
+/// one is given), with the library's default flow and thresholds unless given.
+pub struct Raw {
+    /// The raw pipeline.
+    pub extractor: ContactExtractor,
+    /// The crop, `None` for the whole frame.
+    pub crop: Option<Roi>,
+    cropped: Array2<f32>,
+}
+
+impl Raw {
+    /// The raw pipeline with these overrides of the library's defaults.
+    pub fn new(
+        crop: Option<Roi>,
+        preset: Option<DisPreset>,
+        thresholds: Option<ThresholdPreset>,
+    ) -> Result<Raw, String> {
+        let mut config = ExtractorConfig::default();
+        if let Some(p) = preset {
+            config = config.with_flow(DisParams::preset(p));
+        }
+        if let Some(t) = thresholds {
+            config = config.with_thresholds(t);
+        }
+        Ok(Raw {
+            extractor: ContactExtractor::new(config).map_err(|e| e.to_string())?,
+            crop,
+            cropped: Array2::zeros((0, 0)),
+        })
+    }
+
+    fn crop(&mut self, frame: &Array2<f32>) -> optical_tactile::Result<()> {
+        let crop = self
+            .crop
+            .unwrap_or_else(|| Roi::full(frame.ncols(), frame.nrows()));
+        self.cropped = crop.crop(frame)?.to_owned();
+        Ok(())
+    }
+}
+
+/// What runs on the frames: the calibrated sensor, or the raw extractor.
+pub enum Pipeline {
+    /// The calibrated sensor.
+    Calibrated(Box<TactileSensor>),
+    /// The raw extractor.
+    Raw(Box<Raw>),
+}
+
+/// One frame's findings.
+pub enum Found {
+    /// Calibrated, tracked contacts.
+    Contacts(Vec<Contact>),
+    /// Raw patches.
+    Patches(Vec<RawContact>),
+}
+
+impl Pipeline {
+    /// Takes a whole camera frame as the reference.
+    pub fn set_reference(&mut self, frame: &Array2<f32>) -> optical_tactile::Result<()> {
+        match self {
+            Pipeline::Calibrated(s) => s.set_reference(frame),
+            Pipeline::Raw(r) => {
+                r.crop(frame)?;
+                r.extractor.set_reference(&r.cropped)
+            }
+        }
+    }
+
+    /// Processes a whole camera frame.
+    pub fn process(&mut self, frame: &Array2<f32>, t_s: f64) -> optical_tactile::Result<Found> {
+        match self {
+            Pipeline::Calibrated(s) => Ok(Found::Contacts(s.process(frame, t_s)?.to_vec())),
+            Pipeline::Raw(r) => {
+                r.crop(frame)?;
+                Ok(Found::Patches(r.extractor.extract(&r.cropped)?.to_vec()))
+            }
+        }
+    }
+
+    /// The debug panel of the last frame.
+    pub fn debug_panel(&self) -> viz::Canvas {
+        match self {
+            Pipeline::Calibrated(s) => viz::debug_panel(s),
+            Pipeline::Raw(r) => viz::raw_debug_panel(&r.extractor, &r.cropped),
+        }
+    }
+
+    /// Whether the last frame became the new reference.
+    pub fn rereferenced(&self) -> bool {
+        matches!(self, Pipeline::Calibrated(s) if s.rereferenced())
+    }
+}
+
+/// The calibrated table's row of a contact, with its marks.
+pub fn contact_row(name: &str, t_s: f64, c: &Contact, latency_ms: f64) -> String {
+    let [x, y, z] = c.location_mm;
+    let [fx, fy, fz] = c.force_n;
+    let mut marks = String::new();
+    for (on, mark) in [
+        (c.missed > 0, " (held)"),
+        (c.fallback, " (fallback)"),
+        (c.out_of_domain, " (out of domain)"),
+    ] {
+        if on {
+            marks.push_str(mark);
+        }
+    }
+    format!(
+        "{name:<14} {t_s:>7.3} {:>4} {x:>8.2} {y:>8.2} {z:>8.2} {fx:>7.3} {fy:>7.3} {fz:>7.3} {latency_ms:>8.1}{marks}",
+        c.id
+    )
+}
+
+/// The raw table's row of a patch.
+pub fn patch_row(name: &str, t_s: f64, k: usize, r: &RawContact, latency_ms: f64) -> String {
+    let b = r.bbox;
+    format!(
+        "{name:<14} {t_s:>7.3} {k:>3} {:>8.1} {:>7.1} {:>18} {:>9.0} {:>9.1} {:>9.1} {:>9.1} {:>7.2} {latency_ms:>8.1}",
+        r.x_px,
+        r.y_px,
+        format!("{},{},{},{}", b.x, b.y, b.w, b.h),
+        r.strength,
+        r.ds1,
+        r.ds2,
+        r.dn,
+        r.d_pf,
+    )
+}
