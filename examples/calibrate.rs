@@ -1,4 +1,4 @@
-//! Calibrates a sensor from a characterization dataset (DATASET.md).
+//! Calibrates a sensor from a characterization dataset (docs/formats.md).
 //!
 //! ```text
 //! cargo run --release --example calibrate -- DATASET_DIR [--thresholds low|mid|high|all]
@@ -69,7 +69,7 @@ use optical_tactile::sensor::ExtractorConfig;
 #[derive(Parser, Debug)]
 #[command(name = "calibrate")]
 struct Cli {
-    /// Characterization dataset folder (tests.csv and its frames, DATASET.md).
+    /// Characterization dataset folder (tests.csv and its frames, docs/formats.md).
     #[arg(value_name = "DATASET_DIR")]
     dir: PathBuf,
     /// Write the calibration (JSON) to FILE, or to stdout with `-` (the

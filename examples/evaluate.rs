@@ -19,7 +19,7 @@ use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::io::{FrameRecord, read_jsonl};
 use optical_tactile_sim::evaluate::score;
 
-/// Scores predicted contacts (JSON Lines, DATASET.md) against the truth:
+/// Scores predicted contacts (JSON Lines, docs/formats.md) against the truth:
 /// location and force MAE over matched contacts, misses, false contacts and
 /// latency, as a markdown table.
 #[derive(Parser, Debug)]

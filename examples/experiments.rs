@@ -1,6 +1,6 @@
-//! The paper's "Sensor Performance" section on the simulator (issue 8), in one
+//! The paper's "Sensor Performance" section on the simulator, in one
 //! command, printed as markdown with the paper's figures and our targets
-//! (SPEC.md, "The bar the paper sets") side by side:
+//! (docs/results.md) side by side:
 //!
 //! - Table I (per threshold preset low/mid/high: minimum detectable force and
 //!   test MAE of x, Fx, Fy, Fz) and Table II (per test point), from a
@@ -120,7 +120,7 @@ impl Plan {
     }
 }
 
-/// The paper's figures (real sensor) and the aim (SPEC.md).
+/// The paper's figures (real sensor) and the aim (docs/results.md).
 mod bar {
     /// Table I per preset low/mid/high: F_min text, x mm, Fx, Fy, Fz N.
     pub const TABLE_I: [(&str, [f64; 4]); 3] = [
@@ -268,7 +268,7 @@ fn print_table_i(out: &mut Sink, fits: &[PresetFit], tests: usize) -> std::io::R
         out,
         "Simulated characterization, {tests} tests (a random subset of the protocol's 7200), \
          each preset's own calibration fitted on its detections. Paper = real sensor (Table I); \
-         target = our aim (SPEC.md).\n"
+         target = our aim (docs/results.md).\n"
     )?;
     write!(out, "| Variable |")?;
     for f in fits {
@@ -515,7 +515,7 @@ fn print_summary(
     sp: &SpacingResult,
     mapping: &[MappingRun],
 ) -> std::io::Result<()> {
-    writeln!(out, "## Summary: the bar the paper sets (SPEC.md)\n")?;
+    writeln!(out, "## Summary: the bar the paper sets\n")?;
     writeln!(
         out,
         "| quantity | paper (real sensor) | paper's method in Python | our aim | ours | |"

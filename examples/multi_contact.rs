@@ -8,7 +8,7 @@
 //! ```
 //!
 //! Runs the sensor over the sequence and prints, per frame, every live
-//! contact (tracked id, x, Fz); with a truth file (`truth.jsonl`, DATASET.md;
+//! contact (tracked id, x, Fz); with a truth file (`truth.jsonl`, docs/formats.md;
 //! default: the one beside the frames, if any) each contact is matched to the
 //! nearest true contact in x within the gate, and the table ends with the
 //! error per contact. `--png` plots x, Fz and the shear forces over time for

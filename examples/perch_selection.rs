@@ -16,7 +16,7 @@
 //! (the deepest press, where forces are largest and the ranking most
 //! reliable). Their force magnitudes are ranked (rank 1 = stiffest = largest
 //! force); the move is the stiffest perch's x (sensor frame, body frame = sensor
-//! frame along x). With a truth file (`truth.jsonl`, DATASET.md; default: the
+//! frame along x). With a truth file (`truth.jsonl`, docs/formats.md; default: the
 //! one beside the frames, if any) the table adds each perch's true location
 //! and force in the press frame and whether the true ranking agrees.
 //!

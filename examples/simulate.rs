@@ -1,4 +1,4 @@
-//! Synthetic sensor frames with ground truth, written in the DATASET.md formats.
+//! Synthetic sensor frames with ground truth, written in the formats of docs/formats.md.
 //!
 //! ```text
 //! cargo run --release --example simulate -- <SCENARIO> --out DIR [OPTIONS]
@@ -80,7 +80,17 @@ pub enum Command {
         #[command(flatten)]
         options: PressesArgs,
     },
-    /// The characterization protocol (tests.csv + frames/), SPEC.md.
+    /// A rod pressing, then shearing (markers.csv: the markers' centres);
+    /// with --dot-grid, GelSight-like dot-grid frames with their true flow.
+    Shear {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: ShearArgs,
+    },
+    /// The characterization protocol (tests.csv + frames/), docs/calibration.md.
     Characterization {
         /// Common options.
         #[command(flatten)]

@@ -10,7 +10,7 @@
 //!     [--mounting default|identity] [--min-count N (default 1)]
 //! ```
 //!
-//! The sequence needs `poses.csv` (DATASET.md) with a row for every frame
+//! The sequence needs `poses.csv` (docs/formats.md) with a row for every frame
 //! that has contacts. The sensor mounting defaults to the simulator's (skin
 //! facing down under the body: sensor x = body x, y = -y, z = -z); a truth
 //! file's `sensor_in_body_rotation` / `sensor_in_body_offset_m` replace it,
@@ -122,7 +122,7 @@ fn run(cli: &Cli) -> Result<bool, Failure> {
     if !poses_path.is_file() {
         return Err(format!(
             "no poses.csv in {}: mapping needs the body pose of every frame with contacts \
-             (DATASET.md: frame,t_s,x_m,y_m,z_m,qw,qx,qy,qz)",
+             (docs/formats.md: frame,t_s,x_m,y_m,z_m,qw,qx,qy,qz)",
             dir.display()
         )
         .into());

@@ -27,7 +27,7 @@ pub const DEFAULT_CALIBRATION: &str =
 /// The options every demo takes.
 #[derive(Args, Debug, Clone, PartialEq)]
 pub struct DemoArgs {
-    /// A recorded sequence: a folder of frames (DATASET.md) [default:
+    /// A recorded sequence: a folder of frames (docs/formats.md) [default:
     /// simulate the demo's scenario first].
     #[arg(value_name = "SEQ_DIR", conflicts_with = "simulate")]
     pub input: Option<PathBuf>,

@@ -1,4 +1,4 @@
-//! Segmentation experiments on the simulator (issue 5), printed as markdown:
+//! Segmentation experiments on the simulator, printed as markdown:
 //!
 //! - `rest`: false contacts on rest pairs (reference against another unloaded
 //!   frame with fresh noise and flicker), per preset;
