@@ -7,7 +7,7 @@
 //! cargo run --release --example simulate -- <SCENARIO> --help
 //! ```
 //!
-//! Scenarios: `single`, `pair`, `presses`, `characterization`, `perches`,
+//! Scenarios: `single`, `pair`, `presses`, `shear`, `characterization`, `perches`,
 //! `mapping` (see `optical_tactile_sim::scenario`), and `fixtures`, which
 //! regenerates the repository's fixtures (by default in this crate's
 //! `fixtures/`, whatever the working directory) and, with `--docs`, the
@@ -28,9 +28,9 @@ use ndarray::{Array2, s};
 use optical_tactile::Result;
 use optical_tactile::viz::{Canvas, Rgb, colormap};
 use optical_tactile_sim::scenario::{
-    self, Characterization, Common, Mapping, Pair, Perches, Presses, Scenario, Single,
+    self, Characterization, Common, Mapping, Pair, Perches, Presses, Scenario, Shear, Single,
 };
-use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{DotGrid, Press, SimConfig, SyntheticSensor};
 
 /// Where `fixtures` writes by default: this crate's fixtures folder.
 const FIXTURES_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures");
@@ -173,6 +173,20 @@ pub struct CommonArgs {
     pub quiet: bool,
 }
 
+    /// A GelSight-like sensor instead of the strip: a 320x240 image of a
+    /// regular grid of dark dots on a bright, lit gel (--coverage and
+    /// --markers do not apply).
+    #[arg(long)]
+    pub dot_grid: bool,
+    /// Dot grid: distance between dot centres, px.
+    #[arg(long, value_name = "P", default_value_t = DotGrid::default().pitch_px)]
+    pub pitch_px: f64,
+    /// Dot grid: dot diameter, px.
+    #[arg(long, value_name = "D", default_value_t = DotGrid::default().diameter_px)]
+    pub dot_px: f64,
+    /// Dot grid: each dot moved off the grid by up to this, px.
+    #[arg(long, value_name = "J", default_value_t = DotGrid::default().jitter_px)]
+    pub jitter_px: f64,
 impl CommonArgs {
     /// The scenario's common options; `flow_default` when neither --flow
     /// nor --no-flow is given.
@@ -208,6 +222,14 @@ pub struct SingleArgs {
     /// Peak force magnitude, N.
     #[arg(long, value_name = "F", default_value_t = Single::default().force_n)]
     pub force_n: f64,
+        if self.dot_grid {
+            c.config = SimConfig::dot_grid(DotGrid {
+                pitch_px: self.pitch_px,
+                diameter_px: self.dot_px,
+                jitter_px: self.jitter_px,
+                ..DotGrid::default()
+            });
+        }
     /// Frames including the reference.
     #[arg(long, value_name = "N", default_value_t = Single::default().frames)]
     pub frames: usize,
@@ -341,6 +363,30 @@ pub struct FixturesArgs {
     pub out: PathBuf,
     /// Also write reference_frame.png and press_motion.png there.
     #[arg(long, value_name = "DIR")]
+/// `shear`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct ShearArgs {
+    /// Chord position of the rod, mm.
+    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Shear::default().x_mm)]
+    pub x_mm: f64,
+    /// Peak normal force, N.
+    #[arg(long, value_name = "F", default_value_t = Shear::default().force_n)]
+    pub force_n: f64,
+    /// Peak tangential force along x, N.
+    #[arg(long, value_name = "F", allow_negative_numbers = true, default_value_t = Shear::default().shear_n[0])]
+    pub shear_x_n: f64,
+    /// Peak tangential force along y, N.
+    #[arg(long, value_name = "F", allow_negative_numbers = true, default_value_t = Shear::default().shear_n[1])]
+    pub shear_y_n: f64,
+    /// Frames including the reference.
+    #[arg(long, value_name = "N", default_value_t = Shear::default().frames)]
+    pub frames: usize,
+    /// Rod diameter, mm.
+    #[arg(long, value_name = "D", default_value_t = Shear::default().indenter_mm)]
+    pub indenter_mm: f64,
+}
+
     pub docs: Option<PathBuf>,
     /// Seed for markers, noise and random choices.
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -480,6 +526,17 @@ fn run(command: Command) -> std::result::Result<(), Failure> {
                 out,
                 "wrote {} frames to {} in {:.1} s",
                 sum.frames,
+            Command::Shear { common, options: o } => run(
+                Scenario::Shear(Shear {
+                    x_mm: o.x_mm,
+                    force_n: o.force_n,
+                    shear_n: [o.shear_x_n, o.shear_y_n],
+                    frames: o.frames,
+                    indenter_mm: o.indenter_mm,
+                }),
+                &common,
+                true,
+            ),
                 sum.out.display(),
                 t0.elapsed().as_secs_f64()
             )?;

@@ -141,6 +141,17 @@ pub enum Error {
     /// No reference frame has been set yet.
     #[error("no reference frame: call set_reference first")]
     NoReference,
+
+    /// Another error, with what was being done when it happened (a
+    /// dataset's test and frame, say).
+    #[error("{context}: {source}")]
+    Context {
+        /// What was being done, e.g. `test 12 (frame t012.png)`.
+        context: String,
+        /// The error itself.
+        #[source]
+        source: Box<Error>,
+    },
 }
 
 impl Error {
@@ -170,6 +181,14 @@ impl Error {
         Error::Io {
             path: path.into(),
             source,
+        }
+    }
+
+    /// This error inside an [`Error::Context`] saying what was being done.
+    pub fn context(self, context: impl Into<String>) -> Self {
+        Error::Context {
+            context: context.into(),
+            source: Box::new(self),
         }
     }
 

@@ -20,6 +20,40 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
+/// Largest width or height of a frame, image or dense field the library
+/// reads: 16384 px, four times a 4K camera's width. Files declaring more are
+/// refused before anything is decoded or allocated.
+pub const MAX_FRAME_SIDE: usize = 1 << 14;
+
+/// Largest number of pixels of a frame, image or dense field the library
+/// reads: 2^25 (33.5 Mpx, e.g. 8192x4096), so that a decoded frame and its
+/// f32 copy stay within a few hundred MB.
+pub const MAX_FRAME_PIXELS: usize = 1 << 25;
+
+/// Errors unless `width x height` is within [`MAX_FRAME_SIDE`] and
+/// [`MAX_FRAME_PIXELS`] (`what` names the image in the message).
+pub fn check_frame_size(what: &str, width: usize, height: usize) -> Result<()> {
+    match frame_size_problem(width, height) {
+        Some(m) => Err(Error::param(what, m)),
+        None => Ok(()),
+    }
+}
+
+/// What is wrong with a `width x height` frame's size, if anything
+/// ([`check_frame_size`]).
+pub(crate) fn frame_size_problem(width: usize, height: usize) -> Option<String> {
+    let pixels = width.checked_mul(height);
+    (width > MAX_FRAME_SIDE
+        || height > MAX_FRAME_SIDE
+        || pixels.is_none_or(|n| n > MAX_FRAME_PIXELS))
+    .then(|| {
+        format!(
+            "{width}x{height} is larger than the largest frame read \
+                 ({MAX_FRAME_SIDE} px a side, {MAX_FRAME_PIXELS} pixels)"
+        )
+    })
+}
+
 /// Which channel of a colour image becomes the grayscale image.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -23,6 +23,103 @@ pub struct MarkerConfig {
     /// Range of peak spot brightness, 8-bit grey levels.
     pub brightness: (f64, f64),
 }
+    /// Where the markers lie and what they look like: random fluorescent
+    /// spots (the default; every field above applies) or a regular grid of
+    /// dark dots ([`DotGrid`]; only `depth_mm` applies).
+    pub layout: MarkerLayout,
+}
+
+/// The marker layout of a [`MarkerConfig`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum MarkerLayout {
+    /// Bright Gaussian spots scattered uniformly at random over the skin, at
+    /// random depths, sizes and brightnesses (the reference design's
+    /// fluorescent beads).
+    #[default]
+    Random,
+    /// A regular grid of dark dots (GelSight-like printed markers), one
+    /// depth for all: the mean of [`MarkerConfig::depth_mm`]. Meant for a
+    /// bright, lit gel ([`SimConfig::dot_grid`]).
+    Grid(DotGrid),
+}
+
+/// A regular grid of dark dots with soft edges, centred on the skin.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DotGrid {
+    /// Distance between neighbouring dot centres along both image axes, px.
+    pub pitch_px: f64,
+    /// Dot diameter (where the edge is half dark), px.
+    pub diameter_px: f64,
+    /// Width of the dot's soft edge (dark to clear), px; 0 is a hard edge.
+    pub edge_px: f64,
+    /// Each dot is moved off the grid by up to this many px along each axis
+    /// (uniform, from the seed); 0 is a perfect grid.
+    pub jitter_px: f64,
+    /// Grey levels a dot takes from the lit gel at its centre.
+    pub darkness: f64,
+}
+
+impl Default for DotGrid {
+    /// 8 px dots every 30 px, a 1.5 px edge, no jitter, 140 grey levels dark.
+    fn default() -> Self {
+        DotGrid {
+            pitch_px: 30.0,
+            diameter_px: 8.0,
+            edge_px: 1.5,
+            jitter_px: 0.0,
+            darkness: 140.0,
+        }
+    }
+}
+
+impl DotGrid {
+    /// Checks the numbers: dots that fit between their neighbours, jitter
+    /// included, and a darkness on the 8-bit scale.
+    pub fn validate(&self) -> Result<()> {
+        let g = self;
+        if !(g.pitch_px.is_finite() && (4.0..=1000.0).contains(&g.pitch_px)) {
+            return Err(Error::param(
+                "markers.grid.pitch_px",
+                format!("must lie in 4..=1000 px, got {}", g.pitch_px),
+            ));
+        }
+        if !(g.diameter_px.is_finite() && g.diameter_px >= 1.0) {
+            return Err(Error::param(
+                "markers.grid.diameter_px",
+                format!("must be finite and >= 1 px, got {}", g.diameter_px),
+            ));
+        }
+        if !(g.edge_px.is_finite() && (0.0..=g.diameter_px).contains(&g.edge_px)) {
+            return Err(Error::param(
+                "markers.grid.edge_px",
+                format!("must lie in 0..=diameter_px, got {}", g.edge_px),
+            ));
+        }
+        if !(g.jitter_px.is_finite() && g.jitter_px >= 0.0) {
+            return Err(Error::param(
+                "markers.grid.jitter_px",
+                format!("must be finite and >= 0, got {}", g.jitter_px),
+            ));
+        }
+        let span = g.diameter_px + g.edge_px + 2.0 * g.jitter_px;
+        if span >= g.pitch_px {
+            return Err(Error::param(
+                "markers.grid",
+                format!(
+                    "dots of {} px with a {} px edge and {} px of jitter touch their \
+                     neighbours {} px away",
+                    g.diameter_px, g.edge_px, g.jitter_px, g.pitch_px
+                ),
+            ));
+        }
+        if !(g.darkness.is_finite() && (0.0..=255.0).contains(&g.darkness)) {
+            return Err(Error::param(
+                "markers.grid.darkness",
+                format!("must lie in 0..=255, got {}", g.darkness),
+            ));
+        }
+        Ok(())
+    }
 
 impl Default for MarkerConfig {
     fn default() -> Self {
@@ -33,6 +130,7 @@ impl Default for MarkerConfig {
             depth_mm: (0.5, 4.0),
             brightness: (70.0, 200.0),
         }
+            layout: MarkerLayout::Random,
     }
 }
 
@@ -189,3 +287,63 @@ pub struct Rendered {
     /// `None` when not requested.
     pub flow: Option<FlowField>,
 }
+    /// A small sensor with a regular grid of dark dots on a bright, lit gel,
+    /// in the class of a GelSight Mini: a 320x240 image filled by a 31.9 x
+    /// 23.9 mm sensing area at 10 px/mm through a distortion-free lens (the
+    /// skin the rest of the simulator models, shortened), the default gel
+    /// with the dots 0.3 mm under its surface, the gel lit to 180 grey levels
+    /// (vignetting over the 320x240 frame) and the default camera noise. Rods
+    /// press across its whole width, as on the strip.
+    pub fn dot_grid(grid: DotGrid) -> SimConfig {
+        let d = SimConfig::default();
+        let px_per_mm = 10.0;
+        let (w, h) = (320usize, 240usize);
+        SimConfig {
+            skin: Skin {
+                geometry: optical_tactile::geometry::SensorGeometry {
+                    width_mm: 23.9,
+                    ..d.skin.geometry
+                },
+                length_mm: 31.9,
+            },
+            camera: CameraModel {
+                strip_width: w,
+                strip_height: h,
+                px_per_mm_s: px_per_mm,
+                px_per_mm_y: px_per_mm,
+                cubic: 0.0,
+                frame_size: (w, h),
+                strip_origin: (0, 0),
+            },
+            material: d.material,
+            markers: MarkerConfig {
+                depth_mm: (0.3, 0.3),
+                layout: MarkerLayout::Grid(grid),
+                ..d.markers
+            },
+            noise: NoiseConfig {
+                background: 180.0,
+                ..d.noise
+            },
+            full_frame: false,
+        }
+    }
+
+        if let MarkerLayout::Grid(g) = &m.layout {
+            g.validate()?;
+        }
+    /// Dots (grid layout): each marker's radius, px, its soft edge's half
+    /// width in `sigma` and a negative `amp`. Empty for Gaussian spots.
+    pub radius: Vec<f32>,
+}
+
+impl Markers {
+    /// How far from its centre marker `i` is drawn, px.
+    #[inline]
+    pub fn extent(&self, i: usize) -> f32 {
+        if self.radius.is_empty() {
+            crate::render::SPOT_RADIUS_SIGMAS * self.sigma[i]
+        } else {
+            self.radius[i] + self.sigma[i] + 1.0
+        }
+    }

@@ -44,6 +44,8 @@ pub mod scenario;
 mod sensor;
 
 pub use camera::{CameraModel, Skin};
-pub use config::{MarkerConfig, NoiseConfig, Rendered, SimConfig};
+pub use config::{
+    DotGrid, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
+};
 pub use elastic::Material;
 pub use sensor::{Press, SyntheticSensor};

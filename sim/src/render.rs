@@ -9,7 +9,7 @@
 use ndarray::Array2;
 use rayon::prelude::*;
 
-use super::config::{Markers, Rendered, SimConfig};
+use super::config::{MarkerLayout, Markers, Rendered, SimConfig};
 use super::rng::{SplitMix64, approx_normal_from_bits, hash64};
 use optical_tactile::flow::FlowField;
 
@@ -71,7 +71,7 @@ pub(crate) fn render(
     let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); nbands];
     for i in 0..markers.s.len() {
         let cy = markers.py[i] as f32 + motion[i].1 + origin.1;
-        let rad = SPOT_RADIUS_SIGMAS * markers.sigma[i];
+        let rad = markers.extent(i);
         let y0 = (cy - rad).floor().max(0.0);
         let y1 = (cy + rad).ceil().min(height as f32 - 1.0);
         if y1 < y0 {
@@ -83,7 +83,10 @@ pub(crate) fn render(
     }
     let mut flicker = SplitMix64::new(stream ^ 0x5DEE_CE66_D1CE_4E5B);
     let gain = (1.0 + cfg.noise.flicker as f64 * flicker.normal()).max(0.0) as f32;
-    let mean_amp = 0.5 * (cfg.markers.brightness.0 + cfg.markers.brightness.1) as f32;
+    let mean_amp = match &cfg.markers.layout {
+        MarkerLayout::Random => 0.5 * (cfg.markers.brightness.0 + cfg.markers.brightness.1) as f32,
+        MarkerLayout::Grid(g) => g.darkness as f32,
+    };
     let f = Frame {
         cfg,
         markers,
@@ -142,7 +145,7 @@ impl Frame<'_> {
             let cx = m.px[i] as f32 + du + self.origin.0;
             let cy = m.py[i] as f32 + dv + self.origin.1;
             let sigma = m.sigma[i];
-            let rad = SPOT_RADIUS_SIGMAS * sigma;
+            let rad = m.extent(i);
             let x0 = (cx - rad).floor().max(0.0);
             let x1 = (cx + rad).ceil().min(w as f32 - 1.0);
             let y0 = (cy - rad).floor().max(y_start as f32);
@@ -157,6 +160,28 @@ impl Frame<'_> {
                 let d = x as f32 - cx;
                 (-d * d * inv).exp()
             }));
+            if !m.radius.is_empty() {
+                // A dark dot: `amp` (negative) times its disc profile; the
+                // truth weighs its motion by the darkness it adds.
+                let (r, e, amp) = (m.radius[i], sigma, m.amp[i]);
+                for y in y0..=y1 {
+                    let dy = y as f32 - cy;
+                    let off = (y - y_start) * w;
+                    for x in x0..=x1 {
+                        let dx = x as f32 - cx;
+                        let p = dot_profile((dx * dx + dy * dy).sqrt(), r, e);
+                        rows[off + x] += amp * p;
+                        if !acc.is_empty() {
+                            let wt = amp.abs() * p;
+                            let a = &mut acc[off + x];
+                            a[0] += wt;
+                            a[1] += wt * du;
+                            a[2] += wt * dv;
+                        }
+                    }
+                }
+                continue;
+            }
             let amp = m.amp[i];
             for y in y0..=y1 {
                 let d = y as f32 - cy;
@@ -238,6 +263,18 @@ pub(crate) fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
     let (nx, ny, du, dv) = grid;
     let gx = (x / GRID_STEP.0 as f32).clamp(0.0, (*nx - 1) as f32);
     let gy = (y / GRID_STEP.1 as f32).clamp(0.0, (*ny - 1) as f32);
+/// A dot's darkness profile at distance `d` from its centre: 1 inside,
+/// 0 outside, a smoothstep across the edge `r - e ..= r + e` (a hard edge
+/// when `e` is 0).
+#[inline]
+pub(crate) fn dot_profile(d: f32, r: f32, e: f32) -> f32 {
+    if e <= 0.0 {
+        return if d <= r { 1.0 } else { 0.0 };
+    }
+    let t = ((r + e - d) / (2.0 * e)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
     let i0 = (gx as usize).min(nx - 2);
     let j0 = (gy as usize).min(ny - 2);
     let (fx, fy) = (gx - i0 as f32, gy - j0 as f32);

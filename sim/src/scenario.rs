@@ -182,6 +182,38 @@ impl Default for Presses {
     }
 }
 
+/// A rod pressing, then shearing: the normal force ramps up over the first
+/// half of the loaded frames, then, held, the tangential force ramps up over
+/// the second half. Also writes `markers.csv` (`x_px,y_px`: every marker's
+/// centre in the reference frame, image pixels), for scoring a flow at the
+/// markers. With [`SimConfig::dot_grid`] it makes dot-grid frames of a
+/// GelSight-like sensor with their true flow.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shear {
+    /// Chord position of the rod, mm.
+    pub x_mm: f64,
+    /// Peak normal force, N (pressing: applied as `Fz = -force_n`).
+    pub force_n: f64,
+    /// Peak tangential force `[Fx, Fy]`, N.
+    pub shear_n: [f64; 2],
+    /// Number of frames including the unloaded reference (at least 3).
+    pub frames: usize,
+    /// Rod diameter, mm.
+    pub indenter_mm: f64,
+}
+
+impl Default for Shear {
+    fn default() -> Self {
+        Shear {
+            x_mm: 0.0,
+            force_n: 2.0,
+            shear_n: [0.6, 0.2],
+            frames: 9,
+            indenter_mm: 5.0,
+        }
+    }
+}
+
 /// Two perches of different stiffness under a descending body.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Perches {
@@ -263,6 +295,8 @@ pub fn no_progress(_: &str, _: usize, _: usize) {}
 
 /// What a scenario wrote.
 #[derive(Debug, Clone, PartialEq)]
+    /// A press, then shear, with the markers' centres.
+    Shear(Shear),
 pub struct Summary {
     /// The output folder.
     pub out: PathBuf,
@@ -486,6 +520,21 @@ pub fn run_with_progress(
                 }
             }
             if !(o.max_penetration_mm.is_finite() && o.max_penetration_mm >= 0.0) {
+        Scenario::Shear(o) => {
+            check_force("force_n", o.force_n)?;
+            if o.frames < 3 {
+                return Err(Error::param(
+                    "frames",
+                    format!(
+                        "need at least 3 (reference, press, shear), got {}",
+                        o.frames
+                    ),
+                ));
+            }
+            if o.shear_n.iter().any(|f| !f.is_finite()) {
+                return Err(Error::param("shear_n", "must be finite"));
+            }
+        }
                 return Err(Error::param("max_penetration_mm", "must be >= 0"));
             }
         }
@@ -528,6 +577,7 @@ fn single(
     // Reject a bad contact before writing anything.
     sensor.loads(&[Press::rod(o.x_mm, f, o.indenter_mm)])?;
     let mut w = SequenceWriter::new(c, "single", o.frames, progress)?;
+        Scenario::Shear(o) => shear(&sensor, common, o, progress),
     for k in 0..o.frames {
         let a = o.force_n * ramp(k, o.frames);
         let contacts = if k == 0 {
@@ -565,6 +615,64 @@ fn presses(
     for _ in 0..o.presses {
         let x = rng.uniform(-o.x_max_mm, o.x_max_mm);
         let f = rng.uniform(o.force_min_n, o.force_max_n);
+impl Shear {
+    /// The rod of frame `k` (`None` for the reference, frame 0).
+    pub fn press(&self, k: usize) -> Option<Press> {
+        shear_press(self, k)
+    }
+}
+
+fn shear_press(o: &Shear, k: usize) -> Option<Press> {
+    if k == 0 {
+        return None;
+    }
+    let loaded = o.frames - 1;
+    let press_frames = loaded.div_ceil(2);
+    let normal = (k as f64 / press_frames as f64).min(1.0);
+    let shear = if k > press_frames {
+        (k - press_frames) as f64 / (loaded - press_frames) as f64
+    } else {
+        0.0
+    };
+    let f = [
+        o.shear_n[0] * shear,
+        o.shear_n[1] * shear,
+        -o.force_n * normal,
+    ];
+    Some(Press::rod(o.x_mm, f, o.indenter_mm))
+}
+
+fn shear(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Shear,
+    progress: Progress<'_>,
+) -> Result<Summary> {
+    let rods: Vec<Option<Press>> = (0..o.frames).map(|k| shear_press(o, k)).collect();
+    for rod in rods.iter().flatten() {
+        sensor.loads(std::slice::from_ref(rod))?;
+    }
+    let mut w = SequenceWriter::new(c, "shear", o.frames, progress)?;
+    let origin = if c.config.full_frame {
+        c.config.camera.strip_origin
+    } else {
+        (0, 0)
+    };
+    let mut csv = String::from("x_px,y_px\n");
+    for (_, _, _, x, y) in sensor.marker_positions() {
+        csv += &format!("{:.4},{:.4}\n", x + origin.0 as f64, y + origin.1 as f64);
+    }
+    let path = c.out.join("markers.csv");
+    std::fs::write(&path, csv).map_err(|e| Error::io(&path, e))?;
+    for rod in &rods {
+        w.frame(sensor, rod.as_slice())?;
+    }
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
         let tilt = rng.uniform(-o.max_tilt_deg, o.max_tilt_deg);
         let (yaw, pitch) = if rng.below(2) == 0 {
             (0.0, tilt)

@@ -5,7 +5,7 @@ use optical_tactile::error::{Error, Result};
 use optical_tactile::flow::FlowField;
 use rayon::prelude::*;
 
-use super::config::{Markers, Rendered, SimConfig};
+use super::config::{DotGrid, MarkerLayout, Markers, Rendered, SimConfig};
 use super::elastic::{QuadratureCache, RodLoad, hertz_half_width};
 use super::render;
 use super::rng::{SplitMix64, mix64};
@@ -268,7 +268,8 @@ impl SyntheticSensor {
     }
 }
 
-/// Scatters markers uniformly over the skin (Poisson-like random layout).
+/// Places the markers: scattered uniformly over the skin (Poisson-like
+/// random layout) or on a regular grid of dots.
 fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
     let mc = &config.markers;
     let skin = &config.skin;
@@ -300,6 +301,9 @@ fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
         m.py.push(cam.y_to_px(y));
         m.amp.push(amp as f32);
         m.sigma.push((fwhm / (8.0 * 2f64.ln()).sqrt()) as f32);
+    if let MarkerLayout::Grid(g) = &mc.layout {
+        return grid_markers(config, g, seed);
+    }
     }
     m
 }
@@ -333,6 +337,43 @@ mod tests {
             let rad = render::SPOT_RADIUS_SIGMAS as f64 * sg;
             // Every pixel whose centre lies in the spot's radius box (the
             // renderer's window), found by scanning all rows and columns.
+/// A regular grid of dots every `pitch_px` over the skin's image, centred on
+/// it, each moved by up to `jitter_px` (from the seed), all at the mean depth.
+fn grid_markers(config: &SimConfig, g: &DotGrid, seed: u64) -> Markers {
+    let skin = &config.skin;
+    let cam = &config.camera;
+    let mut rng = SplitMix64::new(mix64(seed));
+    let h = skin.half_length();
+    let half_w = 0.5 * skin.width_mm();
+    let (x_lo, x_hi) = (cam.s_to_px(skin, -h), cam.s_to_px(skin, h));
+    let (y_lo, y_hi) = (cam.y_to_px(-half_w), cam.y_to_px(half_w));
+    let count = |span: f64| ((span / g.pitch_px).floor() as usize).max(1);
+    let (nx, ny) = (count(x_hi - x_lo), count(y_hi - y_lo));
+    let first = |lo: f64, hi: f64, n: usize| 0.5 * (lo + hi) - 0.5 * (n - 1) as f64 * g.pitch_px;
+    let (fx, fy) = (first(x_lo, x_hi, nx), first(y_lo, y_hi, ny));
+    let depth = 0.5 * (config.markers.depth_mm.0 + config.markers.depth_mm.1);
+    let mut m = Markers::default();
+    for row in 0..ny {
+        for col in 0..nx {
+            let jx = rng.uniform(-g.jitter_px, g.jitter_px);
+            let jy = rng.uniform(-g.jitter_px, g.jitter_px);
+            let x = (fx + col as f64 * g.pitch_px + jx).clamp(x_lo, x_hi);
+            let y = (fy + row as f64 * g.pitch_px + jy).clamp(y_lo, y_hi);
+            let s = cam.px_to_s(skin, x).clamp(-h, h);
+            let yy = cam.px_to_y(y).clamp(-half_w, half_w);
+            m.s.push(s);
+            m.y.push(yy);
+            m.z.push(depth);
+            m.px.push(cam.s_to_px(skin, s));
+            m.py.push(cam.y_to_px(yy));
+            m.amp.push(-g.darkness as f32);
+            m.sigma.push((0.5 * g.edge_px) as f32);
+            m.radius.push((0.5 * g.diameter_px) as f32);
+        }
+    }
+    m
+}
+
             let (x0, x1) = ((cx - rad).floor(), (cx + rad).ceil());
             let (y0, y1) = ((cy - rad).floor(), (cy + rad).ceil());
             for y in (0..h).filter(|&y| y as f64 >= y0 && y as f64 <= y1) {

@@ -515,8 +515,9 @@ pub const DEFAULT_CONTACT_WINDOW_PX: u32 = 400;
 /// cropping each image to `crop` if given, and measures each contact's
 /// column by `contact_point` ([`ContactLocator`]).
 /// `progress(done, total)` is called
-/// from worker threads as tests finish. The first unreadable image stops the
-/// run with an error that names it.
+/// from worker threads as tests finish. The first test that cannot be read
+/// or processed stops the run with an error ([`Error::Context`]) that names
+/// the test and its frames.
 pub fn extract_dataset(
     dir: impl AsRef<Path>,
     rows: &[TestRow],
@@ -528,6 +529,7 @@ pub fn extract_dataset(
     let dir = dir.as_ref();
     // Checks the configuration once, so that workers cannot fail to build one.
     ContactExtractor::new(config.clone())?;
+    contact_point.validate()?;
     let done = AtomicUsize::new(0);
     let total = rows.len();
     rows.par_iter()
@@ -539,25 +541,33 @@ pub fn extract_dataset(
                 )
             },
             |(ex, locator), row| {
-                let reference = load(dir, &row.reference, crop)?;
-                let frame = load(dir, &row.frame, crop)?;
-                ex.set_reference(&reference)?;
-                let mut raws = ex.extract(&frame)?.to_vec();
-                let (flow, s) = ex.finest_flow();
-                let s = s as f64;
-                locator.refine(contact_point, &mut raws, flow.u.view(), s)?;
-                let mut profiles = [Vec::new(), Vec::new()];
-                if !raws.is_empty() {
-                    column_profile_into(flow.u.view(), s, &mut profiles[0]);
-                    column_profile_into(flow.v.view(), s, &mut profiles[1]);
-                }
-                let out = Extraction {
-                    row: row.clone(),
-                    raw: raws.first().copied(),
-                    patches: raws.len(),
-                    profiles,
-                    scale: s,
+                let mut one = || -> Result<Extraction> {
+                    let reference = load(dir, &row.reference, crop)?;
+                    let frame = load(dir, &row.frame, crop)?;
+                    ex.set_reference(&reference)?;
+                    let mut raws = ex.extract(&frame)?.to_vec();
+                    let (flow, s) = ex.finest_flow();
+                    let s = s as f64;
+                    locator.refine(contact_point, &mut raws, flow.u.view(), s)?;
+                    let mut profiles = [Vec::new(), Vec::new()];
+                    if !raws.is_empty() {
+                        column_profile_into(flow.u.view(), s, &mut profiles[0]);
+                        column_profile_into(flow.v.view(), s, &mut profiles[1]);
+                    }
+                    Ok(Extraction {
+                        row: row.clone(),
+                        raw: raws.first().copied(),
+                        patches: raws.len(),
+                        profiles,
+                        scale: s,
+                    })
                 };
+                let out = one().map_err(|e| {
+                    e.context(format!(
+                        "test {} (frame {}, reference {})",
+                        row.test, row.frame, row.reference
+                    ))
+                })?;
                 progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
                 Ok(out)
             },

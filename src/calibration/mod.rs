@@ -128,6 +128,39 @@ pub struct PipelineSettings {
     pub contact_point: Option<ContactPointMethod>,
 }
 
+impl SensorSetup {
+    /// The crop and the pipeline settings within their bounds
+    /// (docs/formats.md): the crop inside the largest frame
+    /// ([`crate::frame::MAX_FRAME_SIDE`]), the margin and contact window at
+    /// most that, the contact point method's parameter within its bound.
+    fn check(&self) -> std::result::Result<(), String> {
+        let max = crate::frame::MAX_FRAME_SIDE;
+        let c = &self.crop;
+        let inside = |start: usize, len: usize| start.checked_add(len).is_some_and(|e| e <= max);
+        if !(inside(c.x, c.w) && inside(c.y, c.h)) {
+            return Err(format!(
+                "crop {} reaches beyond the largest frame ({max} px a side)",
+                c.to_arg()
+            ));
+        }
+        if let Some(p) = &self.pipeline {
+            if p.margin_px > max {
+                return Err(format!("pipeline.margin_px {} is above {max}", p.margin_px));
+            }
+            if p.contact_window_px as usize > max {
+                return Err(format!(
+                    "pipeline.contact_window_px {} is above {max}",
+                    p.contact_window_px
+                ));
+            }
+            p.contact_point_method()
+                .validate()
+                .map_err(|e| format!("pipeline.contact_point: {e}"))?;
+        }
+        Ok(())
+    }
+}
+
 impl PipelineSettings {
     /// How the contact column is measured (see [`PipelineSettings::contact_point`]).
     pub fn contact_point_method(&self) -> ContactPointMethod {
@@ -436,7 +469,11 @@ impl Calibration {
             .validate()
             .map_err(|e| format!("geometry: {e}"))?;
         if let Some(p) = &self.profile {
-            p.validate().map_err(|e| e.to_string())?;
+            p.validate().map_err(|e| match e {
+                // The file is named by the caller.
+                Error::Calibration { message, .. } => message,
+                e => e.to_string(),
+            })?;
         }
         if let Some(g) = &self.guard {
             g.validate()?;
@@ -448,6 +485,7 @@ impl Calibration {
                 "min_normal_n must be finite and non-negative, got {m}"
             ));
         }
+        self.setup.check()?;
         self.setup.thresholds.validate().map_err(|e| e.to_string())
     }
 

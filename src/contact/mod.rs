@@ -374,11 +374,46 @@ pub enum ContactPointMethod {
     },
 }
 
+/// Largest smoothing of [`ContactPointMethod::SlopePeak`], full-resolution
+/// pixels: 256 (the default is 8; the Gaussian reaches 3 sigma each side, so
+/// 256 px already spans 1536 px, about a whole 1600-px strip).
+pub const MAX_SLOPE_SIGMA_PX: f64 = 256.0;
+
+/// Largest half-window of [`ContactPointMethod::EnergyCentroid`],
+/// full-resolution pixels: the largest frame side,
+/// [`crate::frame::MAX_FRAME_SIDE`] (the default is 400).
+pub const MAX_CENTROID_HALF_WINDOW_PX: f64 = crate::frame::MAX_FRAME_SIDE as f64;
+
 impl ContactPointMethod {
     /// The default for new calibrations: [`ContactPointMethod::SlopePeak`]
     /// with 8 px of smoothing (on the simulator's protocol it locates
     /// contacts to about 0.25 mm, against 0.65 mm for the energy centroid).
     pub const DEFAULT: Self = Self::SlopePeak { sigma_px: 8.0 };
+
+    /// Errors ([`Error::InvalidParameter`]) unless the method's parameter is
+    /// finite, positive and at most its bound ([`MAX_SLOPE_SIGMA_PX`],
+    /// [`MAX_CENTROID_HALF_WINDOW_PX`]).
+    pub fn validate(&self) -> Result<()> {
+        let (name, x, max) = match *self {
+            ContactPointMethod::PotentialMinimum => return Ok(()),
+            ContactPointMethod::EnergyCentroid { half_window_px } => (
+                "half_window_px",
+                half_window_px,
+                MAX_CENTROID_HALF_WINDOW_PX,
+            ),
+            ContactPointMethod::SlopePeak { sigma_px } => {
+                ("sigma_px", sigma_px, MAX_SLOPE_SIGMA_PX)
+            }
+        };
+        if x > 0.0 && x <= max {
+            Ok(())
+        } else {
+            Err(Error::param(
+                name,
+                format!("must be > 0 and at most {max} px, got {x:?}"),
+            ))
+        }
+    }
 }
 
 impl Default for ContactPointMethod {
@@ -408,7 +443,8 @@ impl ContactLocator {
     /// Replaces each contact's `x_px` as `method` says, from the frame's flow
     /// along x (`u`, on a grid of `scale` full-resolution pixels per cell).
     /// [`ContactPointMethod::PotentialMinimum`] leaves the contacts as they
-    /// are. Errors on a non-positive or non-finite scale or method parameter.
+    /// are. Errors on a non-positive or non-finite scale, or a method
+    /// parameter out of its range ([`ContactPointMethod::validate`]).
     pub fn refine(
         &mut self,
         method: ContactPointMethod,
@@ -416,11 +452,11 @@ impl ContactLocator {
         u: ArrayView2<'_, f32>,
         scale: f64,
     ) -> Result<()> {
+        method.validate()?;
         match method {
             ContactPointMethod::PotentialMinimum => Ok(()),
             ContactPointMethod::EnergyCentroid { half_window_px } => {
                 check_positive("scale", scale)?;
-                check_positive("half_window_px", half_window_px)?;
                 if raws.is_empty() || u.ncols() == 0 {
                     return Ok(());
                 }
@@ -446,7 +482,6 @@ impl ContactLocator {
             }
             ContactPointMethod::SlopePeak { sigma_px } => {
                 check_positive("scale", scale)?;
-                check_positive("sigma_px", sigma_px)?;
                 self.slope_peak(raws, u, scale, sigma_px);
                 Ok(())
             }
@@ -475,7 +510,9 @@ impl ContactLocator {
         // Gaussian smoothing, truncated at 3 sigma and renormalised where the
         // profile ends, so that an edge does not drag the slope to zero.
         let sigma = sigma_px / scale;
-        let radius = (3.0 * sigma).ceil() as usize;
+        // No sample lies further than the profile's length away, whatever
+        // the scale: the kernel need not reach further.
+        let radius = (3.0 * sigma).ceil().min(n as f64) as usize;
         self.kernel.clear();
         self.kernel.extend((0..=radius).map(|k| {
             let t = k as f64 / sigma;

@@ -124,10 +124,11 @@ pub struct ColumnMap {
 }
 
 impl ColumnMap {
-    /// Least-squares polynomial of `degree` (1..=6) through `(x_mm, column_px)`
-    /// pairs. Errors on too few or non-finite points or a singular fit.
+    /// Least-squares polynomial of `degree` (1..=[`MAX_PROFILE_DEGREE`])
+    /// through `(x_mm, column_px)` pairs. Errors on too few or non-finite
+    /// points or a singular fit.
     pub fn fit(points: &[(f64, f64)], degree: usize) -> Result<Self> {
-        if !(1..=6).contains(&degree) {
+        if !(1..=MAX_PROFILE_DEGREE).contains(&degree) {
             return Err(Error::param(
                 "degree",
                 format!("column map degree must be 1..=6, got {degree}"),
@@ -197,12 +198,32 @@ impl ColumnMap {
                 "profile model: the column map needs scale_mm > 0 and finite coefficients".into(),
             ));
         }
+        if self.coefficients.len() > MAX_PROFILE_DEGREE + 1 {
+            return Err(calibration_error(format!(
+                "profile model: the column map has {} coefficients, at most {} (degree {MAX_PROFILE_DEGREE})",
+                self.coefficients.len(),
+                MAX_PROFILE_DEGREE + 1
+            )));
+        }
         Ok(())
     }
 }
 
 /// Force components per contact.
 const COMPONENTS: usize = 3;
+
+/// Largest degree of a [`ProfileModel`]'s position polynomial (and of a
+/// [`ColumnMap`]): 6.
+pub const MAX_PROFILE_DEGREE: usize = 6;
+
+/// Largest number of kernel samples on each side of a contact in a
+/// [`ProfileModel`]: 4096 (the default is 300 px at 2 px a sample, 150).
+pub const MAX_PROFILE_HALF_WIDTH: usize = 4096;
+
+/// Largest reach and sample spacing of a [`ProfileModel`]'s kernels,
+/// full-resolution pixels: the largest frame side,
+/// [`crate::frame::MAX_FRAME_SIDE`].
+pub const MAX_PROFILE_REACH_PX: f64 = crate::frame::MAX_FRAME_SIDE as f64;
 
 impl ProfileModel {
     /// Fits the kernels to `samples` by least squares, sample offset by
@@ -231,13 +252,34 @@ impl ProfileModel {
                 return Err(Error::param(name, format!("must be > 0, got {x}")));
             }
         }
+        for (name, x) in [("step_px", step_px), ("half_width_px", half_width_px)] {
+            if x > MAX_PROFILE_REACH_PX {
+                return Err(Error::param(
+                    name,
+                    format!("at most {MAX_PROFILE_REACH_PX} px, got {x}"),
+                ));
+            }
+        }
         if !centre_px.is_finite() {
             return Err(Error::param("centre_px", "must be finite"));
         }
-        if degree > 6 {
-            return Err(Error::param("degree", format!("at most 6, got {degree}")));
+        if degree > MAX_PROFILE_DEGREE {
+            return Err(Error::param(
+                "degree",
+                format!("at most {MAX_PROFILE_DEGREE}, got {degree}"),
+            ));
         }
-        let half_width = (half_width_px / step_px).round() as usize;
+        let samples_per_side = (half_width_px / step_px).round();
+        if samples_per_side > MAX_PROFILE_HALF_WIDTH as f64 {
+            return Err(Error::param(
+                "step_px",
+                format!(
+                    "{half_width_px} px at {step_px} px a sample is {samples_per_side} samples a \
+                     side, more than {MAX_PROFILE_HALF_WIDTH}"
+                ),
+            ));
+        }
+        let half_width = samples_per_side as usize;
         let unknowns = COMPONENTS * (degree + 1);
         if samples.len() < 2 * unknowns {
             return Err(calibration_error(format!(
@@ -297,12 +339,28 @@ impl ProfileModel {
     /// Checks the shapes and values of a loaded model.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(calibration_error(format!("profile model: {m}")));
-        if !(self.step_px > 0.0 && self.step_px.is_finite()) {
-            return bad(format!("step_px must be > 0, got {}", self.step_px));
+        if !(self.step_px > 0.0 && self.step_px <= MAX_PROFILE_REACH_PX) {
+            return bad(format!(
+                "step_px must be > 0 and at most {MAX_PROFILE_REACH_PX}, got {}",
+                self.step_px
+            ));
         }
         if !(self.span_px > 0.0 && self.span_px.is_finite() && self.centre_px.is_finite()) {
             return bad("centre_px and span_px must be finite, span_px > 0".into());
         }
+        if self.degree > MAX_PROFILE_DEGREE {
+            return bad(format!(
+                "degree {} is above {MAX_PROFILE_DEGREE}",
+                self.degree
+            ));
+        }
+        if self.half_width > MAX_PROFILE_HALF_WIDTH {
+            return bad(format!(
+                "half_width {} is above {MAX_PROFILE_HALF_WIDTH} samples",
+                self.half_width
+            ));
+        }
+        // Cannot overflow: both are bounded above.
         let n = 2 * self.half_width + 1;
         let unknowns = COMPONENTS * (self.degree + 1);
         if self.kernels.len() != 2

@@ -46,6 +46,17 @@ use crate::error::{Error, Result};
 /// Largest supported patch side (keeps the per-patch scratch on the stack).
 pub const MAX_PATCH_SIZE: usize = 32;
 
+/// Largest `gradient_descent_iterations` of [`DisParams`]: 1000 (the presets
+/// use 4 to 25).
+pub const MAX_DESCENT_ITERATIONS: usize = 1000;
+
+/// Largest `coarsest_scale` of [`DisParams`]: 16 (a level of
+/// [`crate::frame::MAX_FRAME_SIDE`] pixels is a single pixel at scale 14).
+pub const MAX_SCALE: usize = 16;
+
+/// Largest `stripes` and `min_stripe_rows` of [`DisParams`]: 4096.
+pub const MAX_STRIPES: usize = 4096;
+
 /// Named parameter sets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum DisPreset {
@@ -338,6 +349,9 @@ impl DisParams {
     }
 
     /// Checks every field; [`Error::InvalidParameter`] names the bad one.
+    /// Counts have upper bounds ([`MAX_PATCH_SIZE`], [`MAX_DESCENT_ITERATIONS`],
+    /// [`MAX_SCALE`], [`MAX_STRIPES`], and the refinement's
+    /// [`super::refine::MAX_ITERATIONS`]).
     pub fn validate(&self) -> Result<()> {
         if !(2..=MAX_PATCH_SIZE).contains(&self.patch_size) {
             return Err(Error::param(
@@ -360,6 +374,23 @@ impl DisParams {
                 format!("{} is larger than 12", self.finest_scale),
             ));
         }
+        if self.gradient_descent_iterations > MAX_DESCENT_ITERATIONS {
+            return Err(Error::param(
+                "gradient_descent_iterations",
+                format!(
+                    "{} is larger than {MAX_DESCENT_ITERATIONS}",
+                    self.gradient_descent_iterations
+                ),
+            ));
+        }
+        if let Some(c) = self.coarsest_scale
+            && c > MAX_SCALE
+        {
+            return Err(Error::param(
+                "coarsest_scale",
+                format!("{c} is larger than {MAX_SCALE}"),
+            ));
+        }
         if let Some(c) = self.coarsest_scale
             && c < self.finest_scale
         {
@@ -374,11 +405,16 @@ impl DisParams {
                 format!("{} is outside 0..=8 px", self.prefilter_sigma),
             ));
         }
-        if self.stripes == 0 {
-            return Err(Error::param("stripes", "must be at least 1"));
-        }
-        if self.min_stripe_rows == 0 {
-            return Err(Error::param("min_stripe_rows", "must be at least 1"));
+        for (name, n) in [
+            ("stripes", self.stripes),
+            ("min_stripe_rows", self.min_stripe_rows),
+        ] {
+            if !(1..=MAX_STRIPES).contains(&n) {
+                return Err(Error::param(
+                    name,
+                    format!("{n} is outside 1..={MAX_STRIPES}"),
+                ));
+            }
         }
         if !(1..=64).contains(&self.coarsest_min_patches) {
             return Err(Error::param(

@@ -43,18 +43,24 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 
+/// Largest number of outer iterations, and of SOR sweeps per outer iteration,
+/// of the variational refinement: 100 each (OpenCV uses 5 and 5; 100 x 100
+/// sweeps of a full-HD level already take tens of seconds).
+pub const MAX_ITERATIONS: usize = 100;
+
 /// Parameters of the variational refinement (the VR step of DIS).
 ///
 /// The energy weights follow OpenCV's conventions: each of `alpha`, `delta`, `gamma`
 /// enters the linear system halved (it multiplies a squared term).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RefineParams {
-    /// Number of fixed-point (outer) iterations: each re-evaluates the Charbonnier
-    /// weights around the current increment and solves the linear system again.
-    /// `0` makes [`VariationalRefiner::refine`] a no-op (after checking its input).
+    /// Number of fixed-point (outer) iterations, at most [`MAX_ITERATIONS`]: each
+    /// re-evaluates the Charbonnier weights around the current increment and solves
+    /// the linear system again. `0` makes [`VariationalRefiner::refine`] a no-op
+    /// (after checking its input).
     pub outer_iterations: usize,
     /// Number of red-black SOR sweeps per outer iteration (each sweep updates all red
-    /// pixels, then all black pixels).
+    /// pixels, then all black pixels), at most [`MAX_ITERATIONS`].
     pub sor_iterations: usize,
     /// SOR relaxation factor, in `(0, 2)`; `1` is plain Gauss-Seidel.
     pub omega: f32,
@@ -143,6 +149,17 @@ impl RefineParams {
                 ))
             }
         };
+        for (name, n) in [
+            ("outer_iterations", self.outer_iterations),
+            ("sor_iterations", self.sor_iterations),
+        ] {
+            if n > MAX_ITERATIONS {
+                return Err(Error::param(
+                    name,
+                    format!("at most {MAX_ITERATIONS}, got {n}"),
+                ));
+            }
+        }
         if !(self.omega > 0.0 && self.omega < 2.0) {
             return Err(Error::param(
                 "omega",

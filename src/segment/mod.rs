@@ -147,6 +147,11 @@ impl From<ThresholdPreset> for Thresholds {
     }
 }
 
+/// Largest erosion or dilation kernel side, full-resolution pixels: 255
+/// (the presets use 5 to 21; a kernel wider than a contact's patch erases
+/// it). The morphology's memory and time grow with the kernel.
+pub const MAX_KERNEL_PX: usize = 255;
+
 /// Segmentation thresholds and kernels, in **full-resolution** pixels (see
 /// the module docs for how they scale).
 ///
@@ -246,7 +251,7 @@ impl Thresholds {
     }
 
     /// Errors unless the thresholds are finite and non-negative and the
-    /// kernels at least 1.
+    /// kernels in `1..=`[`MAX_KERNEL_PX`].
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [("magnitude", self.magnitude), ("sum", self.sum)] {
             if !(v.is_finite() && v >= 0.0) {
@@ -257,10 +262,10 @@ impl Thresholds {
             }
         }
         for (name, k) in [("erode", self.erode), ("dilate", self.dilate)] {
-            if k == 0 {
+            if !(1..=MAX_KERNEL_PX).contains(&k) {
                 return Err(Error::param(
                     format!("thresholds.{name}"),
-                    "kernel size must be >= 1",
+                    format!("kernel size must be in 1..={MAX_KERNEL_PX} px, got {k}"),
                 ));
             }
         }
@@ -539,13 +544,29 @@ pub struct Segmenter {
 }
 
 impl Segmenter {
-    /// A segmenter for `config`. Errors on invalid thresholds or scale.
+    /// A segmenter for `config`. Errors on invalid thresholds or scale, or a
+    /// margin above [`crate::frame::MAX_FRAME_SIDE`].
     pub fn new(config: SegmenterConfig) -> Result<Self> {
         let scaled = config.thresholds.at_scale(config.scale)?;
+        if config.margin > crate::frame::MAX_FRAME_SIDE {
+            return Err(Error::param(
+                "margin",
+                format!(
+                    "{} px is above the largest frame side, {}",
+                    config.margin,
+                    crate::frame::MAX_FRAME_SIDE
+                ),
+            ));
+        }
         Ok(Segmenter {
             config,
             scaled,
-            margin: (config.margin as f64 / config.scale).round() as usize,
+            // A margin past every frame side grows any box to the whole
+            // image, as the largest side does: clamped there, it cannot
+            // overflow whatever the scale.
+            margin: (config.margin as f64 / config.scale)
+                .round()
+                .min(crate::frame::MAX_FRAME_SIDE as f64) as usize,
             morph: Morphology::new(),
             contours: ContourFinder::new(),
             raw: Mask::default(),
