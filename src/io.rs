@@ -16,31 +16,156 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flow::FlowField;
-use crate::frame::{Channel, gray_from_dynamic, to_u8};
+use crate::frame::{Channel, MAX_FRAME_PIXELS, frame_size_problem, gray_from_dynamic, to_u8};
+
+mod finite;
+
+pub use finite::check_finite;
 
 /// The magic number at the start of a Middlebury `.flo` file ("PIEH" as a float).
 pub const FLO_MAGIC: f32 = 202021.25;
 
-/// Largest width or height accepted when reading dense fields (guards against
-/// a corrupt header asking for terabytes).
-const MAX_SIDE: usize = 1 << 16;
+/// Largest PNG file read: 512 MiB (a frame of [`MAX_FRAME_PIXELS`] pixels in
+/// 16-bit RGBA, uncompressed, is 256 MiB).
+pub const MAX_IMAGE_BYTES: u64 = 512 << 20;
 
-fn open(path: &Path) -> Result<File> {
-    File::open(path).map_err(|e| Error::io(path, e))
+/// Largest JSON Lines file read (contacts, truth): 512 MiB, about a day of
+/// frames at 50 fps with a few contacts each.
+pub const MAX_JSONL_BYTES: u64 = 512 << 20;
+
+/// Largest CSV file read (`tests.csv`, `poses.csv`): 256 MiB.
+pub const MAX_CSV_BYTES: u64 = 256 << 20;
+
+/// Largest calibration file read: 64 MiB (the largest valid calibration,
+/// every map and the profile model at their bounds, is a few MB).
+pub const MAX_CALIBRATION_BYTES: u64 = 64 << 20;
+
+/// Longest line of a JSON Lines or CSV file: 16 MiB.
+pub const MAX_LINE_BYTES: usize = 16 << 20;
+
+/// Largest `.npy` header (version 2 and 3 allow 4 GiB; numpy writes a few
+/// hundred bytes).
+const MAX_NPY_HEADER: usize = 1 << 16;
+
+/// Opens `path` for reading if it is a regular file of at most `max_bytes`,
+/// returning the file and its length. A directory, a FIFO, a socket or a
+/// device is refused before it is opened (opening a FIFO would wait for a
+/// writer; a device such as `/dev/zero` never ends), and so is a larger file.
+pub(crate) fn open_regular(path: &Path, max_bytes: u64) -> Result<(File, u64)> {
+    let not_a_file = |meta: &std::fs::Metadata| -> Option<Error> {
+        if meta.is_dir() {
+            Some(Error::io(
+                path,
+                std::io::Error::new(
+                    std::io::ErrorKind::IsADirectory,
+                    "is a directory, where a file is expected",
+                ),
+            ))
+        } else if !meta.is_file() {
+            Some(Error::io(
+                path,
+                std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    "is not a regular file (a FIFO, socket or device), where a file is expected",
+                ),
+            ))
+        } else if meta.len() > max_bytes {
+            Some(Error::format(
+                path,
+                None,
+                format!(
+                    "{} bytes, more than the {max_bytes} bytes a file of this kind may have",
+                    meta.len()
+                ),
+            ))
+        } else {
+            None
+        }
+    };
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if let Some(e) = not_a_file(&meta) {
+        return Err(e);
+    }
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    // The path may have been replaced between the two looks: check what was
+    // opened.
+    let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+    if let Some(e) = not_a_file(&meta) {
+        return Err(e);
+    }
+    Ok((file, meta.len()))
+}
+
+/// Reads a whole regular file of at most `max_bytes` (a file that grows
+/// while it is read is cut at `max_bytes + 1` and refused).
+pub(crate) fn read_capped(path: &Path, max_bytes: u64) -> Result<Vec<u8>> {
+    let (file, len) = open_regular(path, max_bytes)?;
+    let mut buf = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    file.take(max_bytes.saturating_add(1))
+        .read_to_end(&mut buf)
+        .map_err(|e| Error::io(path, e))?;
+    if buf.len() as u64 > max_bytes {
+        return Err(Error::format(
+            path,
+            None,
+            format!("grew past {max_bytes} bytes while it was read"),
+        ));
+    }
+    Ok(buf)
+}
+
+/// The lines of a regular file of at most `max_bytes`, each of at most
+/// [`MAX_LINE_BYTES`], with their 1-based numbers; `f` is called on each
+/// (without its line ending). Errors name the file and line.
+fn for_each_line(
+    path: &Path,
+    max_bytes: u64,
+    mut f: impl FnMut(usize, &str) -> Result<()>,
+) -> Result<()> {
+    let (file, _) = open_regular(path, max_bytes)?;
+    let mut reader = BufReader::new(file.take(max_bytes.saturating_add(1)));
+    let mut buf = Vec::new();
+    let mut total = 0u64;
+    for number in 1.. {
+        buf.clear();
+        let n = (&mut reader)
+            .take(MAX_LINE_BYTES as u64 + 1)
+            .read_until(b'\n', &mut buf)
+            .map_err(|e| Error::io(path, e))?;
+        if n == 0 {
+            break;
+        }
+        total += n as u64;
+        if total > max_bytes {
+            return Err(Error::format(
+                path,
+                Some(number),
+                format!("grew past {max_bytes} bytes while it was read"),
+            ));
+        }
+        if buf.last() == Some(&b'\n') {
+            buf.pop();
+            if buf.last() == Some(&b'\r') {
+                buf.pop();
+            }
+        } else if buf.len() > MAX_LINE_BYTES {
+            return Err(Error::format(
+                path,
+                Some(number),
+                format!("a line longer than {MAX_LINE_BYTES} bytes"),
+            ));
+        }
+        let line = std::str::from_utf8(&buf)
+            .map_err(|e| Error::format(path, Some(number), format!("not UTF-8 text: {e}")))?;
+        f(number, line)?;
+    }
+    Ok(())
 }
 
 fn create(path: &Path) -> Result<BufWriter<File>> {
     File::create(path)
         .map(BufWriter::new)
         .map_err(|e| Error::io(path, e))
-}
-
-fn read_all(path: &Path) -> Result<Vec<u8>> {
-    let mut buf = Vec::new();
-    open(path)?
-        .read_to_end(&mut buf)
-        .map_err(|e| Error::io(path, e))?;
-    Ok(buf)
 }
 
 // ---------------------------------------------------------------- images
@@ -52,13 +177,43 @@ pub fn read_gray(path: impl AsRef<Path>) -> Result<Array2<f32>> {
 }
 
 /// Like [`read_gray`], choosing the channel of colour images.
+///
+/// The file must be a regular file of at most [`MAX_IMAGE_BYTES`]; the
+/// image's declared size is checked against [`crate::frame::MAX_FRAME_SIDE`]
+/// and [`MAX_FRAME_PIXELS`] from its header, before anything is decoded.
 pub fn read_gray_channel(path: impl AsRef<Path>, channel: Channel) -> Result<Array2<f32>> {
+    use ::image::ImageDecoder as _;
     let path = path.as_ref();
-    let bytes = read_all(path)?;
-    let img = ::image::load_from_memory(&bytes).map_err(|source| Error::Image {
+    let image_err = |source| Error::Image {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
+    let too_large = |w: u32, h: u32| match frame_size_problem(w as usize, h as usize) {
+        Some(m) => Err(Error::format(path, None, m)),
+        None => Ok(()),
+    };
+    let (file, _) = open_regular(path, MAX_IMAGE_BYTES)?;
+    let mut file = BufReader::new(file);
+    // A PNG's size is in its first chunk (IHDR, bytes 16..24): refused there
+    // with a clear message, before the decoder sees it.
+    let head = file.fill_buf().map_err(|e| Error::io(path, e))?;
+    if head.len() >= 24 && head.starts_with(b"\x89PNG\r\n\x1a\n") && &head[12..16] == b"IHDR" {
+        let be = |k: usize| u32::from_be_bytes([head[k], head[k + 1], head[k + 2], head[k + 3]]);
+        too_large(be(16), be(20))?;
+    }
+    let mut reader = ::image::ImageReader::new(file)
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, e))?;
+    let mut limits = ::image::Limits::default();
+    limits.max_image_width = Some(crate::frame::MAX_FRAME_SIDE as u32);
+    limits.max_image_height = Some(crate::frame::MAX_FRAME_SIDE as u32);
+    // 16-bit RGBA at the largest frame, and the decoder's own buffers.
+    limits.max_alloc = Some(8 * MAX_FRAME_PIXELS as u64 + (64 << 20));
+    reader.limits(limits);
+    let decoder = reader.into_decoder().map_err(image_err)?;
+    let (w, h) = decoder.dimensions();
+    too_large(w, h)?;
+    let img = ::image::DynamicImage::from_decoder(decoder).map_err(image_err)?;
     gray_from_dynamic(&img, channel)
 }
 
@@ -160,19 +315,25 @@ pub fn write_flo(path: impl AsRef<Path>, flow: &FlowField) -> Result<()> {
         .map_err(|e| Error::io(path, e))
 }
 
-/// Reads a Middlebury `.flo` file.
+/// Reads a Middlebury `.flo` file. The file must be a regular file; its
+/// declared size is checked against the largest frame
+/// ([`crate::frame::MAX_FRAME_SIDE`], [`MAX_FRAME_PIXELS`]) and against the
+/// file's length before the data is read.
 pub fn read_flo(path: impl AsRef<Path>) -> Result<FlowField> {
     let path = path.as_ref();
-    let buf = read_all(path)?;
-    if buf.len() < 12 {
+    let (file, len) = open_regular(path, 12 + 8 * MAX_FRAME_PIXELS as u64)?;
+    let mut head = [0u8; 12];
+    let mut file = BufReader::new(file);
+    if len < 12 {
         return Err(Error::format(
             path,
             None,
             "shorter than a .flo header (12 bytes)",
         ));
     }
-    let word = |k: usize| [buf[4 * k], buf[4 * k + 1], buf[4 * k + 2], buf[4 * k + 3]];
-    let magic = f32::from_le_bytes(word(0));
+    file.read_exact(&mut head).map_err(|e| Error::io(path, e))?;
+    let word = |b: &[u8], k: usize| [b[4 * k], b[4 * k + 1], b[4 * k + 2], b[4 * k + 3]];
+    let magic = f32::from_le_bytes(word(&head, 0));
     if magic != FLO_MAGIC {
         return Err(Error::format(
             path,
@@ -180,8 +341,11 @@ pub fn read_flo(path: impl AsRef<Path>) -> Result<FlowField> {
             format!("bad magic {magic} (a .flo file starts with {FLO_MAGIC})"),
         ));
     }
-    let (w, h) = (i32::from_le_bytes(word(1)), i32::from_le_bytes(word(2)));
-    if w <= 0 || h <= 0 || w as usize > MAX_SIDE || h as usize > MAX_SIDE {
+    let (w, h) = (
+        i32::from_le_bytes(word(&head, 1)),
+        i32::from_le_bytes(word(&head, 2)),
+    );
+    if w <= 0 || h <= 0 {
         return Err(Error::format(
             path,
             None,
@@ -189,19 +353,25 @@ pub fn read_flo(path: impl AsRef<Path>) -> Result<FlowField> {
         ));
     }
     let (w, h) = (w as usize, h as usize);
+    if let Some(m) = frame_size_problem(w, h) {
+        return Err(Error::format(path, None, m));
+    }
+    // Cannot overflow: w * h <= MAX_FRAME_PIXELS.
     let need = 12 + 8 * w * h;
-    if buf.len() != need {
+    if len != need as u64 {
         return Err(Error::format(
             path,
             None,
-            format!("{} bytes, but a {w}x{h} flow takes {need}", buf.len()),
+            format!("{len} bytes, but a {w}x{h} flow takes {need}"),
         ));
     }
+    let mut buf = vec![0u8; need - 12];
+    file.read_exact(&mut buf).map_err(|e| Error::io(path, e))?;
     let mut u = Array2::zeros((h, w));
     let mut v = Array2::zeros((h, w));
     for (k, (pu, pv)) in u.iter_mut().zip(v.iter_mut()).enumerate() {
-        *pu = f32::from_le_bytes(word(3 + 2 * k));
-        *pv = f32::from_le_bytes(word(4 + 2 * k));
+        *pu = f32::from_le_bytes(word(&buf, 2 * k));
+        *pv = f32::from_le_bytes(word(&buf, 2 * k + 1));
     }
     FlowField::from_planes(u, v)
 }
@@ -250,7 +420,7 @@ pub fn write_npy_f64(path: impl AsRef<Path>, a: &ArrayRef2<f64>) -> Result<()> {
 /// Reads a 2-D `.npy` of little-endian f4 or f8 (C or Fortran order) as f64.
 pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<Array2<f64>> {
     let path = path.as_ref();
-    let buf = read_all(path)?;
+    let buf = read_capped(path, (12 + MAX_NPY_HEADER + 8 * MAX_FRAME_PIXELS) as u64)?;
     let bad = |m: String| Error::format(path, None, m);
     if buf.len() < 10 || &buf[..6] != b"\x93NUMPY" {
         return Err(bad("not a .npy file (bad magic)".into()));
@@ -263,6 +433,11 @@ pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<Array2<f64>> {
         ),
         v => return Err(bad(format!("unsupported .npy version {v}"))),
     };
+    if hlen > MAX_NPY_HEADER {
+        return Err(bad(format!(
+            "a header of {hlen} bytes (at most {MAX_NPY_HEADER} are read)"
+        )));
+    }
     let header = buf
         .get(start..start + hlen)
         .and_then(|h| std::str::from_utf8(h).ok())
@@ -298,10 +473,11 @@ pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<Array2<f64>> {
     let [h, w] = dims[..] else {
         return Err(bad(format!("expected a 2-D array, got shape ({shape})")));
     };
-    if h > MAX_SIDE || w > MAX_SIDE {
-        return Err(bad(format!("implausible shape ({h}, {w})")));
+    if let Some(m) = frame_size_problem(w, h) {
+        return Err(bad(format!("shape ({h}, {w}): {m}")));
     }
     let data = &buf[start + hlen..];
+    // Cannot overflow: h * w <= MAX_FRAME_PIXELS.
     if data.len() != h * w * size {
         return Err(bad(format!(
             "{} data bytes, but shape ({h}, {w}) of {descr} takes {}",
@@ -443,8 +619,11 @@ impl JsonlWriter {
         Ok(JsonlWriter { path, out })
     }
 
-    /// Appends one record as one line.
+    /// Appends one record as one line. A record holding a NaN or infinite
+    /// number is refused ([`Error::NonFinite`] naming the field; JSON has no
+    /// such numbers) and nothing is written.
     pub fn write<T: Serialize>(&mut self, record: &T) -> Result<()> {
+        check_finite(record, &self.path)?;
         let line = serde_json::to_string(record)
             .map_err(|e| Error::format(&self.path, None, format!("cannot serialize: {e}")))?;
         writeln!(self.out, "{line}")
@@ -454,18 +633,19 @@ impl JsonlWriter {
 }
 
 /// Reads a JSON Lines file (blank lines are skipped); errors name the line.
+/// The file must be a regular file of at most [`MAX_JSONL_BYTES`], with
+/// lines of at most [`MAX_LINE_BYTES`].
 pub fn read_jsonl<T: DeserializeOwned>(path: impl AsRef<Path>) -> Result<Vec<T>> {
     let path = path.as_ref();
     let mut out = Vec::new();
-    for (k, line) in BufReader::new(open(path)?).lines().enumerate() {
-        let line = line.map_err(|e| Error::io(path, e))?;
-        if line.trim().is_empty() {
-            continue;
+    for_each_line(path, MAX_JSONL_BYTES, |number, line| {
+        if !line.trim().is_empty() {
+            let rec = serde_json::from_str(line)
+                .map_err(|e| Error::format(path, Some(number), e.to_string()))?;
+            out.push(rec);
         }
-        let rec = serde_json::from_str(&line)
-            .map_err(|e| Error::format(path, Some(k + 1), e.to_string()))?;
-        out.push(rec);
-    }
+        Ok(())
+    })?;
     Ok(out)
 }
 
@@ -481,34 +661,26 @@ struct Csv {
 
 impl Csv {
     fn read(path: &Path) -> Result<Csv> {
-        let mut lines = BufReader::new(open(path)?).lines().enumerate();
-        let header = loop {
-            match lines.next() {
-                None => return Err(Error::format(path, None, "empty file: no header line")),
-                Some((_, l)) => {
-                    let l = l.map_err(|e| Error::io(path, e))?;
-                    if !l.trim().is_empty() {
-                        break l;
-                    }
-                }
-            }
-        };
-        let header: Vec<String> = header
-            .trim_start_matches('\u{feff}')
-            .split(',')
-            .map(|s| s.trim().to_string())
-            .collect();
+        let mut header: Option<Vec<String>> = None;
         let mut rows = Vec::new();
-        for (k, l) in lines {
-            let l = l.map_err(|e| Error::io(path, e))?;
+        for_each_line(path, MAX_CSV_BYTES, |number, l| {
             if l.trim().is_empty() {
-                continue;
+                return Ok(());
             }
+            let Some(header) = &header else {
+                header = Some(
+                    l.trim_start_matches('\u{feff}')
+                        .split(',')
+                        .map(|s| s.trim().to_string())
+                        .collect(),
+                );
+                return Ok(());
+            };
             let fields: Vec<String> = l.split(',').map(|s| s.trim().to_string()).collect();
             if fields.len() != header.len() {
                 return Err(Error::format(
                     path,
-                    Some(k + 1),
+                    Some(number),
                     format!(
                         "{} fields, but the header has {}",
                         fields.len(),
@@ -516,8 +688,11 @@ impl Csv {
                     ),
                 ));
             }
-            rows.push((k + 1, fields));
-        }
+            rows.push((number, fields));
+            Ok(())
+        })?;
+        let header =
+            header.ok_or_else(|| Error::format(path, None, "empty file: no header line"))?;
         Ok(Csv {
             path: path.to_path_buf(),
             header,
@@ -547,6 +722,22 @@ impl Csv {
                 format!("column `{}`: cannot parse `{}`", self.header[col], row[col]),
             )
         })
+    }
+
+    /// A finite number (NaN and infinities are errors naming the column).
+    fn finite(&self, line: usize, row: &[String], col: usize) -> Result<f64> {
+        let x: f64 = self.parse(line, row, col)?;
+        if !x.is_finite() {
+            return Err(Error::format(
+                &self.path,
+                Some(line),
+                format!(
+                    "column `{}`: `{}` is not a finite number",
+                    self.header[col], row[col]
+                ),
+            ));
+        }
+        Ok(x)
     }
 }
 
@@ -639,8 +830,9 @@ const TEST_COLUMNS: [&str; 15] = [
 ];
 
 /// Reads a characterization dataset's `tests.csv`. Columns may come in any
-/// order and extra columns are ignored; a missing column, an unparsable value
-/// or an unknown split is an error naming the file and line.
+/// order and extra columns are ignored; a missing column, an unparsable or
+/// non-finite value or an unknown split is an error naming the file and
+/// line. The file must be a regular file of at most [`MAX_CSV_BYTES`].
 pub fn read_tests_csv(path: impl AsRef<Path>) -> Result<Vec<TestRow>> {
     let csv = Csv::read(path.as_ref())?;
     let mut c = [0usize; 15];
@@ -662,17 +854,17 @@ pub fn read_tests_csv(path: impl AsRef<Path>) -> Result<Vec<TestRow>> {
             frame: r[c[1]].clone(),
             reference: r[c[2]].clone(),
             point: csv.parse(line, r, c[3])?,
-            indenter_mm: csv.parse(line, r, c[4])?,
-            yaw_deg: csv.parse(line, r, c[5])?,
-            pitch_deg: csv.parse(line, r, c[6])?,
+            indenter_mm: csv.finite(line, r, c[4])?,
+            yaw_deg: csv.finite(line, r, c[5])?,
+            pitch_deg: csv.finite(line, r, c[6])?,
             repeat: csv.parse(line, r, c[7])?,
-            force_n: csv.parse(line, r, c[8])?,
+            force_n: csv.finite(line, r, c[8])?,
             split,
-            x_mm: csv.parse(line, r, c[10])?,
-            y_mm: csv.parse(line, r, c[11])?,
-            fx_n: csv.parse(line, r, c[12])?,
-            fy_n: csv.parse(line, r, c[13])?,
-            fz_n: csv.parse(line, r, c[14])?,
+            x_mm: csv.finite(line, r, c[10])?,
+            y_mm: csv.finite(line, r, c[11])?,
+            fx_n: csv.finite(line, r, c[12])?,
+            fy_n: csv.finite(line, r, c[13])?,
+            fz_n: csv.finite(line, r, c[14])?,
         });
     }
     Ok(out)
@@ -732,7 +924,8 @@ pub struct PoseRow {
 
 const POSE_COLUMNS: [&str; 9] = ["frame", "t_s", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz"];
 
-/// Reads `poses.csv` (docs/formats.md); errors name the file and line.
+/// Reads `poses.csv` (docs/formats.md); errors name the file and line. Every
+/// number must be finite (a NaN time is an error).
 pub fn read_poses_csv(path: impl AsRef<Path>) -> Result<Vec<PoseRow>> {
     let csv = Csv::read(path.as_ref())?;
     let mut c = [0usize; 9];
@@ -742,7 +935,7 @@ pub fn read_poses_csv(path: impl AsRef<Path>) -> Result<Vec<PoseRow>> {
     csv.rows
         .iter()
         .map(|(line, r)| {
-            let f = |k: usize| csv.parse::<f64>(*line, r, c[k]);
+            let f = |k: usize| csv.finite(*line, r, c[k]);
             Ok(PoseRow {
                 frame: r[c[0]].clone(),
                 t_s: f(1)?,

@@ -72,7 +72,16 @@ impl Calibration {
     /// The calibration as pretty, human-readable JSON (`"version": 1`).
     /// Arrays of plain values (exponent rows, coefficients) stay on one line.
     pub fn to_json_string(&self) -> String {
-        let repr = CalibrationRef {
+        let pretty = serde_json::to_string_pretty(&self.file_repr())
+            .expect("serializing plain data with string keys cannot fail");
+        let mut s = collapse_scalar_arrays(&pretty);
+        s.push('\n');
+        s
+    }
+
+    /// What the file holds, by reference.
+    fn file_repr(&self) -> CalibrationRef<'_> {
+        CalibrationRef {
             version: FORMAT_VERSION,
             geometry: &self.setup.geometry,
             crop: &self.setup.crop,
@@ -87,27 +96,32 @@ impl Calibration {
             profile: self.profile.as_ref(),
             guard: self.guard.as_ref(),
             min_normal_n: self.min_normal_n,
-        };
-        let pretty = serde_json::to_string_pretty(&repr)
-            .expect("serializing plain data with string keys cannot fail");
-        let mut s = collapse_scalar_arrays(&pretty);
-        s.push('\n');
-        s
+        }
     }
 
-    /// Writes the calibration to `path` as JSON.
+    /// Writes the calibration to `path` as JSON. A calibration holding a NaN
+    /// or infinite number (a report's error of an empty split, say) is
+    /// refused ([`Error::Format`] naming the field) and nothing is written.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
+        crate::io::check_finite(&self.file_repr(), path)?;
         std::fs::write(path, self.to_json_string()).map_err(|e| Error::io(path, e))
     }
 
-    /// Reads a calibration file. Errors: the file cannot be read
-    /// ([`Error::Io`]); it is not JSON, has another version, misses a
-    /// polynomial, or holds an inconsistent one ([`Error::Calibration`] naming
-    /// the file, with line and column where JSON parsing failed).
+    /// Reads a calibration file. Errors: the file cannot be read, or is a
+    /// directory, a FIFO or a device ([`Error::Io`]); it is larger than
+    /// [`crate::io::MAX_CALIBRATION_BYTES`] ([`Error::Format`]); it is not
+    /// JSON, has another version, misses a polynomial, holds an inconsistent
+    /// one, or a size beyond its bound (docs/formats.md)
+    /// ([`Error::Calibration`] naming the file, with line and column where
+    /// JSON parsing failed).
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let bytes = crate::io::read_capped(path, crate::io::MAX_CALIBRATION_BYTES)?;
+        let text = String::from_utf8(bytes).map_err(|e| Error::Calibration {
+            path: Some(path.to_path_buf()),
+            message: format!("not UTF-8 text: {e}"),
+        })?;
         Self::parse(&text, Some(path.to_path_buf()))
     }
 
