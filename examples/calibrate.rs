@@ -182,18 +182,22 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
                 .ok_or(format!("expected a positive number after `:`, got `{x}`")),
         }
     };
-    match name {
-        "slope" => Ok(ContactPointMethod::SlopePeak {
+    let method = match name {
+        "slope" => ContactPointMethod::SlopePeak {
             sigma_px: num(8.0)?,
-        }),
-        "centroid" => Ok(ContactPointMethod::EnergyCentroid {
+        },
+        "centroid" => ContactPointMethod::EnergyCentroid {
             half_window_px: num(400.0)?,
-        }),
-        "argmin" if !given => Ok(ContactPointMethod::PotentialMinimum),
-        _ => Err(format!(
-            "expected slope[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
-        )),
-    }
+        },
+        "argmin" if !given => ContactPointMethod::PotentialMinimum,
+        _ => {
+            return Err(format!(
+                "expected slope[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
+            ));
+        }
+    };
+    method.validate().map_err(|e| e.to_string())?;
+    Ok(method)
 }
 
 /// `MAGNITUDE,SUM`: a positive flow magnitude and a patch sum >= 0.

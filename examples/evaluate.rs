@@ -5,7 +5,9 @@
 //! ```
 //! Prints a markdown table: location and force MAE over matched contacts,
 //! misses, false contacts, and per-frame latency if the prediction recorded it.
-//! `--json -` writes the scores to stdout and the table to stderr.
+//! `--json -` writes the scores to stdout and the table to stderr. With no
+//! frame in common or no matched contact there is nothing to score: the
+//! table is printed, no scores are written and the exit status is 1.
 
 #[path = "cli_support/mod.rs"]
 mod cli_support;
@@ -46,6 +48,24 @@ fn run(a: &Cli) -> Result<(), Failure> {
     let e = score(&pred, &truth, a.gate);
     let mut report = Sink::report(a.json.as_ref().is_some_and(TextOut::is_stdout));
     write!(report, "{}", e.to_markdown())?;
+    // Errors over no pair would read as perfect scores: nothing to score is
+    // a failure, and no scores are written.
+    if e.frames == 0 {
+        return Err(format!(
+            "nothing to score: no frame of {} is named in {}",
+            a.contacts.display(),
+            a.truth.display()
+        )
+        .into());
+    }
+    if e.matched == 0 {
+        return Err(format!(
+            "nothing to score: no predicted contact lies within {} mm of a true one \
+             ({} frames, {} misses, {} false contacts)",
+            a.gate, e.frames, e.misses, e.false_contacts
+        )
+        .into());
+    }
     if let Some(out) = &a.json {
         out.write_json(&e)?;
     }

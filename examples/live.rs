@@ -100,7 +100,7 @@ fn run(a: &Cli) -> Result<(), Failure> {
     let mut sensor = if a.raw {
         Pipeline::Raw(Box::new(Raw::new(a.crop, a.preset, a.thresholds)?))
     } else {
-        if !calibration.is_file() {
+        if !calibration.exists() {
             return Err(format!(
                 "calibration file {} not found (fit one with the `calibrate` example, pass \
                  --calibration FILE, or run with --raw)",

@@ -136,7 +136,7 @@ fn run(cli: &Cli) -> Result<bool, Failure> {
     let truth: Option<RodsTruth> = truth_path
         .as_deref()
         .map(|p| {
-            if !p.is_file() {
+            if !p.exists() {
                 return Err(format!("truth file {} not found", p.display()));
             }
             read_rods_json(p).map_err(|e| format!("cannot read truth: {e}"))

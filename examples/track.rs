@@ -132,7 +132,7 @@ struct Cli {
 }
 
 fn load_calibration(path: &Path) -> Result<Calibration, String> {
-    if !path.is_file() {
+    if !path.exists() {
         return Err(format!(
             "calibration file {} not found: fit one with `cargo run --release --example calibrate -- \
              DATASET_DIR --out {}` (see the README), or pass --calibration FILE",

@@ -191,8 +191,14 @@ impl TextOut {
     }
 
     /// Writes `value` as pretty JSON (and a newline); says so on stderr when
-    /// it went to a file.
+    /// it went to a file. A NaN or infinite number is refused (JSON has none)
+    /// and nothing is written.
     pub fn write_json<T: Serialize>(&self, value: &T) -> Result<(), Failure> {
+        let name = match self {
+            TextOut::File(p) => p.clone(),
+            TextOut::Stdout => PathBuf::from("stdout"),
+        };
+        optical_tactile::io::check_finite(value, name)?;
         let text = serde_json::to_string_pretty(value)?;
         let mut s = self.create()?;
         writeln!(s, "{text}")?;

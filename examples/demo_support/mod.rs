@@ -114,7 +114,7 @@ pub fn simulate(scenario: &Scenario, dir: &Path, seed: u64, quiet: bool) -> Resu
 
 /// Loads the calibration with a clear message when it is missing.
 pub fn load_calibration(path: &Path) -> Result<Calibration, String> {
-    if !path.is_file() {
+    if !path.exists() {
         return Err(format!(
             "calibration file {} not found: pass --calibration FILE (fit one with the \
              `calibrate` example)",
@@ -205,7 +205,7 @@ pub fn run_sensor(dir: &Path, calibration: &Path, crop: Option<Roi>) -> Result<S
 
 /// Reads a `truth.jsonl` with a clear message.
 pub fn read_truth(path: &Path) -> Result<Vec<FrameRecord>, String> {
-    if !path.is_file() {
+    if !path.exists() {
         return Err(format!("truth file {} not found", path.display()));
     }
     io::read_jsonl(path).map_err(|e| format!("cannot read truth: {e}"))

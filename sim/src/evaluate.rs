@@ -158,16 +158,29 @@ impl Evaluation {
         row("matched contacts", self.matched.to_string());
         row("misses", self.misses.to_string());
         row("false contacts", self.false_contacts.to_string());
-        row("MAE x (mm)", format!("{:.3}", self.mae_x_mm));
-        row("MAE y (mm)", format!("{:.3}", self.mae_y_mm));
-        row("MAE z (mm)", format!("{:.3}", self.mae_z_mm));
-        row(
+        // Errors over no pair are not zero errors: say there is none.
+        let scored = self.matched > 0;
+        let mut err = |k: &str, v: f64, digits: usize| {
+            row(
+                k,
+                if scored {
+                    format!("{v:.digits$}")
+                } else {
+                    "n/a (no matched contact)".to_string()
+                },
+            )
+        };
+        err("MAE x (mm)", self.mae_x_mm, 3);
+        err("MAE y (mm)", self.mae_y_mm, 3);
+        err("MAE z (mm)", self.mae_z_mm, 3);
+        err(
             "mean 3-D location error (mm)",
-            format!("{:.3}", self.mean_location_error_mm),
+            self.mean_location_error_mm,
+            3,
         );
-        row("MAE Fx (N)", format!("{:.4}", self.mae_fx_n));
-        row("MAE Fy (N)", format!("{:.4}", self.mae_fy_n));
-        row("MAE Fz (N)", format!("{:.4}", self.mae_fz_n));
+        err("MAE Fx (N)", self.mae_fx_n, 4);
+        err("MAE Fy (N)", self.mae_fy_n, 4);
+        err("MAE Fz (N)", self.mae_fz_n, 4);
         if let (Some(m), Some(p)) = (self.median_latency_ms, self.p95_latency_ms) {
             row("latency median / p95 (ms)", format!("{m:.2} / {p:.2}"));
         }
