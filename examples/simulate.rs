@@ -162,17 +162,6 @@ pub struct CommonArgs {
     /// Exact number of markers (overrides --coverage).
     #[arg(long, value_name = "N")]
     pub markers: Option<usize>,
-    /// Read-noise standard deviation, grey levels.
-    #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.read)]
-    pub noise_read: f32,
-    /// Relative per-frame brightness flicker.
-    #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.flicker)]
-    pub flicker: f32,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
-}
-
     /// A GelSight-like sensor instead of the strip: a 320x240 image of a
     /// regular grid of dark dots on a bright, lit gel (--coverage and
     /// --markers do not apply).
@@ -187,6 +176,17 @@ pub struct CommonArgs {
     /// Dot grid: each dot moved off the grid by up to this, px.
     #[arg(long, value_name = "J", default_value_t = DotGrid::default().jitter_px)]
     pub jitter_px: f64,
+    /// Read-noise standard deviation, grey levels.
+    #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.read)]
+    pub noise_read: f32,
+    /// Relative per-frame brightness flicker.
+    #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.flicker)]
+    pub flicker: f32,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
 impl CommonArgs {
     /// The scenario's common options; `flow_default` when neither --flow
     /// nor --no-flow is given.
@@ -199,6 +199,14 @@ impl CommonArgs {
         } else {
             self.flow || flow_default
         };
+        if self.dot_grid {
+            c.config = SimConfig::dot_grid(DotGrid {
+                pitch_px: self.pitch_px,
+                diameter_px: self.dot_px,
+                jitter_px: self.jitter_px,
+                ..DotGrid::default()
+            });
+        }
         let cfg = &mut c.config;
         cfg.full_frame = self.full_frame;
         cfg.material.youngs_kpa = self.youngs_kpa;
@@ -222,14 +230,6 @@ pub struct SingleArgs {
     /// Peak force magnitude, N.
     #[arg(long, value_name = "F", default_value_t = Single::default().force_n)]
     pub force_n: f64,
-        if self.dot_grid {
-            c.config = SimConfig::dot_grid(DotGrid {
-                pitch_px: self.pitch_px,
-                diameter_px: self.dot_px,
-                jitter_px: self.jitter_px,
-                ..DotGrid::default()
-            });
-        }
     /// Frames including the reference.
     #[arg(long, value_name = "N", default_value_t = Single::default().frames)]
     pub frames: usize,
@@ -290,6 +290,30 @@ pub struct PressesArgs {
     /// Rod diameters drawn from, mm.
     #[arg(long, value_name = "D,D,...", default_value_t = Numbers(Presses::default().indenters_mm))]
     pub indenters_mm: Numbers,
+}
+
+/// `shear`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct ShearArgs {
+    /// Chord position of the rod, mm.
+    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Shear::default().x_mm)]
+    pub x_mm: f64,
+    /// Peak normal force, N.
+    #[arg(long, value_name = "F", default_value_t = Shear::default().force_n)]
+    pub force_n: f64,
+    /// Peak tangential force along x, N.
+    #[arg(long, value_name = "F", allow_negative_numbers = true, default_value_t = Shear::default().shear_n[0])]
+    pub shear_x_n: f64,
+    /// Peak tangential force along y, N.
+    #[arg(long, value_name = "F", allow_negative_numbers = true, default_value_t = Shear::default().shear_n[1])]
+    pub shear_y_n: f64,
+    /// Frames including the reference.
+    #[arg(long, value_name = "N", default_value_t = Shear::default().frames)]
+    pub frames: usize,
+    /// Rod diameter, mm.
+    #[arg(long, value_name = "D", default_value_t = Shear::default().indenter_mm)]
+    pub indenter_mm: f64,
 }
 
 /// `characterization`'s options.
@@ -363,30 +387,6 @@ pub struct FixturesArgs {
     pub out: PathBuf,
     /// Also write reference_frame.png and press_motion.png there.
     #[arg(long, value_name = "DIR")]
-/// `shear`'s options.
-#[derive(Args, Debug)]
-#[command(next_help_heading = "Scenario options")]
-pub struct ShearArgs {
-    /// Chord position of the rod, mm.
-    #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Shear::default().x_mm)]
-    pub x_mm: f64,
-    /// Peak normal force, N.
-    #[arg(long, value_name = "F", default_value_t = Shear::default().force_n)]
-    pub force_n: f64,
-    /// Peak tangential force along x, N.
-    #[arg(long, value_name = "F", allow_negative_numbers = true, default_value_t = Shear::default().shear_n[0])]
-    pub shear_x_n: f64,
-    /// Peak tangential force along y, N.
-    #[arg(long, value_name = "F", allow_negative_numbers = true, default_value_t = Shear::default().shear_n[1])]
-    pub shear_y_n: f64,
-    /// Frames including the reference.
-    #[arg(long, value_name = "N", default_value_t = Shear::default().frames)]
-    pub frames: usize,
-    /// Rod diameter, mm.
-    #[arg(long, value_name = "D", default_value_t = Shear::default().indenter_mm)]
-    pub indenter_mm: f64,
-}
-
     pub docs: Option<PathBuf>,
     /// Seed for markers, noise and random choices.
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -451,6 +451,17 @@ impl Command {
                     force_max_n: o.force_max_n,
                     max_tilt_deg: o.max_tilt_deg,
                     indenters_mm: o.indenters_mm.0,
+                }),
+                &common,
+                true,
+            ),
+            Command::Shear { common, options: o } => run(
+                Scenario::Shear(Shear {
+                    x_mm: o.x_mm,
+                    force_n: o.force_n,
+                    shear_n: [o.shear_x_n, o.shear_y_n],
+                    frames: o.frames,
+                    indenter_mm: o.indenter_mm,
                 }),
                 &common,
                 true,
@@ -526,17 +537,6 @@ fn run(command: Command) -> std::result::Result<(), Failure> {
                 out,
                 "wrote {} frames to {} in {:.1} s",
                 sum.frames,
-            Command::Shear { common, options: o } => run(
-                Scenario::Shear(Shear {
-                    x_mm: o.x_mm,
-                    force_n: o.force_n,
-                    shear_n: [o.shear_x_n, o.shear_y_n],
-                    frames: o.frames,
-                    indenter_mm: o.indenter_mm,
-                }),
-                &common,
-                true,
-            ),
                 sum.out.display(),
                 t0.elapsed().as_secs_f64()
             )?;

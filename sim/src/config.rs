@@ -22,7 +22,6 @@ pub struct MarkerConfig {
     pub depth_mm: (f64, f64),
     /// Range of peak spot brightness, 8-bit grey levels.
     pub brightness: (f64, f64),
-}
     /// Where the markers lie and what they look like: random fluorescent
     /// spots (the default; every field above applies) or a regular grid of
     /// dark dots ([`DotGrid`]; only `depth_mm` applies).
@@ -120,6 +119,7 @@ impl DotGrid {
         }
         Ok(())
     }
+}
 
 impl Default for MarkerConfig {
     fn default() -> Self {
@@ -129,8 +129,8 @@ impl Default for MarkerConfig {
             fwhm_px: (2.5, 3.0),
             depth_mm: (0.5, 4.0),
             brightness: (70.0, 200.0),
-        }
             layout: MarkerLayout::Random,
+        }
     }
 }
 
@@ -183,12 +183,57 @@ pub struct SimConfig {
 }
 
 impl SimConfig {
+    /// A small sensor with a regular grid of dark dots on a bright, lit gel,
+    /// in the class of a GelSight Mini: a 320x240 image filled by a 31.9 x
+    /// 23.9 mm sensing area at 10 px/mm through a distortion-free lens (the
+    /// skin the rest of the simulator models, shortened), the default gel
+    /// with the dots 0.3 mm under its surface, the gel lit to 180 grey levels
+    /// (vignetting over the 320x240 frame) and the default camera noise. Rods
+    /// press across its whole width, as on the strip.
+    pub fn dot_grid(grid: DotGrid) -> SimConfig {
+        let d = SimConfig::default();
+        let px_per_mm = 10.0;
+        let (w, h) = (320usize, 240usize);
+        SimConfig {
+            skin: Skin {
+                geometry: optical_tactile::geometry::SensorGeometry {
+                    width_mm: 23.9,
+                    ..d.skin.geometry
+                },
+                length_mm: 31.9,
+            },
+            camera: CameraModel {
+                strip_width: w,
+                strip_height: h,
+                px_per_mm_s: px_per_mm,
+                px_per_mm_y: px_per_mm,
+                cubic: 0.0,
+                frame_size: (w, h),
+                strip_origin: (0, 0),
+            },
+            material: d.material,
+            markers: MarkerConfig {
+                depth_mm: (0.3, 0.3),
+                layout: MarkerLayout::Grid(grid),
+                ..d.markers
+            },
+            noise: NoiseConfig {
+                background: 180.0,
+                ..d.noise
+            },
+            full_frame: false,
+        }
+    }
+
     /// Checks every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         self.skin.validate()?;
         self.camera.validate(&self.skin)?;
         self.material.validate()?;
         let m = &self.markers;
+        if let MarkerLayout::Grid(g) = &m.layout {
+            g.validate()?;
+        }
         if let Some(0) = m.count {
             return Err(Error::param(
                 "markers.count",
@@ -276,62 +321,6 @@ pub(crate) struct Markers {
     pub py: Vec<f64>,
     pub amp: Vec<f32>,
     pub sigma: Vec<f32>,
-}
-
-/// A frame and its true dense motion.
-#[derive(Debug, Clone)]
-pub struct Rendered {
-    /// The grey image (0..=255, integer-valued like an 8-bit camera frame).
-    pub frame: Array2<f32>,
-    /// True motion from the unloaded state, px (see [`SyntheticSensor::render`](crate::SyntheticSensor::render));
-    /// `None` when not requested.
-    pub flow: Option<FlowField>,
-}
-    /// A small sensor with a regular grid of dark dots on a bright, lit gel,
-    /// in the class of a GelSight Mini: a 320x240 image filled by a 31.9 x
-    /// 23.9 mm sensing area at 10 px/mm through a distortion-free lens (the
-    /// skin the rest of the simulator models, shortened), the default gel
-    /// with the dots 0.3 mm under its surface, the gel lit to 180 grey levels
-    /// (vignetting over the 320x240 frame) and the default camera noise. Rods
-    /// press across its whole width, as on the strip.
-    pub fn dot_grid(grid: DotGrid) -> SimConfig {
-        let d = SimConfig::default();
-        let px_per_mm = 10.0;
-        let (w, h) = (320usize, 240usize);
-        SimConfig {
-            skin: Skin {
-                geometry: optical_tactile::geometry::SensorGeometry {
-                    width_mm: 23.9,
-                    ..d.skin.geometry
-                },
-                length_mm: 31.9,
-            },
-            camera: CameraModel {
-                strip_width: w,
-                strip_height: h,
-                px_per_mm_s: px_per_mm,
-                px_per_mm_y: px_per_mm,
-                cubic: 0.0,
-                frame_size: (w, h),
-                strip_origin: (0, 0),
-            },
-            material: d.material,
-            markers: MarkerConfig {
-                depth_mm: (0.3, 0.3),
-                layout: MarkerLayout::Grid(grid),
-                ..d.markers
-            },
-            noise: NoiseConfig {
-                background: 180.0,
-                ..d.noise
-            },
-            full_frame: false,
-        }
-    }
-
-        if let MarkerLayout::Grid(g) = &m.layout {
-            g.validate()?;
-        }
     /// Dots (grid layout): each marker's radius, px, its soft edge's half
     /// width in `sigma` and a negative `amp`. Empty for Gaussian spots.
     pub radius: Vec<f32>,
@@ -347,3 +336,14 @@ impl Markers {
             self.radius[i] + self.sigma[i] + 1.0
         }
     }
+}
+
+/// A frame and its true dense motion.
+#[derive(Debug, Clone)]
+pub struct Rendered {
+    /// The grey image (0..=255, integer-valued like an 8-bit camera frame).
+    pub frame: Array2<f32>,
+    /// True motion from the unloaded state, px (see [`SyntheticSensor::render`](crate::SyntheticSensor::render));
+    /// `None` when not requested.
+    pub flow: Option<FlowField>,
+}

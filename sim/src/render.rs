@@ -154,12 +154,6 @@ impl Frame<'_> {
                 continue;
             }
             let (x0, x1, y0, y1) = (x0 as usize, x1 as usize, y0 as usize, y1 as usize);
-            let inv = 1.0 / (2.0 * sigma * sigma);
-            ex.clear();
-            ex.extend((x0..=x1).map(|x| {
-                let d = x as f32 - cx;
-                (-d * d * inv).exp()
-            }));
             if !m.radius.is_empty() {
                 // A dark dot: `amp` (negative) times its disc profile; the
                 // truth weighs its motion by the darkness it adds.
@@ -182,6 +176,12 @@ impl Frame<'_> {
                 }
                 continue;
             }
+            let inv = 1.0 / (2.0 * sigma * sigma);
+            ex.clear();
+            ex.extend((x0..=x1).map(|x| {
+                let d = x as f32 - cx;
+                (-d * d * inv).exp()
+            }));
             let amp = m.amp[i];
             for y in y0..=y1 {
                 let d = y as f32 - cy;
@@ -257,12 +257,6 @@ impl Frame<'_> {
     }
 }
 
-/// Bilinear sample of the motion grid at strip pixel `(x, y)`.
-#[inline]
-pub(crate) fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
-    let (nx, ny, du, dv) = grid;
-    let gx = (x / GRID_STEP.0 as f32).clamp(0.0, (*nx - 1) as f32);
-    let gy = (y / GRID_STEP.1 as f32).clamp(0.0, (*ny - 1) as f32);
 /// A dot's darkness profile at distance `d` from its centre: 1 inside,
 /// 0 outside, a smoothstep across the edge `r - e ..= r + e` (a hard edge
 /// when `e` is 0).
@@ -275,6 +269,12 @@ pub(crate) fn dot_profile(d: f32, r: f32, e: f32) -> f32 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// Bilinear sample of the motion grid at strip pixel `(x, y)`.
+#[inline]
+pub(crate) fn sample_grid(grid: &MotionGrid, x: f32, y: f32) -> (f32, f32) {
+    let (nx, ny, du, dv) = grid;
+    let gx = (x / GRID_STEP.0 as f32).clamp(0.0, (*nx - 1) as f32);
+    let gy = (y / GRID_STEP.1 as f32).clamp(0.0, (*ny - 1) as f32);
     let i0 = (gx as usize).min(nx - 2);
     let j0 = (gy as usize).min(ny - 2);
     let (fx, fy) = (gx - i0 as f32, gy - j0 as f32);

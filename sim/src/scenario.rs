@@ -277,6 +277,8 @@ pub enum Scenario {
     Pair(Pair),
     /// Independent presses at random places, forces and tilts.
     Presses(Presses),
+    /// A press, then shear, with the markers' centres.
+    Shear(Shear),
     /// The characterization protocol in the `tests.csv` format.
     Characterization(Characterization),
     /// Two perches of different stiffness.
@@ -295,8 +297,6 @@ pub fn no_progress(_: &str, _: usize, _: usize) {}
 
 /// What a scenario wrote.
 #[derive(Debug, Clone, PartialEq)]
-    /// A press, then shear, with the markers' centres.
-    Shear(Shear),
 pub struct Summary {
     /// The output folder.
     pub out: PathBuf,
@@ -500,6 +500,21 @@ pub fn run_with_progress(
                 return Err(Error::param("indenters_mm", "need at least one rod"));
             }
         }
+        Scenario::Shear(o) => {
+            check_force("force_n", o.force_n)?;
+            if o.frames < 3 {
+                return Err(Error::param(
+                    "frames",
+                    format!(
+                        "need at least 3 (reference, press, shear), got {}",
+                        o.frames
+                    ),
+                ));
+            }
+            if o.shear_n.iter().any(|f| !f.is_finite()) {
+                return Err(Error::param("shear_n", "must be finite"));
+            }
+        }
         Scenario::Characterization(o) => {
             if o.repeats == 0 {
                 return Err(Error::param("repeats", "need at least 1"));
@@ -520,21 +535,6 @@ pub fn run_with_progress(
                 }
             }
             if !(o.max_penetration_mm.is_finite() && o.max_penetration_mm >= 0.0) {
-        Scenario::Shear(o) => {
-            check_force("force_n", o.force_n)?;
-            if o.frames < 3 {
-                return Err(Error::param(
-                    "frames",
-                    format!(
-                        "need at least 3 (reference, press, shear), got {}",
-                        o.frames
-                    ),
-                ));
-            }
-            if o.shear_n.iter().any(|f| !f.is_finite()) {
-                return Err(Error::param("shear_n", "must be finite"));
-            }
-        }
                 return Err(Error::param("max_penetration_mm", "must be >= 0"));
             }
         }
@@ -556,6 +556,7 @@ pub fn run_with_progress(
         Scenario::Single(o) => single(&sensor, common, o, progress),
         Scenario::Pair(o) => pair(&sensor, common, o, progress),
         Scenario::Presses(o) => presses(&sensor, common, o, progress),
+        Scenario::Shear(o) => shear(&sensor, common, o, progress),
         Scenario::Characterization(o) => characterization(&sensor, common, o, progress),
         Scenario::Perches(o) => perches(&sensor, common, o, progress),
         Scenario::Mapping(o) => mapping(&sensor, common, o, progress),
@@ -577,7 +578,6 @@ fn single(
     // Reject a bad contact before writing anything.
     sensor.loads(&[Press::rod(o.x_mm, f, o.indenter_mm)])?;
     let mut w = SequenceWriter::new(c, "single", o.frames, progress)?;
-        Scenario::Shear(o) => shear(&sensor, common, o, progress),
     for k in 0..o.frames {
         let a = o.force_n * ramp(k, o.frames);
         let contacts = if k == 0 {
@@ -593,28 +593,6 @@ fn single(
     })
 }
 
-/// What `presses.json` records of one loaded frame.
-#[derive(Serialize)]
-struct PressInfo {
-    frame: String,
-    indenter_mm: f64,
-    yaw_deg: f64,
-    pitch_deg: f64,
-}
-
-fn presses(
-    sensor: &SyntheticSensor,
-    c: &Common,
-    o: &Presses,
-    progress: Progress<'_>,
-) -> Result<Summary> {
-    // All draws first, from their own stream, so that the presses depend on
-    // the seed alone; every rod is checked before anything is written.
-    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7072_6573_7365_7321));
-    let mut plan = Vec::with_capacity(o.presses);
-    for _ in 0..o.presses {
-        let x = rng.uniform(-o.x_max_mm, o.x_max_mm);
-        let f = rng.uniform(o.force_min_n, o.force_max_n);
 impl Shear {
     /// The rod of frame `k` (`None` for the reference, frame 0).
     pub fn press(&self, k: usize) -> Option<Press> {
@@ -673,6 +651,28 @@ fn shear(
     })
 }
 
+/// What `presses.json` records of one loaded frame.
+#[derive(Serialize)]
+struct PressInfo {
+    frame: String,
+    indenter_mm: f64,
+    yaw_deg: f64,
+    pitch_deg: f64,
+}
+
+fn presses(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Presses,
+    progress: Progress<'_>,
+) -> Result<Summary> {
+    // All draws first, from their own stream, so that the presses depend on
+    // the seed alone; every rod is checked before anything is written.
+    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7072_6573_7365_7321));
+    let mut plan = Vec::with_capacity(o.presses);
+    for _ in 0..o.presses {
+        let x = rng.uniform(-o.x_max_mm, o.x_max_mm);
+        let f = rng.uniform(o.force_min_n, o.force_max_n);
         let tilt = rng.uniform(-o.max_tilt_deg, o.max_tilt_deg);
         let (yaw, pitch) = if rng.below(2) == 0 {
             (0.0, tilt)

@@ -272,6 +272,9 @@ impl SyntheticSensor {
 /// random layout) or on a regular grid of dots.
 fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
     let mc = &config.markers;
+    if let MarkerLayout::Grid(g) = &mc.layout {
+        return grid_markers(config, g, seed);
+    }
     let skin = &config.skin;
     let cam = &config.camera;
     let mut rng = SplitMix64::new(mix64(seed));
@@ -301,42 +304,10 @@ fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
         m.py.push(cam.y_to_px(y));
         m.amp.push(amp as f32);
         m.sigma.push((fwhm / (8.0 * 2f64.ln()).sqrt()) as f32);
-    if let MarkerLayout::Grid(g) = &mc.layout {
-        return grid_markers(config, g, seed);
-    }
     }
     m
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Slow oracle: every marker summed over the whole image in f64, no bands,
-    /// no windows beyond the same spot radius, then the same lighting.
-    #[test]
-    fn banded_renderer_matches_a_naive_sum() {
-        let mut cfg = SimConfig::default();
-        cfg.markers.count = Some(3000);
-        cfg.noise.shot = 0.0;
-        cfg.noise.read = 0.0;
-        cfg.noise.flicker = 0.0;
-        let s = SyntheticSensor::new(cfg, 5).unwrap();
-        let contacts = [Press::rod(10.0, [0.2, 0.0, -2.5], 5.0)];
-        let r = s.render_indexed(3, &contacts, true).unwrap();
-        let loads = s.loads(&contacts).unwrap();
-        let motion = s.marker_pixel_motion(&loads);
-        let m = &s.markers;
-        let (w, h) = cfg.image_size();
-        let mut sig = vec![0.0f64; w * h];
-        let mut acc = vec![[0.0f64; 3]; w * h];
-        for i in 0..m.s.len() {
-            let cx = m.px[i] + motion[i].0 as f64;
-            let cy = m.py[i] + motion[i].1 as f64;
-            let sg = m.sigma[i] as f64;
-            let rad = render::SPOT_RADIUS_SIGMAS as f64 * sg;
-            // Every pixel whose centre lies in the spot's radius box (the
-            // renderer's window), found by scanning all rows and columns.
 /// A regular grid of dots every `pitch_px` over the skin's image, centred on
 /// it, each moved by up to `jitter_px` (from the seed), all at the mean depth.
 fn grid_markers(config: &SimConfig, g: &DotGrid, seed: u64) -> Markers {
@@ -374,6 +345,35 @@ fn grid_markers(config: &SimConfig, g: &DotGrid, seed: u64) -> Markers {
     m
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Slow oracle: every marker summed over the whole image in f64, no bands,
+    /// no windows beyond the same spot radius, then the same lighting.
+    #[test]
+    fn banded_renderer_matches_a_naive_sum() {
+        let mut cfg = SimConfig::default();
+        cfg.markers.count = Some(3000);
+        cfg.noise.shot = 0.0;
+        cfg.noise.read = 0.0;
+        cfg.noise.flicker = 0.0;
+        let s = SyntheticSensor::new(cfg, 5).unwrap();
+        let contacts = [Press::rod(10.0, [0.2, 0.0, -2.5], 5.0)];
+        let r = s.render_indexed(3, &contacts, true).unwrap();
+        let loads = s.loads(&contacts).unwrap();
+        let motion = s.marker_pixel_motion(&loads);
+        let m = &s.markers;
+        let (w, h) = cfg.image_size();
+        let mut sig = vec![0.0f64; w * h];
+        let mut acc = vec![[0.0f64; 3]; w * h];
+        for i in 0..m.s.len() {
+            let cx = m.px[i] + motion[i].0 as f64;
+            let cy = m.py[i] + motion[i].1 as f64;
+            let sg = m.sigma[i] as f64;
+            let rad = render::SPOT_RADIUS_SIGMAS as f64 * sg;
+            // Every pixel whose centre lies in the spot's radius box (the
+            // renderer's window), found by scanning all rows and columns.
             let (x0, x1) = ((cx - rad).floor(), (cx + rad).ceil());
             let (y0, y1) = ((cy - rad).floor(), (cy + rad).ceil());
             for y in (0..h).filter(|&y| y as f64 >= y0 && y as f64 <= y1) {
