@@ -459,3 +459,213 @@ fn stripe_and_coarsest_knobs() {
     let o = DisParams::preset(DisPreset::Fast).opencv_semantics();
     assert!(o.step_on_stop && o.min_stripe_rows == 1 && o.coarsest_min_patches == 1);
 }
+
+/// Endpoint errors of `flow` against `truth` at the markers' reference
+/// centres (both sampled bilinearly there): `(mean, max)`.
+fn marker_errors(
+    flow: &FlowField,
+    truth: &FlowField,
+    centres: &[(f64, f64, f64, f64, f64)],
+) -> (f64, f64) {
+    let at = |f: &FlowField, x: f64, y: f64| {
+        let (w, h) = f.size();
+        let (x, y) = (x.clamp(0.0, (w - 1) as f64), y.clamp(0.0, (h - 1) as f64));
+        let (x0, y0) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let bil = |a: &Array2<f32>| {
+            let top = a[[y0, x0]] * (1.0 - fx) + a[[y0, x0 + 1]] * fx;
+            let bot = a[[y0 + 1, x0]] * (1.0 - fx) + a[[y0 + 1, x0 + 1]] * fx;
+            top * (1.0 - fy) + bot * fy
+        };
+        (bil(&f.u), bil(&f.v))
+    };
+    let (mut sum, mut max) = (0.0f64, 0.0f64);
+    for &(_, _, _, x, y) in centres {
+        let (fu, fv) = at(flow, x, y);
+        let (tu, tv) = at(truth, x, y);
+        let e = ((fu - tu) as f64).hypot((fv - tv) as f64);
+        sum += e;
+        max = max.max(e);
+    }
+    (sum / centres.len() as f64, max)
+}
+
+/// Pixels more than `border` px from the edge whose flow is exactly zero
+/// where the true motion is at least `moving` px.
+fn exact_zeros(flow: &FlowField, truth: &FlowField, moving: f32, border: usize) -> usize {
+    let (w, h) = flow.size();
+    let mut n = 0;
+    for y in border..h - border {
+        for x in border..w - border {
+            let t = truth.u[[y, x]].hypot(truth.v[[y, x]]);
+            if t >= moving && flow.u[[y, x]] == 0.0 && flow.v[[y, x]] == 0.0 {
+                n += 1;
+            }
+        }
+    }
+    n
+}
+
+/// One dot-grid sequence of `simulate shear --dot-grid`: its options and
+/// OpenCV 5 MEDIUM's mean and largest endpoint error at the markers on the
+/// press-only frame 4 and the fully sheared frame 8.
+struct DotGridCase {
+    seed: u64,
+    pitch: f64,
+    dot: f64,
+    jitter: f64,
+    shear_x: f64,
+    medium: [(f64, f64); 2],
+}
+
+fn dot_grid_case(c: &DotGridCase, check_medium_ratio: bool) {
+    use optical_tactile_sim::scenario::Shear;
+    use optical_tactile_sim::{DotGrid, SimConfig, SyntheticSensor};
+    let cfg = SimConfig::dot_grid(DotGrid {
+        pitch_px: c.pitch,
+        diameter_px: c.dot,
+        jitter_px: c.jitter,
+        ..DotGrid::default()
+    });
+    let sensor = SyntheticSensor::new(cfg, c.seed).unwrap();
+    let shear = Shear {
+        shear_n: [c.shear_x, Shear::default().shear_n[1]],
+        ..Shear::default()
+    };
+    let centres = sensor.marker_positions();
+    let reference = sensor.render_indexed(0, &[], false).unwrap().frame;
+    for (k, frame) in [4usize, 8].into_iter().enumerate() {
+        let rod = shear.press(frame).unwrap();
+        let r = sensor.render_indexed(frame as u64, &[rod], true).unwrap();
+        let truth = r.flow.unwrap();
+        for preset in [DisPreset::Fine, DisPreset::Accurate, DisPreset::Balanced] {
+            let flow = flow_of(preset, &reference, &r.frame);
+            let (mean, max) = marker_errors(&flow, &truth, &centres);
+            // Exact zeros where the skin moves by 0.3 px or more (on the
+            // press-only frame parts of the gel move less than that).
+            let zeros = exact_zeros(&flow, &truth, 0.3, 16);
+            let (m_mean, m_max) = c.medium[k];
+            eprintln!(
+                "MEASURE dot grid seed {} pitch {} dot {} frame {frame} {preset:?}: markers mean \
+                 {mean:.4} max {max:.4} (MEDIUM {m_mean} / {m_max}), exact zeros {zeros}",
+                c.seed, c.pitch, c.dot
+            );
+            assert_eq!(
+                zeros, 0,
+                "{preset:?}: {zeros} exact-zero pixels, frame {frame}"
+            );
+            assert!(
+                max < 2.0,
+                "{preset:?}: marker error up to {max} px, frame {frame}"
+            );
+            if preset == DisPreset::Fine && check_medium_ratio {
+                assert!(
+                    mean <= 1.2 * m_mean,
+                    "fine: markers mean {mean} vs MEDIUM {m_mean}, frame {frame}"
+                );
+            }
+        }
+    }
+}
+
+// OpenCV 5 MEDIUM's figures at the markers, measured on the same frames
+// (written by `simulate shear --dot-grid --pitch-px P --dot-px D --jitter-px J
+// --shear-x-n S --seed N --out DIR`), per frame F (4, 8), with
+// `python3 tools/opencv_dis_baseline.py DIR/000000.png DIR/00000F.png
+// --truth DIR/flow/00000F.flo --points DIR/markers.csv --presets medium
+// --threads 1 --repeat 1` (pts_mean, pts_max), docs/results.md.
+const MEDIUM_A4: (f64, f64) = (0.08680, 0.20026);
+const MEDIUM_A8: (f64, f64) = (0.15174, 0.36685);
+const MEDIUM_B4: (f64, f64) = (0.07050, 0.26624);
+const MEDIUM_B8: (f64, f64) = (0.08312, 0.33933);
+const MEDIUM_C4: (f64, f64) = (0.04582, 0.12960);
+const MEDIUM_C8: (f64, f64) = (0.07142, 0.26867);
+
+/// On a regular grid of dark dots on a lit gel, pressed and then strongly
+/// sheared, the sensor's flow presets leave no exact-zero holes and no
+/// gross error at the markers, and `fine` (the sensor's default) stays
+/// within 1.2 times OpenCV MEDIUM's mean error there.
+#[test]
+#[ignore = "known limit: the presets leave exact-zero patches on dot grids"]
+fn dot_grids_under_press_and_shear() {
+    for c in [
+        DotGridCase {
+            seed: 4,
+            pitch: 30.0,
+            dot: 8.0,
+            jitter: 0.0,
+            shear_x: 0.6,
+            medium: [MEDIUM_A4, MEDIUM_A8],
+        },
+        DotGridCase {
+            seed: 2,
+            pitch: 24.0,
+            dot: 8.0,
+            jitter: 2.0,
+            shear_x: 0.8,
+            medium: [MEDIUM_B4, MEDIUM_B8],
+        },
+    ] {
+        dot_grid_case(&c, true);
+    }
+}
+
+/// Dots twice the patch size (16 px every 34 px): the dots' inside is
+/// untextured at full resolution. A known limit of `fine`: its mean error at the markers is above 1.2 times MEDIUM's there, and the
+/// zero candidate can leave a patch at exactly zero under several px of
+/// shear.
+#[test]
+#[ignore = "known limit of fine on dots twice the patch size"]
+fn dot_grid_with_large_dots() {
+    dot_grid_case(
+        &DotGridCase {
+            seed: 9,
+            pitch: 34.0,
+            dot: 16.0,
+            jitter: 1.0,
+            shear_x: 0.9,
+            medium: [MEDIUM_C4, MEDIUM_C8],
+        },
+        true,
+    );
+}
+
+/// Random fluorescent markers at half the default density (another seed),
+/// pressed with shear: filling untextured patches from their neighbours
+/// (`fill_untextured`) does not make `fine`'s flow worse than leaving them in
+/// the search.
+#[test]
+fn sparse_random_markers_do_not_regress() {
+    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    let mut cfg = SimConfig::default();
+    cfg.markers.coverage = 0.15;
+    let sensor = SyntheticSensor::new(cfg, 11).unwrap();
+    let reference = sensor.render_indexed(0, &[], false).unwrap().frame;
+    for (k, rod) in [
+        Press::rod(-40.0, [0.0, 0.0, -2.5], 5.0),
+        Press::rod(30.0, [0.9, 0.3, -2.5], 10.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let r = sensor.render_indexed(k as u64 + 1, &[rod], true).unwrap();
+        let truth = r.flow.unwrap();
+        let run = |fill: bool| {
+            let mut dis = Dis::new(DisParams {
+                fill_untextured: fill,
+                ..DisParams::preset(DisPreset::Fine)
+            })
+            .unwrap();
+            dis.set_reference(&reference).unwrap();
+            dis.compute(&r.frame).unwrap().aepe(&truth, 16).unwrap()
+        };
+        let (filled, searched) = (run(true), run(false));
+        eprintln!(
+            "MEASURE sparse markers, press {k}: fine {filled:.5}, without the fill {searched:.5}"
+        );
+        assert!(
+            filled <= searched * 1.01,
+            "press {k}: {filled} with the fill, {searched} without"
+        );
+    }
+}

@@ -216,6 +216,19 @@ pub struct DisParams {
     /// the vector the coarser level and propagation give it. 0 = off, as in
     /// OpenCV.
     pub min_texture: f32,
+    /// Patches below `min_texture` (and edge-only patches) take no part in
+    /// the search and no candidate competes for them: after the search each
+    /// takes the mean vector of the searched patches nearest to it (those
+    /// within the smallest square of 3, 5, 9, 17, ... patches around it that
+    /// holds any), or keeps the coarser level's vector when no patch of the
+    /// level is searched. Without it such a patch picks among its start, the
+    /// zero vector and its neighbours' vectors by a cost that is pure noise,
+    /// and on a bright gel with sparse dots many pick zero (at full
+    /// resolution, on a stride equal to the patch, whole blocks of the flow
+    /// are then exactly zero). `false` (every preset) keeps them in the
+    /// search, as OpenCV does: on the simulator's strip the fill did not
+    /// keep the calibrated forces' accuracy.
+    pub fill_untextured: bool,
     /// Stop a patch's descent once a step moves it by less than this many
     /// level pixels (the step is still applied). 0 = off: every iteration
     /// runs until the cost stops falling, as in OpenCV.
@@ -269,6 +282,7 @@ impl DisParams {
             zero_candidate: false,
             stripes: 8,
             min_texture: 0.0,
+            fill_untextured: false,
             early_stop: 0.0,
             refine_levels: None,
             step_on_stop: false,
@@ -456,6 +470,9 @@ struct PatchRef {
     ih22: f32,
     sgx: f32,
     sgy: f32,
+    /// Whether the patch has a well-defined 2-D step (texture above the
+    /// gate); the inverse tensor is zero otherwise.
+    textured: bool,
 }
 
 /// One pyramid level: reference data (fixed) and per-frame buffers.
@@ -763,6 +780,9 @@ impl Dis {
             let lvl = &mut finer[k];
             init_patches(lvl, coarser.first(), self.params.patch_size);
             search_level(lvl, &self.params);
+            if self.params.fill_untextured {
+                fill_untextured(lvl);
+            }
             densify(lvl, self.params.patch_size);
             let refined = self.params.refine_levels.is_none_or(|n| k < n);
             if self.params.refinement.outer_iterations > 0 && refined {
@@ -898,7 +918,8 @@ fn patch_ref(
     let smallest = 0.5 * (tr - ((xx - yy) * (xx - yy) + 4.0 * xy * xy).sqrt());
     // A textureless or edge-only patch has no well-defined 2-D step: leave it
     // where propagation and the coarser level put it.
-    let (ih11, ih12, ih22) = if tr > 0.0 && det > 1e-6 * tr * tr && smallest >= min_eig {
+    let textured = tr > 0.0 && det > 1e-6 * tr * tr && smallest >= min_eig;
+    let (ih11, ih12, ih22) = if textured {
         (yy / det, -xy / det, xx / det)
     } else {
         (0.0, 0.0, 0.0)
@@ -909,6 +930,7 @@ fn patch_ref(
         ih22: ih22 as f32,
         sgx: sx as f32,
         sgy: sy as f32,
+        textured,
     }
 }
 
@@ -1303,6 +1325,10 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                         let gi = i_begin + i;
                         let (x0, y0) = (px[j] as usize, py[gi] as usize);
                         let pr = &patches[gi * ws + j];
+                        if p.fill_untextured && !pr.textured {
+                            // Filled from its searched neighbours afterwards.
+                            continue;
+                        }
                         if view.psz == 8 {
                             pd.load(&view, x0, y0);
                         }
@@ -1402,6 +1428,69 @@ fn search_level(lvl: &mut Level, p: &DisParams) {
                 }
             }
         });
+}
+
+/// Gives every untextured patch the mean vector of the textured patches
+/// nearest to it: those in the smallest square of `2r + 1` patches (`r` = 1,
+/// 2, 4, ...) around it that holds any, read from summed-area tables of the
+/// textured patches' count and vectors (so the cost does not grow with the
+/// size of an untextured region). A level without textured patches keeps
+/// the coarser level's vectors. Serial and in a fixed order: the result does
+/// not depend on the thread count.
+fn fill_untextured(lvl: &mut Level) {
+    let (ws, hs) = (lvl.ws(), lvl.hs());
+    let patches = &lvl.patches;
+    if patches.iter().all(|p| p.textured) || !patches.iter().any(|p| p.textured) {
+        return;
+    }
+    // Summed-area tables with a zero first row and column, in f64 so that the
+    // differences of large sums stay exact enough.
+    let (tw, th) = (ws + 1, hs + 1);
+    let mut tables = vec![[0f64; 3]; tw * th];
+    for i in 0..hs {
+        let mut row = [0f64; 3];
+        for j in 0..ws {
+            let k = i * ws + j;
+            if patches[k].textured {
+                row[0] += 1.0;
+                row[1] += lvl.sx[k] as f64;
+                row[2] += lvl.sy[k] as f64;
+            }
+            let above = tables[i * tw + j + 1];
+            tables[(i + 1) * tw + j + 1] =
+                [row[0] + above[0], row[1] + above[1], row[2] + above[2]];
+        }
+    }
+    let rect = |i0: usize, j0: usize, i1: usize, j1: usize| -> [f64; 3] {
+        // Sums over patch rows i0..i1 and columns j0..j1 (exclusive ends).
+        let (a, b) = (tables[i1 * tw + j1], tables[i0 * tw + j1]);
+        let (c, d) = (tables[i1 * tw + j0], tables[i0 * tw + j0]);
+        std::array::from_fn(|q| a[q] - b[q] - c[q] + d[q])
+    };
+    let reach = ws.max(hs);
+    for i in 0..hs {
+        for j in 0..ws {
+            let k = i * ws + j;
+            if patches[k].textured {
+                continue;
+            }
+            let mut r = 1;
+            loop {
+                let (i0, j0) = (i.saturating_sub(r), j.saturating_sub(r));
+                let (i1, j1) = ((i + r + 1).min(hs), (j + r + 1).min(ws));
+                let [n, su, sv] = rect(i0, j0, i1, j1);
+                if n > 0.5 {
+                    lvl.sx[k] = (su / n) as f32;
+                    lvl.sy[k] = (sv / n) as f32;
+                    break;
+                }
+                if r >= reach {
+                    break;
+                }
+                r *= 2;
+            }
+        }
+    }
 }
 
 /// Dense flow: each pixel averages the vectors of the patches covering it,
