@@ -8,7 +8,7 @@
 //! ```
 //!
 //! Scenarios: `single`, `pair`, `presses`, `shear`, `characterization`, `perches`,
-//! `mapping` (see `optical_tactile_sim::scenario`), and `fixtures`, which
+//! `mapping`, `rest` (see `optical_tactile_sim::scenario`), and `fixtures`, which
 //! regenerates the repository's fixtures (by default in this crate's
 //! `fixtures/`, whatever the working directory) and, with `--docs`, the
 //! README pictures. A progress bar with an ETA shows on a terminal (not with
@@ -28,9 +28,9 @@ use ndarray::{Array2, s};
 use optical_tactile::Result;
 use optical_tactile::viz::{Canvas, Rgb, colormap};
 use optical_tactile_sim::scenario::{
-    self, Characterization, Common, Mapping, Pair, Perches, Presses, Scenario, Shear, Single,
+    self, Characterization, Common, Mapping, Pair, Perches, Presses, Rest, Scenario, Shear, Single,
 };
-use optical_tactile_sim::{DotGrid, Press, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{DotGrid, ExposureChanges, Press, SimConfig, SyntheticSensor};
 
 /// Where `fixtures` writes by default: this crate's fixtures folder.
 const FIXTURES_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures");
@@ -118,6 +118,17 @@ pub enum Command {
         #[command(flatten)]
         options: MappingArgs,
     },
+    /// The skin at rest (no contact), e.g. with --exposure-steps and --drift
+    /// to see what the camera alone does (camera.csv: each frame's gain and
+    /// offset).
+    Rest {
+        /// Common options.
+        #[command(flatten)]
+        common: CommonArgs,
+        /// The scenario's options.
+        #[command(flatten)]
+        options: RestArgs,
+    },
     /// The repository's fixtures (a two-contact press and a characterization
     /// subset) and, with --docs, the README pictures.
     Fixtures(FixturesArgs),
@@ -182,6 +193,18 @@ pub struct CommonArgs {
     /// Relative per-frame brightness flicker.
     #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.flicker)]
     pub flicker: f32,
+    /// Camera exposure steps: every EVERY frames the gain changes by GAIN
+    /// (relative, e.g. 0.02) and the black level by OFFSET grey levels, up or
+    /// down at random, at most LEVELS steps from the start [default: off;
+    /// OFFSET 0, LEVELS 2].
+    #[arg(long, value_name = "EVERY,GAIN[,OFFSET[,LEVELS]]", allow_hyphen_values = true,
+          value_parser = exposure_steps)]
+    pub exposure_steps: Option<Numbers>,
+    /// Slow camera drift: the gain moves by up to GAIN (relative) and the
+    /// black level by up to OFFSET grey levels, as a sine of PERIOD frames
+    /// [default: off].
+    #[arg(long, value_name = "GAIN,OFFSET,PERIOD", allow_hyphen_values = true, value_parser = drift)]
+    pub drift: Option<Numbers>,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
@@ -216,8 +239,56 @@ impl CommonArgs {
         cfg.markers.count = self.markers;
         cfg.noise.read = self.noise_read;
         cfg.noise.flicker = self.flicker;
+        cfg.noise.exposure = self.exposure();
         c
     }
+
+    /// The exposure changes of --exposure-steps and --drift.
+    pub fn exposure(&self) -> ExposureChanges {
+        let mut e = ExposureChanges::default();
+        if let Some(Numbers(v)) = &self.exposure_steps {
+            let at = |k: usize, d: f64| v.get(k).copied().unwrap_or(d);
+            e.step_every = at(0, 0.0).max(0.0) as u64;
+            e.step_gain = at(1, 0.0) as f32;
+            e.step_offset = at(2, 0.0) as f32;
+            e.step_levels = at(3, 2.0).max(0.0) as u32;
+        }
+        if let Some(Numbers(v)) = &self.drift {
+            let at = |k: usize| v.get(k).copied().unwrap_or(0.0);
+            e.drift_gain = at(0) as f32;
+            e.drift_offset = at(1) as f32;
+            e.drift_period = at(2);
+        }
+        e
+    }
+}
+
+/// `--exposure-steps`' value: EVERY,GAIN[,OFFSET[,LEVELS]], EVERY and LEVELS
+/// at least 1.
+fn exposure_steps(s: &str) -> std::result::Result<Numbers, String> {
+    let v = cli_support::number_list(s)?;
+    if !(2..=4).contains(&v.len()) || v[0] < 1.0 || v.get(3).is_some_and(|&l| l < 1.0) {
+        return Err("expected EVERY,GAIN[,OFFSET[,LEVELS]] with EVERY and LEVELS >= 1".into());
+    }
+    Ok(Numbers(v))
+}
+
+/// `--drift`'s value: GAIN,OFFSET,PERIOD, PERIOD above 0.
+fn drift(s: &str) -> std::result::Result<Numbers, String> {
+    let v = cli_support::number_list(s)?;
+    if v.len() != 3 || v[2] <= 0.0 {
+        return Err("expected GAIN,OFFSET,PERIOD with PERIOD > 0 frames".into());
+    }
+    Ok(Numbers(v))
+}
+
+/// `rest`'s options.
+#[derive(Args, Debug)]
+#[command(next_help_heading = "Scenario options")]
+pub struct RestArgs {
+    /// Frames including the reference.
+    #[arg(long, value_name = "N", default_value_t = Rest::default().frames)]
+    pub frames: usize,
 }
 
 /// `single`'s options.
@@ -497,6 +568,9 @@ impl Command {
                 &common,
                 true,
             ),
+            Command::Rest { common, options: o } => {
+                run(Scenario::Rest(Rest { frames: o.frames }), &common, true)
+            }
             Command::Fixtures(f) => (
                 Job::Fixtures {
                     out: f.out,

@@ -7,6 +7,7 @@ use optical_tactile::flow::FlowField;
 
 use super::camera::{CameraModel, Skin};
 use super::elastic::Material;
+use super::rng::{hash64, mix64};
 
 /// How the markers are scattered and how they look.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -149,6 +150,125 @@ pub struct NoiseConfig {
     pub flicker: f32,
     /// Vignetting strength: gain `1 - v r^2` at relative radius `r` in the full frame.
     pub vignetting: f32,
+    /// Changes of the camera's gain and black level over time: exposure
+    /// steps and slow drift (none by default).
+    pub exposure: ExposureChanges,
+}
+
+/// How the camera's gain and black level change over time: the exposure
+/// steps of an auto-exposure camera and a slow drift of gain and offset
+/// (warm-up, lighting). Applied per frame index on top of the flicker: a
+/// pixel is `light * gain + offset` before the noise's rounding, with shot
+/// noise following the scaled light. The default (every field 0) changes
+/// nothing: frames are bit-identical to a camera without it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ExposureChanges {
+    /// Frames between exposure steps (0: no steps); step `k` happens at
+    /// frame `k * step_every`.
+    pub step_every: u64,
+    /// Relative gain change of one step (0.02: 2% brighter or darker).
+    pub step_gain: f32,
+    /// Black-level change of one step, grey levels.
+    pub step_offset: f32,
+    /// How many steps the exposure may wander from where it started: each
+    /// step goes up or down at random (from the seed) and turns back at
+    /// this bound (at least 1 when steps are on).
+    pub step_levels: u32,
+    /// Amplitude of the slow gain drift, relative: the gain moves as
+    /// `1 + drift_gain * sin(2 pi t / drift_period)`, `t` the frame index.
+    pub drift_gain: f32,
+    /// Amplitude of the slow offset drift, grey levels (the same sine).
+    pub drift_offset: f32,
+    /// Period of the slow drift, frames (needed when a drift amplitude is
+    /// not 0).
+    pub drift_period: f64,
+}
+
+impl ExposureChanges {
+    /// Whether anything changes at all.
+    pub fn is_active(&self) -> bool {
+        (self.step_every > 0 && (self.step_gain != 0.0 || self.step_offset != 0.0))
+            || self.drift_gain != 0.0
+            || self.drift_offset != 0.0
+    }
+
+    /// The exposure level (in steps, within `±step_levels`) after the steps
+    /// up to frame `index`, the steps' directions drawn from `seed`.
+    pub fn level(&self, seed: u64, index: u64) -> i64 {
+        if self.step_every == 0 {
+            return 0;
+        }
+        let bound = i64::from(self.step_levels.max(1));
+        let mut level = 0i64;
+        for k in 1..=index / self.step_every {
+            let up = hash64(mix64(seed ^ 0x3C6E_F372_FE94_F82B), k) & 1 == 1;
+            let step = if up { 1 } else { -1 };
+            level = if (level + step).abs() > bound {
+                level - step
+            } else {
+                level + step
+            };
+        }
+        level
+    }
+
+    /// The camera's `(gain, offset)` at frame `index` for a sensor of seed
+    /// `seed`: `(1, 0)` when nothing changes.
+    pub fn response(&self, seed: u64, index: u64) -> (f32, f32) {
+        if !self.is_active() {
+            return (1.0, 0.0);
+        }
+        let level = self.level(seed, index) as f64;
+        let phase = if self.drift_period > 0.0 {
+            (2.0 * std::f64::consts::PI * index as f64 / self.drift_period).sin()
+        } else {
+            0.0
+        };
+        let gain =
+            (1.0 + f64::from(self.step_gain) * level) * (1.0 + f64::from(self.drift_gain) * phase);
+        let offset = f64::from(self.step_offset) * level + f64::from(self.drift_offset) * phase;
+        (gain.max(0.0) as f32, offset as f32)
+    }
+
+    fn validate(&self) -> Result<()> {
+        for (name, v) in [
+            ("noise.exposure.step_gain", self.step_gain),
+            ("noise.exposure.step_offset", self.step_offset),
+            ("noise.exposure.drift_gain", self.drift_gain),
+            ("noise.exposure.drift_offset", self.drift_offset),
+        ] {
+            if !v.is_finite() {
+                return Err(Error::param(name, format!("must be finite, got {v}")));
+            }
+        }
+        let levels = f64::from(self.step_levels.max(1));
+        if self.step_every > 0 && f64::from(self.step_gain).abs() * levels >= 0.5 {
+            return Err(Error::param(
+                "noise.exposure.step_gain",
+                format!(
+                    "{} per step over {} levels changes the gain by half or more",
+                    self.step_gain, levels
+                ),
+            ));
+        }
+        if self.drift_gain.abs() >= 0.5 {
+            return Err(Error::param(
+                "noise.exposure.drift_gain",
+                format!("must lie in (-0.5, 0.5), got {}", self.drift_gain),
+            ));
+        }
+        let drifts = self.drift_gain != 0.0 || self.drift_offset != 0.0;
+        if drifts && !(self.drift_period.is_finite() && self.drift_period > 0.0) {
+            return Err(Error::param(
+                "noise.exposure.drift_period",
+                format!(
+                    "a drift needs a period > 0 frames, got {}",
+                    self.drift_period
+                ),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for NoiseConfig {
@@ -160,6 +280,7 @@ impl Default for NoiseConfig {
             read: 1.0,
             flicker: 0.01,
             vignetting: 0.35,
+            exposure: ExposureChanges::default(),
         }
     }
 }
@@ -297,6 +418,7 @@ impl SimConfig {
         if !(n.vignetting.is_finite() && (0.0..1.0).contains(&n.vignetting)) {
             return Err(Error::param("noise.vignetting", "must lie in [0, 1)"));
         }
+        n.exposure.validate()?;
         Ok(())
     }
 

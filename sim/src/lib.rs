@@ -45,7 +45,7 @@ mod sensor;
 
 pub use camera::{CameraModel, Skin};
 pub use config::{
-    DotGrid, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
+    DotGrid, ExposureChanges, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
 };
 pub use elastic::Material;
 pub use sensor::{Press, SyntheticSensor};

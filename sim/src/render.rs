@@ -37,6 +37,8 @@ struct Frame<'a> {
     origin: (f32, f32),
     skin_box: (f32, f32, f32, f32),
     gain: f32,
+    /// The camera's black level on top of the light (exposure changes).
+    offset: f32,
     stream: u64,
     blend_weight: f32,
 }
@@ -47,6 +49,7 @@ pub(crate) fn render(
     motion: &[(f32, f32)],
     grid: Option<&MotionGrid>,
     stream: u64,
+    camera: (f32, f32),
 ) -> Rendered {
     let (width, height) = cfg.image_size();
     let origin = if cfg.full_frame {
@@ -83,6 +86,8 @@ pub(crate) fn render(
     }
     let mut flicker = SplitMix64::new(stream ^ 0x5DEE_CE66_D1CE_4E5B);
     let gain = (1.0 + cfg.noise.flicker as f64 * flicker.normal()).max(0.0) as f32;
+    // The exposure changes' gain (exactly 1 when there are none).
+    let gain = gain * camera.0;
     let mean_amp = match &cfg.markers.layout {
         MarkerLayout::Random => 0.5 * (cfg.markers.brightness.0 + cfg.markers.brightness.1) as f32,
         MarkerLayout::Grid(g) => g.darkness as f32,
@@ -97,6 +102,7 @@ pub(crate) fn render(
         origin,
         skin_box,
         gain,
+        offset: camera.1,
         stream,
         blend_weight: (0.05 * mean_amp).max(1e-3),
     };
@@ -229,7 +235,7 @@ impl Frame<'_> {
                     * self.gain;
                 let sd = (n.shot * light + read2).sqrt();
                 let z = approx_normal_from_bits(hash64(self.stream, (y * w + x) as u64));
-                rows[k] = (light + sd * z).round().clamp(0.0, 255.0);
+                rows[k] = (light + sd * z + self.offset).round().clamp(0.0, 255.0);
             }
         }
         if let (Some((u, v)), Some(grid)) = (flow, self.grid) {

@@ -2,7 +2,7 @@
 //! file formats of docs/formats.md.
 //!
 //! Every scenario writes its frames as 8-bit grey PNG. Sequences (`single`,
-//! `pair`, `presses`, `perches`, `mapping`) write `000000.png, 000001.png, ...` (frame 0
+//! `pair`, `presses`, `perches`, `mapping`, `rest`) write `000000.png, 000001.png, ...` (frame 0
 //! is the unloaded reference), `truth.jsonl` (one line per frame with the true
 //! contacts) and, unless disabled, the true dense motion of each frame as
 //! `flow/000000.flo`. `characterization` writes `tests.csv` and
@@ -268,6 +268,24 @@ impl Default for Mapping {
     }
 }
 
+/// Unloaded frames only: the skin at rest for `frames` frames (frame 0 the
+/// reference), to see what the camera alone does to the pipeline. With the
+/// noise model's exposure changes ([`crate::ExposureChanges`]) the frames
+/// carry exposure steps and slow drift; the scenario then also writes
+/// `camera.csv`, each frame's gain and black-level offset
+/// (`frame,level,gain,offset`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rest {
+    /// Number of frames including the reference.
+    pub frames: usize,
+}
+
+impl Default for Rest {
+    fn default() -> Self {
+        Rest { frames: 200 }
+    }
+}
+
 /// A scenario and its options.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Scenario {
@@ -285,6 +303,8 @@ pub enum Scenario {
     Perches(Perches),
     /// Touch mapping with poses.
     Mapping(Mapping),
+    /// The skin at rest, optionally with exposure steps and drift.
+    Rest(Rest),
 }
 
 /// Progress callback: `(stage, done, total)`, called from worker threads as
@@ -550,6 +570,7 @@ pub fn run_with_progress(
                 return Err(Error::param("rods_x_m", "rod positions must be finite"));
             }
         }
+        Scenario::Rest(o) => check_frames(o.frames)?,
     }
     let sensor = SyntheticSensor::new(common.config, common.seed)?;
     match scenario {
@@ -560,6 +581,7 @@ pub fn run_with_progress(
         Scenario::Characterization(o) => characterization(&sensor, common, o, progress),
         Scenario::Perches(o) => perches(&sensor, common, o, progress),
         Scenario::Mapping(o) => mapping(&sensor, common, o, progress),
+        Scenario::Rest(o) => rest(&sensor, common, o, progress),
     }
 }
 
@@ -919,6 +941,26 @@ fn perches(
         })
         .collect();
     write_json(&c.out.join("perches.json"), &info)?;
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
+fn rest(sensor: &SyntheticSensor, c: &Common, o: &Rest, progress: Progress<'_>) -> Result<Summary> {
+    let mut w = SequenceWriter::new(c, "rest", o.frames, progress)?;
+    let exposure = c.config.noise.exposure;
+    let mut csv = String::from("frame,level,gain,offset\n");
+    for k in 0..o.frames {
+        let name = w.frame(sensor, &[])?;
+        let (gain, offset) = exposure.response(c.seed, k as u64);
+        let level = exposure.level(c.seed, k as u64);
+        csv.push_str(&format!("{name},{level},{gain},{offset}\n"));
+    }
+    if exposure.is_active() {
+        let path = c.out.join("camera.csv");
+        std::fs::write(&path, csv).map_err(|e| Error::io(&path, e))?;
+    }
     Ok(Summary {
         out: c.out.clone(),
         frames: w.n,

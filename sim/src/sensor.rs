@@ -21,6 +21,11 @@ pub struct Press {
     pub force_n: [f64; 3],
     /// Rod (indenter) diameter, mm (2-10 in the characterization).
     pub diameter_mm: f64,
+    /// Width of the pressed area along the skin, mm: `None` takes the
+    /// Hertz contact width of the rod on the gel (about 1-8 mm for the
+    /// characterization's rods), a number spreads the load over that width
+    /// with the same elliptic pressure ([`Press::pad`]).
+    pub contact_width_mm: Option<f64>,
 }
 
 impl Press {
@@ -30,6 +35,19 @@ impl Press {
             x_mm,
             force_n,
             diameter_mm,
+            contact_width_mm: None,
+        }
+    }
+
+    /// A broad soft press, like a fingertip's: `force_n` spread over
+    /// `width_mm` along the skin (elliptic pressure, e.g. 15-25 mm wide)
+    /// and across the skin's whole width, centred at chord `x_mm`.
+    pub fn pad(x_mm: f64, force_n: [f64; 3], width_mm: f64) -> Self {
+        Press {
+            x_mm,
+            force_n,
+            diameter_mm: width_mm,
+            contact_width_mm: Some(width_mm),
         }
     }
 }
@@ -127,7 +145,16 @@ impl SyntheticSensor {
                     ));
                 }
                 let w = skin.width_mm();
-                let b = hertz_half_width(mat, 0.5 * c.diameter_mm, skin.radius_mm(), f_in / w);
+                let b = match c.contact_width_mm {
+                    None => hertz_half_width(mat, 0.5 * c.diameter_mm, skin.radius_mm(), f_in / w),
+                    Some(width) if width.is_finite() && width > 0.0 => 0.5 * width,
+                    Some(width) => {
+                        return Err(Error::param(
+                            "contact_width_mm",
+                            format!("must be finite and > 0, got {width}"),
+                        ));
+                    }
+                };
                 Ok(RodLoad {
                     s_mm: s,
                     y_lo: -0.5 * w,
@@ -258,12 +285,14 @@ impl SyntheticSensor {
             None
         };
         let stream = mix64(self.seed ^ 0xA076_1D64_78BD_642F) ^ mix64(index.wrapping_add(1));
+        let camera = self.config.noise.exposure.response(self.seed, index);
         Ok(render::render(
             &self.config,
             &self.markers,
             &motion,
             grid.as_ref(),
             stream,
+            camera,
         ))
     }
 }
