@@ -91,6 +91,8 @@
 pub mod capture;
 pub mod frame;
 
+pub mod exposure;
+
 pub mod flow;
 
 pub mod segment;

@@ -45,6 +45,7 @@ use crate::contact::{
     sensor_displacements,
 };
 use crate::error::{Error, Result};
+use crate::exposure::{ExposureCompensation, ExposureCompensator};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
@@ -65,6 +66,10 @@ pub struct ExtractorConfig {
     pub margin_px: usize,
     /// Refine the contact point to sub-pixel precision.
     pub subpixel: bool,
+    /// Which changes of the camera's exposure (gain, black level) are taken
+    /// out of each frame against the reference before the flow (default
+    /// [`ExposureCompensation::GainOffset`]; see [`crate::exposure`]).
+    pub exposure: ExposureCompensation,
 }
 
 impl Default for ExtractorConfig {
@@ -74,6 +79,7 @@ impl Default for ExtractorConfig {
             thresholds: Thresholds::HIGH,
             margin_px: 24,
             subpixel: true,
+            exposure: ExposureCompensation::default(),
         }
     }
 }
@@ -100,6 +106,12 @@ impl ExtractorConfig {
     /// This configuration with sub-pixel contact points on or off.
     pub fn with_subpixel(mut self, subpixel: bool) -> Self {
         self.subpixel = subpixel;
+        self
+    }
+
+    /// This configuration with another exposure compensation.
+    pub fn with_exposure(mut self, exposure: ExposureCompensation) -> Self {
+        self.exposure = exposure;
         self
     }
 
@@ -294,6 +306,9 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
 pub struct ContactExtractor {
     config: ExtractorConfig,
     dis: Dis,
+    exposure: ExposureCompensator,
+    /// The last frame brought onto the reference's exposure.
+    compensated: Array2<f32>,
     segmenter: Segmenter,
     grid: AnalysisGrid,
     patches: Vec<ContactPatch>,
@@ -313,6 +328,8 @@ impl ContactExtractor {
             scale: grid.scale() as f64,
         })?;
         Ok(ContactExtractor {
+            exposure: ExposureCompensator::new(config.exposure),
+            compensated: Array2::zeros((0, 0)),
             config,
             dis,
             segmenter,
@@ -331,7 +348,9 @@ impl ContactExtractor {
 
     /// Sets the reference (unloaded) frame, already cropped.
     pub fn set_reference(&mut self, reference: &ArrayRef2<f32>) -> Result<()> {
-        self.dis.set_reference(reference)
+        self.dis.set_reference(reference)?;
+        self.exposure.set_reference(reference);
+        Ok(())
     }
 
     /// `(width, height)` of the reference, `(0, 0)` before one is set.
@@ -348,7 +367,12 @@ impl ContactExtractor {
     /// size as the reference), strongest first.
     pub fn extract(&mut self, frame: &ArrayRef2<f32>) -> Result<&[RawContact]> {
         let t = Instant::now();
-        self.dis.compute_native(frame)?;
+        if self.dis.size() == (0, 0) {
+            return Err(Error::NoReference);
+        }
+        self.exposure
+            .compensate_into(frame, &mut self.compensated)?;
+        self.dis.compute_native(&self.compensated)?;
         let (native, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
         let seg_input = self.grid.update(native)?;
         self.timings.flow_ms = ms(t);
@@ -418,6 +442,13 @@ impl ContactExtractor {
     /// The segmenter (its mask and contour boxes, for display).
     pub fn segmenter(&self) -> &Segmenter {
         &self.segmenter
+    }
+
+    /// The camera's `(gain, offset)` against the reference estimated for
+    /// the last frame and taken out before its flow (`(1, 0)` when the
+    /// compensation is off).
+    pub fn exposure(&self) -> (f64, f64) {
+        self.exposure.last()
     }
 
     /// Stage timings of the last frame (crop and contacts left at 0 here).
