@@ -12,20 +12,24 @@ struct Counting;
 
 static ALLOCS: AtomicUsize = AtomicUsize::new(0);
 
+/// Counts one allocation if this thread belongs to the test that is counting.
+fn note() {
+    let tag = COUNTED.with(|c| c.get());
+    if tag != 0 && tag == COUNTING.load(Ordering::SeqCst) {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+    }
+}
+
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTED.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::SeqCst);
-        }
+        note();
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTED.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::SeqCst);
-        }
+        note();
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -34,14 +38,22 @@ unsafe impl GlobalAlloc for Counting {
 static GLOBAL: Counting = Counting;
 
 thread_local! {
-    /// Whether this thread's allocations are counted: only the tests' own
-    /// threads and their pool's workers, not the test harness reporting
-    /// another test meanwhile.
-    static COUNTED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    /// Which test this thread works for (0: none). Only the threads of the
+    /// test that is counting ([`COUNTING`]) are counted: not the test harness
+    /// reporting another test meanwhile, nor the other test's pool workers,
+    /// which outlive it.
+    static COUNTED: std::cell::Cell<u8> = const { std::cell::Cell::new(0) };
 }
 
-fn count_this_thread() {
-    COUNTED.with(|c| c.set(true));
+/// The tag of the test that is counting now (0: none).
+static COUNTING: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+
+/// Tags of the two tests.
+const PLANNED: u8 = 1;
+const SPLIT: u8 = 2;
+
+fn count_this_thread(tag: u8) {
+    COUNTED.with(|c| c.set(tag));
 }
 
 /// The counter is shared: the tests of this file take turns.
@@ -50,7 +62,8 @@ static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 #[test]
 fn planned_decompositions_do_not_allocate() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    count_this_thread();
+    count_this_thread(PLANNED);
+    COUNTING.store(PLANNED, Ordering::SeqCst);
     let big_u = Array2::from_shape_fn((80, 120), |(i, j)| ((i * 7 + j * 3) % 11) as f32 * 0.1);
     let big_v = Array2::from_shape_fn((80, 120), |(i, j)| ((i * 5 + j * 2) % 13) as f32 * 0.1);
     // Two patch sizes, strided windows of a bigger flow.
@@ -76,12 +89,14 @@ fn planned_decompositions_do_not_allocate() {
     let probe = std::hint::black_box(vec![0u8; 64]);
     assert!(ALLOCS.load(Ordering::SeqCst) > after);
     drop(probe);
+    COUNTING.store(0, Ordering::SeqCst);
 }
 
 #[test]
 fn a_torus_split_over_two_threads_does_not_allocate_either() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    count_this_thread();
+    count_this_thread(SPLIT);
+    COUNTING.store(SPLIT, Ordering::SeqCst);
     // 60x300 pads to 120x600, past PARALLEL_MIN_CELLS: the FFT passes are
     // cut in halves by rayon::join. Run on a pool worker, as the sensor does
     // (a join from outside the pool hands the job over through a queue).
@@ -91,7 +106,7 @@ fn a_torus_split_over_two_threads_does_not_allocate_either() {
     let v = Array2::from_shape_fn((60, 300), |(i, j)| ((i * 5 + j * 2) % 13) as f32 * 0.1);
     rayon::ThreadPoolBuilder::new()
         .num_threads(2)
-        .start_handler(|_| count_this_thread())
+        .start_handler(|_| count_this_thread(SPLIT))
         .build_global()
         .expect("only this test sets up the global pool");
     let ((before, after), ()) = rayon::join(
@@ -107,5 +122,6 @@ fn a_torus_split_over_two_threads_does_not_allocate_either() {
         },
         || (),
     );
+    COUNTING.store(0, Ordering::SeqCst);
     assert_eq!(after - before, 0, "allocations in split decompositions");
 }
