@@ -33,6 +33,7 @@ use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::FrameSource;
 use optical_tactile::capture::v4l::{Camera, CameraConfig};
 use optical_tactile::contact::{Contact, RawContact};
+use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
@@ -56,6 +57,11 @@ struct Cli {
     /// Requested frame rate.
     #[arg(long, value_name = "FPS", default_value_t = CameraConfig::default().fps)]
     fps: u32,
+    /// Take the camera's exposure changes (gain, black level) out of each
+    /// frame against the reference: off, offset or gain-offset. Costs some
+    /// accuracy on a steady camera; fit the calibration the same way.
+    #[arg(long, value_name = "MODE", default_value = "off", value_parser = cli_support::pipeline::exposure)]
+    exposure: ExposureCompensation,
     /// Which channel of colour frames becomes the grey image.
     #[arg(long, value_name = "green|luma", default_value = "green", value_parser = cli_support::pipeline::channel)]
     channel: Channel,
@@ -98,7 +104,12 @@ fn run(a: &Cli) -> Result<(), Failure> {
         u32::try_from(a.size.1).map_err(|_| "--size: height too large")?,
     );
     let mut sensor = if a.raw {
-        Pipeline::Raw(Box::new(Raw::new(a.crop, a.preset, a.thresholds)?))
+        Pipeline::Raw(Box::new(Raw::new(
+            a.crop,
+            a.preset,
+            a.thresholds,
+            a.exposure,
+        )?))
     } else {
         if !calibration.exists() {
             return Err(format!(
@@ -119,7 +130,9 @@ fn run(a: &Cli) -> Result<(), Failure> {
         if let Some(t) = a.thresholds {
             builder = builder.thresholds(t);
         }
+        let exposure = a.exposure;
         let sensor = builder
+            .configure(|c| c.extractor.exposure = exposure)
             .build()
             .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))?;
         Pipeline::Calibrated(Box::new(sensor))

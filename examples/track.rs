@@ -62,6 +62,7 @@ use optical_tactile::calibration::Calibration;
 use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::contact::{Contact, RawContact};
+use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
@@ -100,6 +101,11 @@ struct Cli {
     /// forces then no longer hold).
     #[arg(long)]
     force_crop: bool,
+    /// Take the camera's exposure changes (gain, black level) out of each
+    /// frame against the reference: off, offset or gain-offset. Costs some
+    /// accuracy on a steady camera; fit the calibration the same way.
+    #[arg(long, value_name = "MODE", default_value = "off", value_parser = cli_support::pipeline::exposure)]
+    exposure: ExposureCompensation,
     /// Which channel of colour frames becomes the grey image.
     #[arg(long, value_name = "green|luma", default_value = "green", value_parser = cli_support::pipeline::channel)]
     channel: Channel,
@@ -156,6 +162,7 @@ fn sensor(a: &Cli, cal: Calibration) -> Result<TactileSensor, String> {
         b = b.thresholds(t);
     }
     b.configure(|c| {
+        c.extractor.exposure = a.exposure;
         c.tracker.filter = a.filter.then(FilterConfig::default);
         if let Some(h) = a.hold {
             c.tracker.max_missed = h;
@@ -172,7 +179,12 @@ fn run(a: &Cli) -> Result<bool, Failure> {
         .map_err(|e| format!("cannot open sequence: {e}"))?
         .with_channel(a.channel);
     let mut sensor = if a.raw {
-        Pipeline::Raw(Box::new(Raw::new(a.crop, a.preset, a.thresholds)?))
+        Pipeline::Raw(Box::new(Raw::new(
+            a.crop,
+            a.preset,
+            a.thresholds,
+            a.exposure,
+        )?))
     } else {
         let cal = load_calibration(&a.calibration)?;
         Pipeline::Calibrated(Box::new(sensor(a, cal)?))

@@ -22,6 +22,14 @@
 //! - offset `b`: the median over every tile of `mean_cur - a mean_ref`.
 //!
 //! [`ExposureCompensation::Offset`] estimates only `b` (with `a = 1`).
+//!
+//! It is off by default: on the strip's characterization protocol (a camera
+//! with a 1% flicker and no exposure change) a calibration fitted and scored
+//! with `GainOffset` reached a location MAE of 0.26 mm and Fx 0.0147 N
+//! against 0.18 mm and 0.0123 N without it (Fz 0.0422 against 0.0442 N).
+//! Turn it on (`ExtractorConfig::with_exposure`, `track --exposure
+//! gain-offset`) for a camera whose exposure changes at rest, and fit the
+//! calibration with the same setting.
 
 use ndarray::{Array2, ArrayRef2, Zip};
 
@@ -39,12 +47,12 @@ pub const MIN_TEXTURE: f32 = 4.0;
 /// the flow.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum ExposureCompensation {
-    /// None: frames go to the flow as they come.
+    /// None: frames go to the flow as they come (the default).
+    #[default]
     Off,
     /// The black level only: `cur' = cur - b`.
     Offset,
-    /// Gain and black level: `cur' = (cur - b) / a` (the default).
-    #[default]
+    /// Gain and black level: `cur' = (cur - b) / a`.
     GainOffset,
 }
 

@@ -68,7 +68,8 @@ pub struct ExtractorConfig {
     pub subpixel: bool,
     /// Which changes of the camera's exposure (gain, black level) are taken
     /// out of each frame against the reference before the flow (default
-    /// [`ExposureCompensation::GainOffset`]; see [`crate::exposure`]).
+    /// [`ExposureCompensation::Off`]; see [`crate::exposure`] for when to
+    /// turn it on).
     pub exposure: ExposureCompensation,
 }
 

@@ -99,7 +99,10 @@ fn without_compensation_the_same_changes_make_patches() {
 fn the_compensation_finds_the_simulated_gain_and_offset() {
     let exposure = changes();
     let sim = simulator(4, 1.0, exposure);
-    let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+    let mut ex = ContactExtractor::new(
+        ExtractorConfig::default().with_exposure(ExposureCompensation::GainOffset),
+    )
+    .unwrap();
     ex.set_reference(&rest(&sim, 0)).unwrap();
     for k in [15u64, 33, 57, 95] {
         ex.extract(&rest(&sim, k)).unwrap();
@@ -119,12 +122,16 @@ fn the_compensation_finds_the_simulated_gain_and_offset() {
 
 #[test]
 fn the_sensor_re_references_at_rest_with_the_default_flow() {
-    for (seed, read, exposure) in [
-        (1, 1.0, ExposureChanges::default()),
-        (2, 1.5, ExposureChanges::default()),
-        (1, 1.0, changes()),
-        // Rest noise above the former 0.5 px limit (0.96 px at most).
-        (3, 2.0, ExposureChanges::default()),
+    use ExposureCompensation::{GainOffset, Off};
+    for (seed, read, exposure, mode) in [
+        (1, 1.0, ExposureChanges::default(), Off),
+        (2, 1.5, ExposureChanges::default(), Off),
+        // Exposure changes need the compensation (off by default).
+        (1, 1.0, changes(), GainOffset),
+        // Rest noise above the former 0.5 px limit (0.96 px at most). This
+        // camera's 1% per-frame flicker with 2 grey levels of read noise gives
+        // false contacts at rest without the compensation (docs/results.md).
+        (3, 2.0, ExposureChanges::default(), GainOffset),
     ] {
         let sim = simulator(seed, read, exposure);
         let calibration = Calibration::load(CALIBRATION).unwrap();
@@ -132,7 +139,10 @@ fn the_sensor_re_references_at_rest_with_the_default_flow() {
             calibration.setup.pipeline.as_ref().unwrap().flow_preset,
             "fine"
         );
-        let mut sensor = TactileSensor::from_calibration(calibration).unwrap();
+        let mut sensor = TactileSensor::builder(calibration)
+            .configure(|c| c.extractor.exposure = mode)
+            .build()
+            .unwrap();
         sensor.set_reference(&rest(&sim, 0)).unwrap();
         // 2.4 s at 50 Hz: the default policy needs 2 s of quiet.
         let mut fired = 0;

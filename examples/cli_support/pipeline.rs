@@ -3,11 +3,17 @@
 
 use ndarray::Array2;
 use optical_tactile::contact::{Contact, RawContact};
+use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::segment::ThresholdPreset;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, TactileSensor};
 use optical_tactile::viz;
+
+/// Parses `--exposure`: `off`, `offset` or `gain-offset`.
+pub fn exposure(s: &str) -> Result<ExposureCompensation, String> {
+    ExposureCompensation::parse(s).map_err(|e| e.to_string())
+}
 
 /// Parses `--channel`: `green` or `luma`.
 pub fn channel(s: &str) -> Result<Channel, String> {
@@ -61,8 +67,9 @@ impl Raw {
         crop: Option<Roi>,
         preset: Option<DisPreset>,
         thresholds: Option<ThresholdPreset>,
+        exposure: ExposureCompensation,
     ) -> Result<Raw, String> {
-        let mut config = ExtractorConfig::default();
+        let mut config = ExtractorConfig::default().with_exposure(exposure);
         if let Some(p) = preset {
             config = config.with_flow(DisParams::preset(p));
         }
