@@ -32,11 +32,9 @@ use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::FrameSource;
 use optical_tactile::capture::v4l::{Camera, CameraConfig};
-use optical_tactile::contact::{Contact, RawContact};
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
-use optical_tactile::io::FrameRecord;
 use optical_tactile::segment::ThresholdPreset;
 use optical_tactile::sensor::TactileSensor;
 
@@ -196,21 +194,7 @@ fn run(a: &Cli) -> Result<(), Failure> {
             eprintln!("{}: new reference (quiet, small flow)", frame.name);
         }
         if let Some(wr) = &mut writer {
-            let (name, t_s, latency_ms) = (frame.name.clone(), frame.t_s, Some(latency_ms));
-            match &found {
-                Found::Contacts(c) => wr.json_line(&FrameRecord {
-                    frame: name,
-                    t_s,
-                    contacts: c.iter().map(Contact::to_record).collect(),
-                    latency_ms,
-                })?,
-                Found::Patches(p) => wr.json_line(&FrameRecord {
-                    frame: name,
-                    t_s,
-                    contacts: p.iter().map(RawContact::to_record).collect(),
-                    latency_ms,
-                })?,
-            }
+            found.json_line(wr, &frame.name, frame.t_s, latency_ms)?;
         }
         if n % 250 == 0 {
             eprintln!(

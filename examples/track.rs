@@ -61,11 +61,9 @@ use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::Calibration;
 use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::capture::{FrameSource, SequenceSource};
-use optical_tactile::contact::{Contact, RawContact};
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
-use optical_tactile::io::FrameRecord;
 use optical_tactile::segment::ThresholdPreset;
 use optical_tactile::sensor::TactileSensor;
 use optical_tactile::track::FilterConfig;
@@ -316,21 +314,7 @@ fn run(a: &Cli) -> Result<bool, Failure> {
             }
         }
         if let Some(w) = &mut out {
-            let (frame_name, t_s, latency_ms) = (frame.name.clone(), frame.t_s, Some(latency_ms));
-            match &found {
-                Found::Contacts(c) => w.json_line(&FrameRecord {
-                    frame: frame_name,
-                    t_s,
-                    contacts: c.iter().map(Contact::to_record).collect(),
-                    latency_ms,
-                })?,
-                Found::Patches(p) => w.json_line(&FrameRecord {
-                    frame: frame_name,
-                    t_s,
-                    contacts: p.iter().map(RawContact::to_record).collect(),
-                    latency_ms,
-                })?,
-            }
+            found.json_line(w, &frame.name, frame.t_s, latency_ms)?;
         }
         if let Some(d) = &a.debug {
             let stem = Path::new(&frame.name)

@@ -6,6 +6,7 @@ use optical_tactile::contact::{Contact, RawContact};
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
+use optical_tactile::io::FrameRecord;
 use optical_tactile::segment::ThresholdPreset;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, TactileSensor};
 use optical_tactile::viz;
@@ -106,6 +107,34 @@ pub enum Found {
     Contacts(Vec<Contact>),
     /// Raw patches.
     Patches(Vec<RawContact>),
+}
+
+impl Found {
+    /// Writes the frame's JSON Lines record (calibrated contacts or raw
+    /// patches, in the same per-frame layout).
+    pub fn json_line(
+        &self,
+        w: &mut super::Sink,
+        frame: &str,
+        t_s: f64,
+        latency_ms: f64,
+    ) -> Result<(), super::Failure> {
+        let (frame, latency_ms) = (frame.to_string(), Some(latency_ms));
+        match self {
+            Found::Contacts(c) => w.json_line(&FrameRecord {
+                frame,
+                t_s,
+                contacts: c.iter().map(Contact::to_record).collect(),
+                latency_ms,
+            }),
+            Found::Patches(p) => w.json_line(&FrameRecord {
+                frame,
+                t_s,
+                contacts: p.iter().map(RawContact::to_record).collect(),
+                latency_ms,
+            }),
+        }
+    }
 }
 
 impl Pipeline {
