@@ -22,24 +22,14 @@
 mod cli_support;
 
 use std::io::Write as _;
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::Parser;
-use cli_support::pipeline::{Found, Pipeline, Raw, contact_row, patch_row};
+use cli_support::pipeline::{Found, Pipeline, PipelineArgs, contact_row, patch_row};
 use cli_support::{Failure, Sink, TextOut};
-use optical_tactile::calibration::Calibration;
 use optical_tactile::capture::FrameSource;
 use optical_tactile::capture::v4l::{Camera, CameraConfig};
-use optical_tactile::exposure::ExposureCompensation;
-use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::frame::{Channel, Roi};
-use optical_tactile::segment::ThresholdPreset;
-use optical_tactile::sensor::TactileSensor;
-
-/// The calibration used unless `--calibration` names another: this crate's.
-const DEFAULT_CALIBRATION: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
 
 /// Contacts from a live V4L2 camera. The first frame is the reference: start
 /// with nothing touching the skin.
@@ -55,32 +45,8 @@ struct Cli {
     /// Requested frame rate.
     #[arg(long, value_name = "FPS", default_value_t = CameraConfig::default().fps)]
     fps: u32,
-    /// Take the camera's exposure changes (gain, black level) out of each
-    /// frame against the reference: off, offset or gain-offset. Costs some
-    /// accuracy on a steady camera; fit the calibration the same way.
-    #[arg(long, value_name = "MODE", default_value = "off", value_parser = cli_support::pipeline::exposure)]
-    exposure: ExposureCompensation,
-    /// Which channel of colour frames becomes the grey image.
-    #[arg(long, value_name = "green|luma", default_value = "green", value_parser = cli_support::pipeline::channel)]
-    channel: Channel,
-    /// Calibration file.
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
-    calibration: PathBuf,
-    /// No calibration: report each frame's patches in pixels with their raw quantities.
-    #[arg(long)]
-    raw: bool,
-    /// Crop of the camera frame [default: the calibration's; with --raw, the whole frame].
-    #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
-    crop: Option<Roi>,
-    /// Use a --crop that differs from the calibration's.
-    #[arg(long)]
-    force_crop: bool,
-    /// Segmentation thresholds [default: the calibration's].
-    #[arg(long, value_name = "PRESET", value_parser = cli_support::threshold_preset())]
-    thresholds: Option<ThresholdPreset>,
-    /// DIS flow preset [default: the calibration's].
-    #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
-    preset: Option<DisPreset>,
+    #[command(flatten)]
+    pipeline: PipelineArgs,
     /// Stop after N frames [default: run until stopped].
     #[arg(long, value_name = "N")]
     frames: Option<usize>,
@@ -91,7 +57,7 @@ struct Cli {
 }
 
 fn run(a: &Cli) -> Result<(), Failure> {
-    let (calibration, frames) = (&a.calibration, a.frames);
+    let frames = a.frames;
     let mut cam = CameraConfig {
         device: a.device.clone(),
         fps: a.fps,
@@ -101,41 +67,8 @@ fn run(a: &Cli) -> Result<(), Failure> {
         u32::try_from(a.size.0).map_err(|_| "--size: width too large")?,
         u32::try_from(a.size.1).map_err(|_| "--size: height too large")?,
     );
-    let mut sensor = if a.raw {
-        Pipeline::Raw(Box::new(Raw::new(
-            a.crop,
-            a.preset,
-            a.thresholds,
-            a.exposure,
-        )?))
-    } else {
-        if !calibration.exists() {
-            return Err(format!(
-                "calibration file {} not found (fit one with the `calibrate` example, pass \
-                 --calibration FILE, or run with --raw)",
-                calibration.display()
-            )
-            .into());
-        }
-        let cal = Calibration::load(calibration).map_err(|e| e.to_string())?;
-        let mut builder = TactileSensor::builder(cal);
-        if let Some(crop) = a.crop {
-            builder = builder.crop(crop).force_crop(a.force_crop);
-        }
-        if let Some(p) = a.preset {
-            builder = builder.flow(DisParams::preset(p));
-        }
-        if let Some(t) = a.thresholds {
-            builder = builder.thresholds(t);
-        }
-        let exposure = a.exposure;
-        let sensor = builder
-            .configure(|c| c.extractor.exposure = exposure)
-            .build()
-            .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))?;
-        Pipeline::Calibrated(Box::new(sensor))
-    };
-    cam.channel = a.channel;
+    let mut sensor = a.pipeline.build(|_| {})?;
+    cam.channel = a.pipeline.channel;
     let mut camera = Camera::open(cam).map_err(|e| e.to_string())?;
     let (w, h) = camera.size();
     let crop = match &sensor {

@@ -55,23 +55,15 @@ use std::time::Instant;
 
 use clap::{ArgAction, Parser};
 use cli_support::pipeline::{
-    Found, Pipeline, Raw, contact_header, contact_row, patch_header, patch_row,
+    Found, Pipeline, PipelineArgs, contact_header, contact_row, patch_header, patch_row,
 };
 use cli_support::{Failure, Sink, TextOut};
-use optical_tactile::calibration::Calibration;
 use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::capture::{FrameSource, SequenceSource};
-use optical_tactile::exposure::ExposureCompensation;
-use optical_tactile::flow::dis::{DisParams, DisPreset};
-use optical_tactile::frame::{Channel, Roi};
-use optical_tactile::segment::ThresholdPreset;
-use optical_tactile::sensor::TactileSensor;
 use optical_tactile::track::FilterConfig;
 
 /// The sequence run with no argument: this crate's fixture.
 const DEFAULT_SEQ: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/press");
-/// The calibration used unless `--calibration` names another.
-const DEFAULT_CALIBRATION: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
 
 /// Runs the tactile sensor over an image sequence and prints the contacts
 /// of every frame (id, location in mm, force in N, latency).
@@ -85,34 +77,8 @@ struct Cli {
     /// Folder of frames (PNG, in name order).
     #[arg(value_name = "SEQ_DIR", default_value = DEFAULT_SEQ)]
     seq: PathBuf,
-    /// Calibration file.
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
-    calibration: PathBuf,
-    /// No calibration: print and write each frame's patches in pixels with
-    /// their raw quantities.
-    #[arg(long)]
-    raw: bool,
-    /// Crop of the camera frame [default: the calibration's; with --raw, the whole frame].
-    #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
-    crop: Option<Roi>,
-    /// Use a --crop that differs from the calibration's (its locations and
-    /// forces then no longer hold).
-    #[arg(long)]
-    force_crop: bool,
-    /// Take the camera's exposure changes (gain, black level) out of each
-    /// frame against the reference: off, offset or gain-offset. Costs some
-    /// accuracy on a steady camera; fit the calibration the same way.
-    #[arg(long, value_name = "MODE", default_value = "off", value_parser = cli_support::pipeline::exposure)]
-    exposure: ExposureCompensation,
-    /// Which channel of colour frames becomes the grey image.
-    #[arg(long, value_name = "green|luma", default_value = "green", value_parser = cli_support::pipeline::channel)]
-    channel: Channel,
-    /// Segmentation thresholds [default: the calibration's].
-    #[arg(long, value_name = "PRESET", value_parser = cli_support::threshold_preset())]
-    thresholds: Option<ThresholdPreset>,
-    /// DIS flow preset [default: the calibration's].
-    #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
-    preset: Option<DisPreset>,
+    #[command(flatten)]
+    pipeline: PipelineArgs,
     /// Kalman filter on the tracked contacts.
     #[arg(long, value_name = "on|off", default_value = "off", action = ArgAction::Set, value_parser = cli_support::on_off)]
     filter: bool,
@@ -135,58 +101,18 @@ struct Cli {
     quiet: bool,
 }
 
-fn load_calibration(path: &Path) -> Result<Calibration, String> {
-    if !path.exists() {
-        return Err(format!(
-            "calibration file {} not found: fit one with `cargo run --release --example calibrate -- \
-             DATASET_DIR --out {}` (see the README), or pass --calibration FILE",
-            path.display(),
-            path.display()
-        ));
-    }
-    Calibration::load(path).map_err(|e| format!("cannot load calibration: {e}"))
-}
-
-/// The sensor as the calibration was fitted, with the overrides of `a`.
-fn sensor(a: &Cli, cal: Calibration) -> Result<TactileSensor, String> {
-    let mut b = TactileSensor::builder(cal);
-    if let Some(crop) = a.crop {
-        b = b.crop(crop).force_crop(a.force_crop);
-    }
-    if let Some(p) = a.preset {
-        b = b.flow(DisParams::preset(p));
-    }
-    if let Some(t) = a.thresholds {
-        b = b.thresholds(t);
-    }
-    b.configure(|c| {
-        c.extractor.exposure = a.exposure;
+/// Runs the sensor as `a` asks; `Ok(false)` if some frame was skipped.
+fn run(a: &Cli) -> Result<bool, Failure> {
+    let mut seq = SequenceSource::open(&a.seq)
+        .map_err(|e| format!("cannot open sequence: {e}"))?
+        .with_channel(a.pipeline.channel);
+    let mut sensor = a.pipeline.build(|c| {
         c.tracker.filter = a.filter.then(FilterConfig::default);
         if let Some(h) = a.hold {
             c.tracker.max_missed = h;
         }
         c.rereference.enabled = a.rereference;
-    })
-    .build()
-    .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))
-}
-
-/// Runs the sensor as `a` asks; `Ok(false)` if some frame was skipped.
-fn run(a: &Cli) -> Result<bool, Failure> {
-    let mut seq = SequenceSource::open(&a.seq)
-        .map_err(|e| format!("cannot open sequence: {e}"))?
-        .with_channel(a.channel);
-    let mut sensor = if a.raw {
-        Pipeline::Raw(Box::new(Raw::new(
-            a.crop,
-            a.preset,
-            a.thresholds,
-            a.exposure,
-        )?))
-    } else {
-        let cal = load_calibration(&a.calibration)?;
-        Pipeline::Calibrated(Box::new(sensor(a, cal)?))
-    };
+    })?;
     let mut out = a.out.as_ref().map(TextOut::create).transpose()?;
     let mut report = Sink::report(a.out.as_ref().is_some_and(TextOut::is_stdout));
     if let Some(d) = &a.debug {
@@ -201,7 +127,7 @@ fn run(a: &Cli) -> Result<bool, Failure> {
                  filter {}, re-referencing {}",
                 a.seq.display(),
                 seq.len(),
-                a.calibration.display(),
+                a.pipeline.calibration.display(),
                 crop.to_arg(),
                 preset_name(&c.extractor),
                 c.extractor.thresholds.magnitude,
@@ -230,7 +156,7 @@ fn run(a: &Cli) -> Result<bool, Failure> {
     let (mut processed, mut busy_ms) = (0usize, 0.0f64);
     let wall = Instant::now();
     if !a.quiet {
-        let header = if a.raw {
+        let header = if a.pipeline.raw {
             patch_header()
         } else {
             contact_header()

@@ -1,15 +1,96 @@
 //! The pipeline the `track` and `live` tools run: the calibrated sensor or,
 //! with `--raw`, the extractor alone; and how they print what they find.
 
+use std::path::PathBuf;
+
 use ndarray::Array2;
+use optical_tactile::calibration::Calibration;
 use optical_tactile::contact::{Contact, RawContact};
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
 use optical_tactile::segment::ThresholdPreset;
-use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, TactileSensor};
+use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
 use optical_tactile::viz;
+
+/// The calibration used unless `--calibration` names another: this crate's.
+pub const DEFAULT_CALIBRATION: &str =
+    concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
+
+/// The flags of what runs on the frames, shared by `track` and `live`.
+#[derive(clap::Args, Debug)]
+pub struct PipelineArgs {
+    /// Calibration file.
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
+    pub calibration: PathBuf,
+    /// No calibration: print and write each frame's patches in pixels with
+    /// their raw quantities.
+    #[arg(long)]
+    pub raw: bool,
+    /// Crop of the camera frame [default: the calibration's; with --raw, the whole frame].
+    #[arg(long, value_name = "x,y,w,h", value_parser = super::roi)]
+    pub crop: Option<Roi>,
+    /// Use a --crop that differs from the calibration's (its locations and
+    /// forces then no longer hold).
+    #[arg(long)]
+    pub force_crop: bool,
+    /// Segmentation thresholds [default: the calibration's].
+    #[arg(long, value_name = "PRESET", value_parser = super::threshold_preset())]
+    pub thresholds: Option<ThresholdPreset>,
+    /// DIS flow preset [default: the calibration's].
+    #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = super::dis_preset())]
+    pub preset: Option<DisPreset>,
+    /// Take the camera's exposure changes (gain, black level) out of each
+    /// frame against the reference: off, offset or gain-offset. Costs some
+    /// accuracy on a steady camera; fit the calibration the same way.
+    #[arg(long, value_name = "MODE", default_value = "off", value_parser = exposure)]
+    pub exposure: ExposureCompensation,
+    /// Which channel of colour frames becomes the grey image.
+    #[arg(long, value_name = "green|luma", default_value = "green", value_parser = channel)]
+    pub channel: Channel,
+}
+
+impl PipelineArgs {
+    /// The pipeline these flags ask for: the raw extractor, or the sensor as
+    /// the calibration was fitted with the flags' overrides, then `configure`.
+    pub fn build(&self, configure: impl FnOnce(&mut SensorConfig)) -> Result<Pipeline, String> {
+        if self.raw {
+            let raw = Raw::new(self.crop, self.preset, self.thresholds, self.exposure)?;
+            return Ok(Pipeline::Raw(Box::new(raw)));
+        }
+        let path = &self.calibration;
+        if !path.exists() {
+            return Err(format!(
+                "calibration file {} not found: fit one with `cargo run --release --example \
+                 calibrate -- DATASET_DIR --out {}` (see the README), pass --calibration FILE, \
+                 or run with --raw",
+                path.display(),
+                path.display()
+            ));
+        }
+        let cal = Calibration::load(path).map_err(|e| format!("cannot load calibration: {e}"))?;
+        let mut b = TactileSensor::builder(cal);
+        if let Some(crop) = self.crop {
+            b = b.crop(crop).force_crop(self.force_crop);
+        }
+        if let Some(p) = self.preset {
+            b = b.flow(DisParams::preset(p));
+        }
+        if let Some(t) = self.thresholds {
+            b = b.thresholds(t);
+        }
+        let exposure = self.exposure;
+        let sensor = b
+            .configure(|c| {
+                c.extractor.exposure = exposure;
+                configure(c);
+            })
+            .build()
+            .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))?;
+        Ok(Pipeline::Calibrated(Box::new(sensor)))
+    }
+}
 
 /// Parses `--exposure`: `off`, `offset` or `gain-offset`.
 pub fn exposure(s: &str) -> Result<ExposureCompensation, String> {
