@@ -15,7 +15,7 @@
 //! `--set` overrides one `DisParams` field (finest_scale, coarsest_scale,
 //! patch_size, patch_stride, iterations, mean_normalization,
 //! spatial_propagation, normalized_gradients, prefilter_sigma, backtracking,
-//! stripes, zero_candidate, fill_untextured, prefilter_all_levels, refine_iterations, sor_iterations, exact_derivatives, alpha,
+//! stripes, zero_candidate, fill_untextured, sparse_texture, prefilter_all_levels, refine_iterations, sor_iterations, exact_derivatives, alpha,
 //! delta, gamma, refine_levels (a number or `all`), early_stop, step_on_stop, min_stripe_rows,
 //! coarsest_min_patches); `--affine A,B,C,D,TX,TY` renders the affine motion
 //! `d = [[A, B], [C, D]] (p - centre) + (TX, TY)`; `--native` times only the flow at its native level (no
@@ -82,7 +82,7 @@ struct Cli {
     /// finest_scale, coarsest_scale, patch_size, patch_stride, iterations,
     /// mean_normalization, spatial_propagation, normalized_gradients,
     /// prefilter_sigma, backtracking, stripes, min_texture, zero_candidate,
-    /// fill_untextured, prefilter_all_levels, refine_iterations, sor_iterations,
+    /// fill_untextured, sparse_texture, prefilter_all_levels, refine_iterations, sor_iterations,
     /// exact_derivatives, alpha, delta, gamma, refine_levels (a number or
     /// `all`), early_stop, step_on_stop, min_stripe_rows,
     /// coarsest_min_patches).
@@ -249,6 +249,7 @@ fn apply_set(p: &mut DisParams, s: &str) -> Result<()> {
         "min_texture" => p.min_texture = parse_num(k, v)?,
         "zero_candidate" => p.zero_candidate = b(v),
         "fill_untextured" => p.fill_untextured = b(v),
+        "sparse_texture" => p.sparse_texture = parse_num(k, v)?,
         "prefilter_all_levels" => p.prefilter_all_levels = b(v),
         "refine_iterations" => p.refinement.outer_iterations = parse_num(k, v)?,
         "refine_levels" => {

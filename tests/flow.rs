@@ -586,7 +586,6 @@ const MEDIUM_C8: (f64, f64) = (0.07142, 0.26867);
 /// gross error at the markers, and `fine` (the sensor's default) stays
 /// within 1.2 times OpenCV MEDIUM's mean error there.
 #[test]
-#[ignore = "known limit: the presets leave exact-zero patches on dot grids"]
 fn dot_grids_under_press_and_shear() {
     for c in [
         DotGridCase {
@@ -611,11 +610,11 @@ fn dot_grids_under_press_and_shear() {
 }
 
 /// Dots twice the patch size (16 px every 34 px): the dots' inside is
-/// untextured at full resolution. A known limit of `fine`: its mean error at the markers is above 1.2 times MEDIUM's there, and the
-/// zero candidate can leave a patch at exactly zero under several px of
-/// shear.
+/// untextured at full resolution and takes the coarser level's flow. A
+/// known limit of `fine`: no holes and no gross error, but its mean error at
+/// the markers is about 1.7 times MEDIUM's there (0.079 against 0.046 px).
 #[test]
-#[ignore = "known limit of fine on dots twice the patch size"]
+#[ignore = "known limit: fine's mean error is 1.7x MEDIUM's on dots twice the patch size"]
 fn dot_grid_with_large_dots() {
     dot_grid_case(
         &DotGridCase {
@@ -668,4 +667,88 @@ fn sparse_random_markers_do_not_regress() {
             "press {k}: {filled} with the fill, {searched} without"
         );
     }
+}
+
+/// Whether a texture is sparse is decided on the reference: for `fine` (the
+/// one preset with patches that do not overlap) a regular grid of dark dots
+/// is sparse, the simulator's random markers (at the default and at half the
+/// density, two seeds) are not, and on them the flow is bit for bit the flow
+/// of a search that never treats the texture as sparse. The presets with
+/// overlapping patches never treat a texture as sparse.
+#[test]
+fn sparse_texture_is_decided_on_the_reference() {
+    use optical_tactile_sim::{DotGrid, Press, SimConfig, SyntheticSensor};
+    for preset in DisPreset::ALL {
+        let p = DisParams::preset(preset);
+        let overlapping = p.patch_stride < p.patch_size;
+        assert_eq!(p.sparse_texture < 1.0, !overlapping, "{preset:?}");
+    }
+    let gated = [DisPreset::Fine];
+    for grid in [
+        DotGrid::default(),
+        DotGrid {
+            pitch_px: 24.0,
+            jitter_px: 2.0,
+            ..DotGrid::default()
+        },
+        DotGrid {
+            pitch_px: 40.0,
+            diameter_px: 10.0,
+            darkness: 90.0,
+            ..DotGrid::default()
+        },
+    ] {
+        let sensor = SyntheticSensor::new(SimConfig::dot_grid(grid), 5).unwrap();
+        let reference = sensor.render_indexed(0, &[], false).unwrap().frame;
+        for preset in gated {
+            let mut dis = Dis::with_preset(preset);
+            dis.set_reference(&reference).unwrap();
+            eprintln!(
+                "MEASURE dot grid pitch {} {preset:?}: untextured {:.3}",
+                grid.pitch_px,
+                dis.untextured_fraction()
+            );
+            assert!(dis.sparse_texture(), "{preset:?} on a dot grid");
+        }
+    }
+    for (seed, coverage) in [(1u64, None), (2, None), (11, Some(0.15))] {
+        let mut cfg = SimConfig::default();
+        if let Some(c) = coverage {
+            cfg.markers.coverage = c;
+        }
+        let sensor = SyntheticSensor::new(cfg, seed).unwrap();
+        let reference = sensor.render_indexed(0, &[], false).unwrap().frame;
+        let rod = Press::rod(20.0, [0.6, 0.2, -2.0], 5.0);
+        let frame = sensor.render_indexed(1, &[rod], false).unwrap().frame;
+        for preset in gated {
+            let mut dis = Dis::with_preset(preset);
+            dis.set_reference(&reference).unwrap();
+            eprintln!(
+                "MEASURE strip seed {seed} {preset:?}: untextured {:.3}",
+                dis.untextured_fraction()
+            );
+            assert!(
+                !dis.sparse_texture(),
+                "{preset:?} on the strip, seed {seed}"
+            );
+            let dense = Dis::new(DisParams {
+                sparse_texture: 1.0,
+                ..DisParams::preset(preset)
+            });
+            let mut dense = dense.unwrap();
+            dense.set_reference(&reference).unwrap();
+            let (a, b) = (dis.compute(&frame).unwrap(), dense.compute(&frame).unwrap());
+            assert!(a.u == b.u && a.v == b.v, "{preset:?}, seed {seed}");
+        }
+    }
+    let bad = DisParams {
+        sparse_texture: 1.5,
+        ..DisParams::preset(DisPreset::Fine)
+    };
+    assert!(matches!(Dis::new(bad), Err(Error::InvalidParameter { .. })));
+    let nan = DisParams {
+        sparse_texture: f32::NAN,
+        ..DisParams::preset(DisPreset::Fine)
+    };
+    assert!(matches!(Dis::new(nan), Err(Error::InvalidParameter { .. })));
 }
