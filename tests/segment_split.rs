@@ -403,3 +403,60 @@ fn a_press_and_its_two_lobes_are_one_patch() {
     assert_eq!(p.len(), 1, "{p:?}");
     assert_eq!(seg.split_count(), 0);
 }
+
+/// Noise in 8x8 blocks (a flow whose patches do not overlap errs patch by
+/// patch): each block gets one random vector of up to `amp` per component.
+fn add_block_noise(f: &mut FlowField, seed: u64, amp: f32) {
+    let mut s = seed | 1;
+    let (h, w) = f.u.dim();
+    for by in (0..h).step_by(8) {
+        for bx in (0..w).step_by(8) {
+            let mut draw = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                ((s >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 2.0 * amp
+            };
+            let (du, dv) = (draw(), draw());
+            for y in by..(by + 8).min(h) {
+                for x in bx..(bx + 8).min(w) {
+                    f.u[[y, x]] += du;
+                    f.v[[y, x]] += dv;
+                }
+            }
+        }
+    }
+}
+
+/// A fingertip on a small flat sensor (a 320x240 image): one broad press
+/// (outward flow peaking on a ring of radius 20-60 px), with or without a
+/// shear of the same size, anywhere in the middle of the image, with
+/// patch-sized noise of up to 10% of the motion on top, is one patch.
+#[test]
+fn a_fingertip_on_a_small_sensor_is_one_patch() {
+    let strategy = (
+        (20.0f32..60.0, 1.5f32..6.0, 0.0f32..1.2, 0.0f32..6.3),
+        (130.0f32..190.0, 100.0f32..140.0),
+        (0.0f32..0.1, any::<u64>(), 16usize..32),
+    );
+    runner(80)
+        .run(
+            &strategy,
+            |((radius, amp, shear, angle), (cx, cy), (noise, seed, margin))| {
+                let mut f = FlowField::zeros(320, 240);
+                add_press(&mut f, cx, cy, amp, radius);
+                if shear > 0.2 {
+                    let s = 1.5 * radius;
+                    add_shear(&mut f, cx, cy, shear * amp, s, s, 0.0, angle);
+                }
+                add_block_noise(&mut f, seed, noise * amp);
+                let mut seg = segmenter(margin);
+                let p = seg.segment(&f).unwrap();
+                prop_assert_eq!(seg.split_count(), 0, "{:?}", p);
+                prop_assert_eq!(p.len(), 1, "{:?}", p);
+                prop_assert!(p[0].bbox.contains(cx as usize, cy as usize));
+                Ok(())
+            },
+        )
+        .unwrap();
+}
