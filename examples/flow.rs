@@ -58,8 +58,8 @@ struct Cli {
     /// Current image.
     #[arg(value_name = "CUR.png", required = true)]
     current: Option<PathBuf>,
-    /// DIS preset.
-    #[arg(long, value_name = "PRESET", default_value = "accurate", ignore_case = true,
+    /// DIS preset (the sensor's default, `fine`, unless given).
+    #[arg(long, value_name = "PRESET", default_value = "fine", ignore_case = true,
           value_parser = cli_support::dis_preset())]
     preset: DisPreset,
     /// Worker threads (0: one per core).

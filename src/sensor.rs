@@ -68,8 +68,8 @@ pub struct ExtractorConfig {
     pub subpixel: bool,
     /// Which changes of the camera's exposure (gain, black level) are taken
     /// out of each frame against the reference before the flow (default
-    /// [`ExposureCompensation::Off`]; see [`crate::exposure`] for when to
-    /// turn it on).
+    /// [`ExposureCompensation::Auto`]: exposure steps and drift, not flicker;
+    /// see [`crate::exposure`]).
     pub exposure: ExposureCompensation,
 }
 

@@ -71,6 +71,15 @@ fn false_contacts(
     (patches, contacts)
 }
 
+/// The default (`Auto`) is what the sensor runs with.
+#[test]
+fn auto_is_the_default() {
+    assert_eq!(
+        ExtractorConfig::default().exposure,
+        ExposureCompensation::Auto
+    );
+}
+
 #[test]
 fn exposure_steps_and_drift_at_rest_make_no_contact() {
     // Read noise up to 1.5 grey levels: at 2 the fine flow's rest noise
@@ -78,12 +87,14 @@ fn exposure_steps_and_drift_at_rest_make_no_contact() {
     // camera changes or not (docs/results.md).
     for (seed, read) in [(1, 1.0), (2, 1.5), (3, 1.0)] {
         let sim = simulator(seed, read, changes());
-        let got = false_contacts(&sim, 80, ExposureCompensation::GainOffset);
-        assert_eq!(
-            got,
-            (0, 0),
-            "seed {seed}, read noise {read}: frames with a patch, with a contact"
-        );
+        for mode in [ExposureCompensation::GainOffset, ExposureCompensation::Auto] {
+            let got = false_contacts(&sim, 80, mode);
+            assert_eq!(
+                got,
+                (0, 0),
+                "seed {seed}, read noise {read}, {mode:?}: frames with a patch, with a contact"
+            );
+        }
     }
 }
 

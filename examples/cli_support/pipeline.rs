@@ -42,9 +42,10 @@ pub struct PipelineArgs {
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = super::dis_preset())]
     pub preset: Option<DisPreset>,
     /// Take the camera's exposure changes (gain, black level) out of each
-    /// frame against the reference: off, offset or gain-offset. Costs some
-    /// accuracy on a steady camera; fit the calibration the same way.
-    #[arg(long, value_name = "MODE", default_value = "off", value_parser = exposure)]
+    /// frame against the reference: auto (gain and offset, once the gain
+    /// departs by more than 1%: steps and drift), gain-offset
+    /// (every frame), offset or off. Fit the calibration the same way.
+    #[arg(long, value_name = "MODE", default_value = "auto", value_parser = exposure)]
     pub exposure: ExposureCompensation,
     /// Which channel of colour frames becomes the grey image.
     #[arg(long, value_name = "green|luma", default_value = "green", value_parser = channel)]
@@ -92,7 +93,7 @@ impl PipelineArgs {
     }
 }
 
-/// Parses `--exposure`: `off`, `offset` or `gain-offset`.
+/// Parses `--exposure`: `auto`, `gain-offset`, `offset` or `off`.
 pub fn exposure(s: &str) -> Result<ExposureCompensation, String> {
     ExposureCompensation::parse(s).map_err(|e| e.to_string())
 }

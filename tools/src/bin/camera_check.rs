@@ -68,16 +68,14 @@ struct Cli {
     /// calibration's].
     #[arg(long, value_name = "PRESET", value_parser = cli_support::threshold_preset())]
     raw_thresholds: Option<ThresholdPreset>,
+    /// Exposure compensations to compare (off, offset, gain-offset, auto).
+    #[arg(long, value_name = "a,b,..", value_delimiter = ',',
+          default_value = "off,offset,gain-offset,auto", value_parser = cli_support::pipeline::exposure)]
+    modes: Vec<ExposureCompensation>,
     /// Tile sides of the quiet statistic, full-resolution px.
     #[arg(long, value_name = "a,b,..", default_value_t = Numbers(vec![16.0, 32.0, 64.0]))]
     tiles: Numbers,
 }
-
-const MODES: [ExposureCompensation; 3] = [
-    ExposureCompensation::Off,
-    ExposureCompensation::Offset,
-    ExposureCompensation::GainOffset,
-];
 
 fn quantile(v: &mut [f64], q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -128,7 +126,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             let sim = SyntheticSensor::new(cfg, seed as u64)?;
             let reference = sim.render_indexed(0, &[], false)?.frame;
             let mut runs = Vec::new();
-            for mode in MODES {
+            for &mode in &cli.modes {
                 let mut config =
                     ExtractorConfig::from_setup(&calibration.setup)?.with_exposure(mode);
                 if let Some(p) = cli.raw_thresholds {
@@ -166,8 +164,13 @@ fn run(cli: &Cli) -> Result<(), Failure> {
                     *contacts += usize::from(c > 0);
                 }
             }
-            // Light presses: the smallest quiet statistic over positions.
-            let (_, ex, ..) = &mut runs[2];
+            // Light presses: the smallest quiet statistic over positions,
+            // with the last compensation given.
+            let Some((_, ex, ..)) = runs.last_mut() else {
+                return Err(Failure::Message(
+                    "--modes: give at least one compensation".into(),
+                ));
+            };
             let mut press_stats = Vec::new();
             for &f in &cli.press_forces.0 {
                 let mut worst = vec![f64::INFINITY; cli.tiles.0.len()];
