@@ -89,21 +89,33 @@ pub enum Rest {
     Failed(String),
 }
 
-/// The last processed frame.
+/// The last processed frame's findings.
 pub struct FrameView {
     /// Increases with every published frame.
     pub seq: u64,
-    /// The debug panel (four rows).
-    pub panel: Canvas,
     /// Findings, counts and timings, as sent to the page.
     pub info: Value,
+}
+
+/// The debug panel (four rows) of a frame.
+pub struct PanelView {
+    /// The frame's [`FrameView::seq`].
+    pub seq: u64,
+    /// The panel.
+    pub canvas: Canvas,
 }
 
 /// Everything the page and the pipeline thread share (behind a mutex).
 pub struct State {
     /// The latest frame.
     pub frame: Option<Arc<FrameView>>,
-    /// The PNG of a frame: `(seq, bytes)`.
+    /// The latest panel drawn. The pipeline draws one only once the page
+    /// has fetched the previous one (`panel_fetched`): a page slower than
+    /// the pipeline costs it no drawing it will not show, and no page none.
+    pub panel: Option<Arc<PanelView>>,
+    /// The latest panel was fetched: the pipeline draws the next.
+    pub panel_fetched: bool,
+    /// The PNG of a panel: `(seq, bytes)`.
     pub png: Option<(u64, Arc<Vec<u8>>)>,
     /// How long the last PNG took to encode, ms.
     pub encode_ms: f64,
@@ -159,7 +171,7 @@ impl App {
             ("GET", "/app.js") => Response::new(200, "text/javascript; charset=utf-8", PAGE_JS),
             ("GET", "/app.css") => Response::new(200, "text/css; charset=utf-8", PAGE_CSS),
             ("GET", "/state") => self.get_state(rq),
-            ("GET", "/frame.png") => self.get_png(),
+            ("GET", "/frame.png") => self.get_png(rq),
             ("POST", "/control") => match parse_body::<Control>(rq) {
                 Ok(c) => match self.apply(&c) {
                     Ok(()) => Response::json(200, &self.state_json(&self.lock())),
@@ -210,6 +222,7 @@ impl App {
             Some(f) => (f.seq, f.info.clone()),
             None => (0, Value::Null),
         };
+        let panel_seq = st.panel.as_ref().map_or(0, |p| p.seq);
         let rest = match &st.rest {
             Rest::Idle => json!({ "state": "idle" }),
             Rest::Collecting(n) => json!({ "state": "collecting", "frames": n, "of": REST_FRAMES }),
@@ -218,6 +231,7 @@ impl App {
         };
         json!({
             "seq": seq,
+            "panel_seq": panel_seq,
             "frame": frame,
             "settings": st.settings.to_json(),
             "paused": st.paused,
@@ -234,21 +248,45 @@ impl App {
         })
     }
 
-    fn get_png(&self) -> Response {
+    /// The latest panel as PNG, its frame number in `X-Panel-Seq`; with
+    /// `?after=N`, waits up to [`LONG_POLL`] for a panel newer than `N`
+    /// (`204` if none came).
+    fn get_png(&self, rq: &Request) -> Response {
+        let after = match rq.query_value("after").map(str::parse::<u64>) {
+            None => None,
+            Some(Ok(n)) => Some(n),
+            Some(Err(_)) => return Response::error(400, "after: expected a frame number"),
+        };
         let frame = {
-            let st = self.lock();
-            let Some(frame) = st.frame.clone() else {
+            let deadline = Instant::now() + LONG_POLL;
+            let mut st = self.lock();
+            if let Some(after) = after {
+                while st.panel.as_ref().is_none_or(|p| p.seq <= after) {
+                    let now = Instant::now();
+                    if now >= deadline {
+                        return Response::new(204, "image/png", Vec::new());
+                    }
+                    st = self
+                        .changed
+                        .wait_timeout(st, deadline - now)
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0;
+                }
+            }
+            let Some(frame) = st.panel.clone() else {
                 return Response::error(404, "no frame yet");
             };
+            st.panel_fetched = true;
             if let Some((seq, png)) = &st.png
                 && *seq == frame.seq
             {
-                return Response::new(200, "image/png", png.as_slice());
+                return Response::new(200, "image/png", png.as_slice())
+                    .with_header("X-Panel-Seq", seq.to_string());
             }
             frame
         };
         let t = Instant::now();
-        let png = match encode_png(&frame.panel) {
+        let png = match encode_png(&frame.canvas) {
             Ok(p) => Arc::new(p),
             Err(e) => return Response::error(500, format!("cannot encode the panel: {e}")),
         };
@@ -258,6 +296,7 @@ impl App {
             st.png = Some((frame.seq, png.clone()));
         }
         Response::new(200, "image/png", png.as_slice())
+            .with_header("X-Panel-Seq", frame.seq.to_string())
     }
 
     /// Applies a control (all of it, or nothing on an error).
@@ -543,6 +582,8 @@ mod tests {
         App {
             state: Mutex::new(State {
                 frame: None,
+                panel: None,
+                panel_fetched: false,
                 png: None,
                 encode_ms: 0.0,
                 settings: settings.clone(),
@@ -673,6 +714,18 @@ mod tests {
         assert_eq!(get(&a, "/control", "").status, 405);
         assert_eq!(post(&a, "/state", "{}").status, 405);
         assert_eq!(get(&a, "/frame.png", "").status, 404, "no frame yet");
+        assert_eq!(get(&a, "/frame.png", "after=-1").status, 400);
+        assert_eq!(get(&a, "/frame.png", "after=0").status, 204, "none came");
+        a.lock().panel = Some(Arc::new(PanelView {
+            seq: 3,
+            canvas: Canvas::new(4, 2, optical_tactile::viz::Rgb(1, 2, 3)),
+        }));
+        let r = get(&a, "/frame.png", "after=2");
+        assert_eq!((r.status, r.content_type), (200, "image/png"));
+        assert_eq!(r.headers, vec![("X-Panel-Seq", "3".to_string())]);
+        assert!(r.body.starts_with(b"\x89PNG"));
+        assert!(a.lock().panel_fetched);
+        assert_eq!(get(&a, "/frame.png", "after=3").status, 204);
         assert_eq!(get(&a, "/state", "after=x").status, 400);
         let t = Instant::now();
         let r = get(&a, "/state", "after=0");

@@ -79,6 +79,8 @@ pub struct Response {
     pub content_type: &'static str,
     /// The body.
     pub body: Vec<u8>,
+    /// More headers (names and values of the server's own making).
+    pub headers: Vec<(&'static str, String)>,
 }
 
 impl Response {
@@ -88,7 +90,14 @@ impl Response {
             status,
             content_type,
             body: body.into(),
+            headers: Vec::new(),
         }
+    }
+
+    /// This response with one more header.
+    pub fn with_header(mut self, name: &'static str, value: String) -> Response {
+        self.headers.push((name, value));
+        self
     }
 
     /// A JSON body.
@@ -106,6 +115,7 @@ fn reason(status: u16) -> &'static str {
     match status {
         200 => "OK",
         201 => "Created",
+        204 => "No Content",
         400 => "Bad Request",
         404 => "Not Found",
         405 => "Method Not Allowed",
@@ -371,15 +381,19 @@ struct Header<'a> {
 }
 
 fn write_response(stream: &mut TcpStream, r: &Response, keep: bool) -> io::Result<()> {
-    let head = format!(
+    let mut head = format!(
         "HTTP/1.1 {} {}\r\nContent-Type: {}\r\nContent-Length: {}\r\nCache-Control: no-store\r\n\
-         X-Content-Type-Options: nosniff\r\nConnection: {}\r\n\r\n",
+         X-Content-Type-Options: nosniff\r\nConnection: {}\r\n",
         r.status,
         reason(r.status),
         r.content_type,
         r.body.len(),
         if keep { "keep-alive" } else { "close" }
     );
+    for (name, value) in &r.headers {
+        head.push_str(&format!("{name}: {value}\r\n"));
+    }
+    head.push_str("\r\n");
     stream.write_all(head.as_bytes())?;
     stream.write_all(&r.body)?;
     stream.flush()

@@ -83,6 +83,10 @@ struct Cli {
     /// Camera frame rate.
     #[arg(long, value_name = "FPS", default_value_t = 50, value_parser = clap::value_parser!(u32).range(1..=1000))]
     fps: u32,
+    /// Frames per second a sequence is played at, at most (0: as fast as
+    /// the pipeline goes, which leaves the page less of the processor).
+    #[arg(long, value_name = "FPS", default_value_t = 20, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    play_fps: u32,
     #[command(flatten)]
     pipeline: PipelineArgs,
     /// Kalman filter on the tracked contacts (the page can change it).
@@ -194,6 +198,8 @@ fn run(a: Cli) -> Result<ExitCode, Failure> {
     let app = Arc::new(App {
         state: Mutex::new(State {
             frame: None,
+            panel: None,
+            panel_fetched: false,
             png: None,
             encode_ms: 0.0,
             settings: settings.clone(),
@@ -222,13 +228,13 @@ fn run(a: Cli) -> Result<ExitCode, Failure> {
         channel: a.pipeline.channel,
     };
     let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
-    let (runner_app, base) = (app.clone(), a.pipeline.clone());
+    let (runner_app, base, play_fps) = (app.clone(), a.pipeline.clone(), a.play_fps);
     std::thread::Builder::new()
         .name("pipeline".into())
         .spawn(move || match open_source(&source_args) {
             Ok(source) => {
                 let _ = ready_tx.send(Ok(()));
-                Runner::new(runner_app, base, pipeline, source).run();
+                Runner::new(runner_app, base, pipeline, source, f64::from(play_fps)).run();
             }
             Err(e) => {
                 let _ = ready_tx.send(Err(e));

@@ -1,6 +1,8 @@
-// The tune page: polls the server for each new frame (GET /state?after=N,
-// answered when a newer frame exists or after a second), then loads its
-// panel (GET /frame.png); controls are sent as JSON (POST /control).
+// The tune page: two loops of long polls, one for each new frame's
+// findings (GET /state?after=N) and one for the panel (GET
+// /frame.png?after=N; the server draws a panel only once the previous one
+// was fetched), each answered when there is something newer or after a
+// second; controls are sent as JSON (POST /control).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -104,26 +106,46 @@ function renderItems(mode, items) {
   $("contacts").innerHTML = rows.join("");
 }
 
-// Loads the panel of frame `seq` off screen, then swaps it in.
-function loadPanel(seq) {
-  return new Promise((resolve) => {
-    const img = new Image();
-    img.onload = () => {
-      $("panel").src = img.src;
-      $("panel").dataset.seq = String(seq);
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+// The panels: each request waits for a panel newer than the one shown
+// (GET /frame.png?after=N), which is decoded off screen, then swapped in.
+async function panels() {
+  let seq = 0;
+  let objectUrl = null;
+  for (;;) {
+    try {
+      const r = await fetch(`/frame.png?after=${seq}`);
+      if (r.status !== 200) {
+        await sleep(r.status === 204 ? 0 : 500);
+        continue;
+      }
+      const next = Number(r.headers.get("X-Panel-Seq"));
+      const url = URL.createObjectURL(await r.blob());
+      const img = new Image();
+      img.src = url;
+      await img.decode();
+      const old = $("panel");
+      img.id = "panel";
+      img.alt = old.alt;
+      img.dataset.seq = String(next);
+      old.replaceWith(img);
+      if (objectUrl) URL.revokeObjectURL(objectUrl);
+      objectUrl = url;
+      seq = next;
       const now = performance.now();
       shown.push(now);
       shown = shown.filter((t) => now - t < 5000);
       if (shown.length > 1) {
         $("page-fps").textContent = fmt((shown.length - 1) * 1000 / (now - shown[0]), 1);
       }
-      resolve();
-    };
-    img.onerror = () => resolve();
-    img.src = `/frame.png?seq=${seq}`;
-  });
+    } catch (e) {
+      await sleep(1000);
+    }
+  }
 }
 
+// The findings: each request waits for a frame newer than the last.
 async function poll() {
   let after = 0;
   for (;;) {
@@ -132,13 +154,10 @@ async function poll() {
       const s = await r.json();
       renderState(s);
       $("status").textContent = "";
-      if (s.seq > after) {
-        after = s.seq;
-        await loadPanel(s.seq);
-      }
+      after = Math.max(after, s.seq);
     } catch (e) {
       $("status").textContent = "server not answering, retrying";
-      await new Promise((r) => setTimeout(r, 1000));
+      await sleep(1000);
     }
   }
 }
@@ -175,3 +194,4 @@ function wire() {
 
 wire();
 poll();
+panels();

@@ -16,7 +16,7 @@ use optical_tactile::segment::{RestOptions, Thresholds};
 use optical_tactile::track::FilterConfig;
 use serde_json::{Value, json};
 
-use crate::app::{App, FrameView, REST_FRAMES, Rest, Settings};
+use crate::app::{App, FrameView, PanelView, REST_FRAMES, Rest, Settings};
 use crate::cli_support::pipeline::{Found, Pipeline, PipelineArgs};
 
 /// Most bytes of decoded frames a looped sequence keeps in memory (beyond
@@ -187,14 +187,28 @@ pub struct Runner {
     rest_flows: Vec<FlowField>,
     seq: u64,
     published: VecDeque<Instant>,
+    /// A sequence's frame period when it is played at a set rate.
+    period: Option<Duration>,
+    /// When the next frame of a sequence is due.
+    due: Instant,
 }
 
 impl Runner {
     /// A runner of `pipeline` (built from `base` and the app's settings) on
     /// `source`.
-    pub fn new(app: Arc<App>, base: PipelineArgs, pipeline: Pipeline, source: Source) -> Runner {
+    pub fn new(
+        app: Arc<App>,
+        base: PipelineArgs,
+        pipeline: Pipeline,
+        source: Source,
+        play_fps: f64,
+    ) -> Runner {
         let applied = app.lock().version;
+        let period = (play_fps > 0.0 && matches!(source, Source::Sequence(_)))
+            .then(|| Duration::from_secs_f64(1.0 / play_fps));
         Runner {
+            period,
+            due: Instant::now(),
             app,
             base,
             pipeline,
@@ -265,6 +279,13 @@ impl Runner {
         if !step && !take_reference {
             return Ok(());
         }
+        if let Some(period) = self.period {
+            let now = Instant::now();
+            if self.due > now {
+                std::thread::sleep(self.due - now);
+            }
+            self.due = self.due.max(now - period) + period;
+        }
         let frame = self.source.next_frame()?;
         if take_reference || self.reference.is_none() {
             self.pipeline.set_reference(&frame.image).map_err(|e| {
@@ -292,11 +313,15 @@ impl Runner {
         if self.pipeline.rereferenced() {
             self.reference = Some(frame.image.clone());
         }
+        let draw = {
+            let st = self.app.lock();
+            st.panel.is_none() || st.panel_fetched || st.paused
+        };
         let t = Instant::now();
-        let panel = self.pipeline.debug_panel();
+        let panel = draw.then(|| self.pipeline.debug_panel());
         let panel_ms = t.elapsed().as_secs_f64() * 1e3;
         let rest = self.collect_rest();
-        let info = self.info(frame, &found, process_ms, panel_ms);
+        let info = self.info(frame, &found, process_ms, draw.then_some(panel_ms));
         self.seq += 1;
         let now = Instant::now();
         self.published.push_back(now);
@@ -316,9 +341,15 @@ impl Runner {
         let mut st = self.app.lock();
         st.frame = Some(Arc::new(FrameView {
             seq: self.seq,
-            panel,
             info,
         }));
+        if let Some(canvas) = panel {
+            st.panel = Some(Arc::new(PanelView {
+                seq: self.seq,
+                canvas,
+            }));
+            st.panel_fetched = false;
+        }
         st.fps = fps;
         st.error = None;
         if let Some(rest) = rest {
@@ -363,7 +394,7 @@ impl Runner {
         Some(result)
     }
 
-    fn info(&self, frame: &Frame, found: &Found, process_ms: f64, panel_ms: f64) -> Value {
+    fn info(&self, frame: &Frame, found: &Found, process_ms: f64, panel_ms: Option<f64>) -> Value {
         let t = self.pipeline.timings();
         let items: Vec<Value> = match found {
             Found::Contacts(cs) => cs
