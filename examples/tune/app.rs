@@ -149,7 +149,7 @@ pub struct App {
     pub changed: Condvar,
     /// The calibration loaded (`None` with `--raw`).
     pub calibration: Option<Calibration>,
-    /// Where tuned calibrations are saved (canonical).
+    /// Where tuned calibrations are saved.
     pub save_dir: PathBuf,
     /// The `track` flags that do not change (input, calibration, crop, ...).
     pub fixed_args: Vec<String>,
@@ -557,13 +557,11 @@ pub fn encode_png(canvas: &Canvas) -> image::ImageResult<Vec<u8>> {
 
 /// The save directory as given, checked to be one.
 pub fn save_dir(dir: &Path) -> Result<PathBuf, String> {
-    let canonical = dir
-        .canonicalize()
-        .map_err(|e| format!("--save-dir {}: {e}", dir.display()))?;
-    if !canonical.is_dir() {
+    let meta = std::fs::metadata(dir).map_err(|e| format!("--save-dir {}: {e}", dir.display()))?;
+    if !meta.is_dir() {
         return Err(format!("--save-dir {}: not a directory", dir.display()));
     }
-    Ok(canonical)
+    Ok(dir.to_path_buf())
 }
 
 #[cfg(test)]
