@@ -4,7 +4,8 @@
 # moved on the page, a calibration saved and loaded back, and the server's
 # refusals of malformed requests. Installs Debian's chromium when it is
 # missing and playwright-core (npm) under the target directory; builds the
-# example (debug: the test checks behaviour, not speed).
+# example (test profile, in target/debug: the test checks behaviour, not
+# speed).
 #
 #   .ci/tune-browser.sh
 #
@@ -36,7 +37,9 @@ if [[ ! -f $pw_package ]] || ! grep -q "\"version\": \"$pw_version\"" "$pw_packa
     "playwright-core@$pw_version")
 fi
 
-cargo build --example tune -p optical-tactile
+# The test profile: the one `cargo test` builds with, so that after it only
+# the example is linked (and it runs faster than a plain debug build).
+cargo build --profile test --example tune -p optical-tactile
 
 TUNE_BIN="$target_dir/debug/examples/tune" \
   PLAYWRIGHT_DIR="$(cd "$pw_dir" && pwd)/node_modules" \

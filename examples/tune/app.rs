@@ -153,6 +153,22 @@ pub struct App {
     pub save_dir: PathBuf,
     /// The `track` flags that do not change (input, calibration, crop, ...).
     pub fixed_args: Vec<String>,
+    /// Served on a loopback address only: requests must name it (or
+    /// `localhost`) as their host.
+    pub loopback_only: bool,
+}
+
+/// Whether a `Host` header names a loopback address or `localhost` (any
+/// port).
+pub fn is_loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(rest) => rest.split(']').next().unwrap_or(""),
+        None => host.rsplit_once(':').map_or(host, |(n, _)| n),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }
 
 impl App {
@@ -164,6 +180,23 @@ impl App {
 
     /// Answers one request.
     pub fn handle(&self, rq: &Request) -> Response {
+        // A page of another site must not drive this one: through a name
+        // that resolves to this machine (DNS rebinding), or with a form's
+        // plain-text POST (JSON needs a preflight, which is not answered).
+        if self.loopback_only
+            && let Some(host) = &rq.host
+            && !is_loopback_host(host)
+        {
+            return Response::error(421, format!("host {host}: use 127.0.0.1 or localhost"));
+        }
+        if rq.method == "POST"
+            && rq
+                .content_type
+                .as_deref()
+                .is_none_or(|t| !t.trim_start().starts_with("application/json"))
+        {
+            return Response::error(415, "send the body as Content-Type: application/json");
+        }
         match (rq.method.as_str(), rq.path.as_str()) {
             ("GET", "/") | ("GET", "/index.html") => {
                 Response::new(200, "text/html; charset=utf-8", PAGE_HTML)
@@ -599,25 +632,27 @@ mod tests {
             calibration,
             save_dir: dir.to_path_buf(),
             fixed_args: vec!["SEQ".into()],
+            loopback_only: true,
+        }
+    }
+
+    fn request(method: &str, path: &str, query: &str, body: &[u8]) -> Request {
+        Request {
+            method: method.into(),
+            path: path.into(),
+            query: query.into(),
+            body: body.to_vec(),
+            content_type: (method == "POST").then(|| "application/json".to_string()),
+            host: Some("127.0.0.1:8000".into()),
         }
     }
 
     fn post(app: &App, path: &str, body: &str) -> Response {
-        app.handle(&Request {
-            method: "POST".into(),
-            path: path.into(),
-            query: String::new(),
-            body: body.as_bytes().to_vec(),
-        })
+        app.handle(&request("POST", path, "", body.as_bytes()))
     }
 
     fn get(app: &App, path: &str, query: &str) -> Response {
-        app.handle(&Request {
-            method: "GET".into(),
-            path: path.into(),
-            query: query.into(),
-            body: Vec::new(),
-        })
+        app.handle(&request("GET", path, query, b""))
     }
 
     fn temp_dir(tag: &str) -> PathBuf {
@@ -691,16 +726,42 @@ mod tests {
             );
             assert!(String::from_utf8_lossy(&r.body).contains("error"));
         }
-        let r = a.handle(&Request {
-            method: "POST".into(),
-            path: "/control".into(),
-            query: String::new(),
-            body: vec![0xff, 0xfe, b'{'],
-        });
+        let r = a.handle(&request("POST", "/control", "", &[0xff, 0xfe, b'{']));
         assert_eq!(r.status, 400);
+        // Another site's form (plain text) or a rebound host name.
+        let mut form = request("POST", "/control", "", br#"{"magnitude": 0.3}"#);
+        form.content_type = Some("text/plain".into());
+        assert_eq!(a.handle(&form).status, 415);
+        form.content_type = None;
+        assert_eq!(a.handle(&form).status, 415);
+        let mut rebound = request("POST", "/control", "", br#"{"magnitude": 0.3}"#);
+        rebound.host = Some("evil.example:8000".into());
+        assert_eq!(a.handle(&rebound).status, 421);
         let st = a.lock();
         assert_eq!(st.version, 0, "a refused control changed the settings");
         assert_eq!(st.settings.thresholds, Thresholds::MID);
+    }
+
+    #[test]
+    fn loopback_hosts() {
+        for h in [
+            "127.0.0.1:8000",
+            "localhost:1",
+            "LOCALHOST",
+            "[::1]:8000",
+            "127.1.2.3",
+        ] {
+            assert!(is_loopback_host(h), "{h}");
+        }
+        for h in [
+            "evil.example:8000",
+            "10.0.0.1:8000",
+            "[2001:db8::1]:80",
+            "",
+            "localhost.evil",
+        ] {
+            assert!(!is_loopback_host(h), "{h}");
+        }
     }
 
     #[test]

@@ -57,6 +57,10 @@ pub struct Request {
     pub query: String,
     /// The body (at most [`Limits::body_bytes`]).
     pub body: Vec<u8>,
+    /// The `Content-Type` header, if any.
+    pub content_type: Option<String>,
+    /// The `Host` header, if any.
+    pub host: Option<String>,
 }
 
 impl Request {
@@ -123,6 +127,7 @@ fn reason(status: u16) -> &'static str {
         411 => "Length Required",
         413 => "Payload Too Large",
         415 => "Unsupported Media Type",
+        421 => "Misdirected Request",
         431 => "Request Header Fields Too Large",
         500 => "Internal Server Error",
         503 => "Service Unavailable",
@@ -159,7 +164,11 @@ impl Server {
                     if stopping.load(Ordering::SeqCst) {
                         break;
                     }
-                    let Ok(mut stream) = stream else { continue };
+                    let Ok(mut stream) = stream else {
+                        // Out of file descriptors, say: do not spin.
+                        thread::sleep(Duration::from_millis(50));
+                        continue;
+                    };
                     if active.fetch_add(1, Ordering::SeqCst) >= limits.connections {
                         active.fetch_sub(1, Ordering::SeqCst);
                         let _ = write_response(
@@ -321,6 +330,7 @@ fn finish_request(stream: &mut TcpStream, buf: &mut Vec<u8>, head: Head, limits:
     let head_len = head.len;
     let mut content_length = 0usize;
     let mut close = version == 0;
+    let (mut content_type, mut host) = (None, None);
     for (name, value) in &head.headers {
         let h = Header { name, value };
         if h.name.eq_ignore_ascii_case("content-length") {
@@ -342,6 +352,10 @@ fn finish_request(stream: &mut TcpStream, buf: &mut Vec<u8>, head: Head, limits:
                 411,
                 "chunked bodies are not accepted: send Content-Length",
             ));
+        } else if h.name.eq_ignore_ascii_case("content-type") {
+            content_type = Some(String::from_utf8_lossy(h.value).into_owned());
+        } else if h.name.eq_ignore_ascii_case("host") {
+            host = Some(String::from_utf8_lossy(h.value).into_owned());
         } else if h.name.eq_ignore_ascii_case("connection") {
             let v = String::from_utf8_lossy(h.value).to_ascii_lowercase();
             if v.contains("close") {
@@ -369,6 +383,8 @@ fn finish_request(stream: &mut TcpStream, buf: &mut Vec<u8>, head: Head, limits:
             path,
             query,
             body,
+            content_type,
+            host,
         },
         !close,
     )

@@ -28,7 +28,10 @@
 //! `--bind 0.0.0.0` serves every network interface, to tune from another
 //! machine; the page has no authentication, so do that on a network you
 //! trust only. Requests are bounded (64 KiB bodies, 16 KiB heads, 32
-//! connections); a malformed one gets a 4xx answer.
+//! connections); a malformed one gets a 4xx answer. On a loopback address,
+//! requests that name another host are refused (a page of another site
+//! reaching it through DNS rebinding), and controls must come as JSON (a
+//! form of another site cannot send them).
 //!
 //! `--run-for SECS` stops after that many seconds (for scripts); otherwise
 //! the tool runs until stopped (Ctrl-C).
@@ -217,6 +220,7 @@ fn run(a: Cli) -> Result<ExitCode, Failure> {
         calibration,
         save_dir,
         fixed_args: fixed_args(&a),
+        loopback_only: a.bind.is_loopback(),
     });
 
     // The pipeline thread: opens the source, says whether it could, then runs.

@@ -102,8 +102,8 @@ function rawStatus(url, bytes) {
   });
 }
 
-async function post(url, p, body) {
-  const r = await fetch(new URL(p, url), { method: "POST", body });
+async function post(url, p, body, type = "application/json") {
+  const r = await fetch(new URL(p, url), { method: "POST", body, headers: { "Content-Type": type } });
   return r.status;
 }
 
@@ -127,7 +127,13 @@ async function httpChecks(url, saveDir) {
     const got = await post(url, p, body);
     check(`HTTP ${name} -> ${want}`, got === want, `got ${got}`);
   }
+  const form = await post(url, "/control", '{"magnitude": 0.3}', "text/plain");
+  check("HTTP plain-text control (another site's form) -> 415", form === 415, `got ${form}`);
   const u = new URL(url);
+  const rebound = await rawStatus(url,
+    "POST /control HTTP/1.1\r\nHost: evil.example:8000\r\nContent-Type: application/json\r\n" +
+    'Content-Length: 18\r\nConnection: close\r\n\r\n{"magnitude": 0.3}');
+  check("HTTP another host name (DNS rebinding) -> 421", rebound === 421, `got ${rebound}`);
   const huge = await rawStatus(url,
     `POST /control HTTP/1.1\r\nHost: ${u.host}\r\nContent-Length: 1000000000000\r\n\r\n{`);
   check("HTTP huge declared body -> 413", huge === 413, `got ${huge}`);
