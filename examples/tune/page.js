@@ -133,6 +133,7 @@ async function panels() {
       if (objectUrl) URL.revokeObjectURL(objectUrl);
       objectUrl = url;
       seq = next;
+      $("panel-seq").textContent = `panel of #${next}`;
       const now = performance.now();
       shown.push(now);
       shown = shown.filter((t) => now - t < 5000);

@@ -238,6 +238,13 @@ impl Runner {
         let (settings, version, step, take_reference, rest) = {
             let mut st = self.app.lock();
             while st.paused && st.steps == 0 && st.version == self.applied && !st.take_reference {
+                if self.seq > 0 && st.panel.as_ref().is_none_or(|p| p.seq < self.seq) {
+                    // Paused on a frame whose panel was skipped: draw it.
+                    drop(st);
+                    self.publish_panel();
+                    st = self.app.lock();
+                    continue;
+                }
                 st = self
                     .app
                     .changed
@@ -370,6 +377,19 @@ impl Runner {
         drop(st);
         self.app.changed.notify_all();
         Ok(())
+    }
+
+    /// Draws the last frame's panel and publishes it.
+    fn publish_panel(&mut self) {
+        let canvas = self.pipeline.debug_panel();
+        let mut st = self.app.lock();
+        st.panel = Some(Arc::new(PanelView {
+            seq: self.seq,
+            canvas,
+        }));
+        st.panel_fetched = false;
+        drop(st);
+        self.app.changed.notify_all();
     }
 
     /// Adds the last flow to the rest flows when they are being collected;

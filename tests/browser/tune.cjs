@@ -193,7 +193,8 @@ async function browserChecks(url, saveDir) {
     const cells = await page.$$eval("#contacts tr.contact:first-child td", (t) => t.map((c) => c.textContent));
     check("a contact has an id, location (mm) and force (N)",
       cells.length === 8 && cells.slice(1, 7).every((c) => /^-?\d+\.\d+$/.test(c)), cells.join(" | "));
-    const patches = Number(await page.textContent("#patches"));
+    // The loop's first frame is the reference itself (no patch): wait for a press.
+    const patches = await until(async () => Number(await page.textContent("#patches")), FRAME_WAIT_MS);
     check("the patch count is shown", patches > 0, patches);
     const timing = await page.$$eval("#timing-row td", (t) => t.map((c) => c.textContent));
     check("the time per stage is shown", timing.length === 8 && /^\d+\.\d$/.test(timing[1]), timing.join(" "));
