@@ -287,6 +287,19 @@ async function browserChecks(url, saveDir) {
       () => Number(document.getElementById("panel").dataset.seq) > 0, null, { timeout: FRAME_WAIT_MS }))
       .then(() => true, () => false);
     check("a new page works after one disconnected", fresh);
+    // Thresholds estimated from the next 100 frames, taken as rest frames
+    // (here they hold presses: the estimate must rise above the tuned 0.25 px).
+    await page2.click("#rest");
+    const rest = await until(async () => {
+      const s = await state(url);
+      return s.rest.state === "done" || s.rest.state === "failed" ? s : null;
+    }, 4 * FRAME_WAIT_MS, 500);
+    check("thresholds estimated from rest frames are applied",
+      rest !== null && rest.rest.state === "done" && rest.settings.magnitude > 0.25
+        && rest.settings.erode === 9 && rest.settings.dilate === 21,
+      rest && JSON.stringify([rest.rest, rest.settings]));
+    const shownRest = await until(async () => (await page2.textContent("#rest-state")).includes("rest frames"), 10_000);
+    check("the page says what the estimate set", shownRest);
     check("no script error on the page", errors.length === 0, errors.join("; "));
   } finally {
     await browser.close();
