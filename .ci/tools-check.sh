@@ -162,6 +162,22 @@ if [[ -x $track ]]; then
     fi
   fi
 
+  # One threshold overridden: a magnitude above any flow leaves no contact.
+  if check_status "track --magnitude 100" 0 "$track" --magnitude 100 --out -; then
+    if [[ $(grep -c '"contacts":\[\]' "$work/out") == 7 ]]; then
+      pass "track --magnitude 100 finds no contact"
+    else
+      fail "track --magnitude 100: contacts found" "$(cat "$work/out")"
+    fi
+  fi
+  if check_status "track --erode 0" 2 "$track" --erode 0; then
+    if grep -q "kernel side" "$work/err"; then
+      pass "track --erode 0 is refused"
+    else
+      fail "track --erode 0: unclear message" "$(cat "$work/err")"
+    fi
+  fi
+
   # A crop other than the calibration's: refused unless forced.
   if check_status "track --crop (not the calibration's)" 1 "$track" --crop 690,0,20,200; then
     if grep -q "force-crop" "$work/err"; then

@@ -1037,6 +1037,19 @@ mod tests {
     }
 
     #[test]
+    fn the_split_rule_is_a_setting_of_the_extractor() {
+        let on = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+        assert_eq!(on.segmenter().split(), Some(&SplitRule::DEFAULT));
+        let off = ContactExtractor::new(ExtractorConfig::default().with_split(None)).unwrap();
+        assert_eq!(off.segmenter().split(), None);
+        let bad = SplitRule {
+            depth: -1.0,
+            ..SplitRule::DEFAULT
+        };
+        assert!(ContactExtractor::new(ExtractorConfig::default().with_split(Some(bad))).is_err());
+    }
+
+    #[test]
     fn the_analysis_grid_is_never_finer_than_two_pixels() {
         assert_eq!(AnalysisGrid::new(0).scale(), 2);
         assert_eq!(AnalysisGrid::new(1).scale(), 2);
