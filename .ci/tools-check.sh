@@ -3,7 +3,8 @@
 # --help (status 0, a usage text) and an unknown flag (status 2); track runs
 # with its default inputs from another directory and prints contacts; a
 # closed pipe (track | head -3) ends track quietly with status 0; text
-# streams go to stdout with `-`, binary outputs refuse it.
+# streams go to stdout with `-`, binary outputs refuse it; the tune server
+# starts, prints its address and stops with --run-for.
 #
 #   .ci/tools-check.sh                # builds the release examples first
 #   .ci/tools-check.sh --no-build     # uses the release examples already built
@@ -21,7 +22,7 @@ for arg in "$@"; do
     --debug) profile=debug ;;
     --no-build) build=0 ;;
     -h | --help)
-      sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'
+      sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'
       exit 0
       ;;
     *)
@@ -72,7 +73,7 @@ check_status() {
   return 1
 }
 
-tools=(track live calibrate simulate evaluate flow hhd multi_contact perch_selection touch_mapping experiments)
+tools=(track live tune calibrate simulate evaluate flow hhd multi_contact perch_selection touch_mapping experiments)
 for tool in "${tools[@]}"; do
   bin="$bin_dir/$tool"
   if [[ ! -x $bin ]]; then
@@ -161,6 +162,22 @@ if [[ -x $track ]]; then
     fi
   fi
 
+  # One threshold overridden: a magnitude above any flow leaves no contact.
+  if check_status "track --magnitude 100" 0 "$track" --magnitude 100 --out -; then
+    if [[ $(grep -c '"contacts":\[\]' "$work/out") == 7 ]]; then
+      pass "track --magnitude 100 finds no contact"
+    else
+      fail "track --magnitude 100: contacts found" "$(cat "$work/out")"
+    fi
+  fi
+  if check_status "track --erode 0" 2 "$track" --erode 0; then
+    if grep -q "kernel side" "$work/err"; then
+      pass "track --erode 0 is refused"
+    else
+      fail "track --erode 0: unclear message" "$(cat "$work/err")"
+    fi
+  fi
+
   # A crop other than the calibration's: refused unless forced.
   if check_status "track --crop (not the calibration's)" 1 "$track" --crop 690,0,20,200; then
     if grep -q "force-crop" "$work/err"; then
@@ -176,6 +193,34 @@ if [[ -x $track ]]; then
       pass "track with a missing calibration: one error line, status 1"
     else
       fail "track with a missing calibration: not one error line" "$(cat "$work/err")"
+    fi
+  fi
+fi
+
+# The tune server: serves on a free port and stops by itself with
+# --run-for; a bad save directory or sequence is one error line before it
+# listens.
+tune="$bin_dir/tune"
+if [[ -x $tune ]]; then
+  if (cd "$work" && check_status "tune --port 0 --run-for 1" 0 "$tune" --raw --port 0 --run-for 1); then
+    if grep -Eq '^tune: serving http://127\.0\.0\.1:[0-9]+/$' "$work/out"; then
+      pass "tune serves on 127.0.0.1 and stops after --run-for"
+    else
+      fail "tune --port 0: no address printed" "$(cat "$work/out" "$work/err")"
+    fi
+  fi
+  if check_status "tune --save-dir (missing)" 1 "$tune" --port 0 --save-dir "$work/none"; then
+    if [[ $(grep -c '^error: ' "$work/err") == 1 ]] && ! grep -q "panicked" "$work/err"; then
+      pass "tune with a missing save directory: one error line, status 1"
+    else
+      fail "tune --save-dir: not one error line" "$(cat "$work/err")"
+    fi
+  fi
+  if check_status "tune (missing sequence)" 1 "$tune" "$work/none" --port 0; then
+    if [[ $(grep -c '^error: ' "$work/err") == 1 ]]; then
+      pass "tune with a missing sequence: one error line, status 1"
+    else
+      fail "tune with a missing sequence: not one error line" "$(cat "$work/err")"
     fi
   fi
 fi

@@ -3,6 +3,7 @@
 //! ```text
 //! cargo run --release --example track -- [SEQ_DIR] [--calibration FILE | --raw] [--crop x,y,w,h]
 //!     [--force-crop] [--channel green|luma] [--thresholds low|mid|high] [--preset fast|accurate|...]
+//!     [--magnitude PX] [--sum SUM] [--erode PX] [--dilate PX] [--split on|off]
 //!     [--filter on|off] [--rereference on|off] [--hold N] [--out contacts.jsonl|-] [--debug DIR] [--quiet]
 //! ```
 //!
@@ -16,7 +17,11 @@
 //! calibration's `setup.pipeline` when it records them, the segmentation
 //! thresholds from its `setup.thresholds`: the sensor then measures the raw
 //! quantities exactly as the calibration was fitted. `--preset` and
-//! `--thresholds` override them (the calibration's accuracy no longer holds).
+//! `--thresholds` override them (the calibration's accuracy no longer holds),
+//! and `--magnitude`, `--sum`, `--erode` and `--dilate` override one value
+//! each (the `tune` example prints the flags of the thresholds tuned on its
+//! page). `--split off` keeps a patch holding several contacts side by side
+//! whole.
 //!
 //! `--raw` needs no calibration: the crop defaults to the whole frame, the
 //! flow and thresholds to the library's defaults (or `--preset`,

@@ -50,7 +50,7 @@ use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
 use crate::hhd::{Decomposition, NaturalHhd};
-use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, Thresholds};
+use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
 /// How the extractor cuts and measures patches.
@@ -71,6 +71,10 @@ pub struct ExtractorConfig {
     /// [`ExposureCompensation::Auto`]: exposure steps and drift, not flicker;
     /// see [`crate::exposure`]).
     pub exposure: ExposureCompensation,
+    /// The rule that cuts one group of contours holding several contacts
+    /// side by side (default [`SplitRule::DEFAULT`]); `None` keeps every
+    /// group whole.
+    pub split: Option<SplitRule>,
 }
 
 impl Default for ExtractorConfig {
@@ -81,6 +85,7 @@ impl Default for ExtractorConfig {
             margin_px: 24,
             subpixel: true,
             exposure: ExposureCompensation::default(),
+            split: Some(SplitRule::DEFAULT),
         }
     }
 }
@@ -113,6 +118,12 @@ impl ExtractorConfig {
     /// This configuration with another exposure compensation.
     pub fn with_exposure(mut self, exposure: ExposureCompensation) -> Self {
         self.exposure = exposure;
+        self
+    }
+
+    /// This configuration with another split rule (`None`: no split).
+    pub fn with_split(mut self, split: Option<SplitRule>) -> Self {
+        self.split = split;
         self
     }
 
@@ -327,7 +338,8 @@ impl ContactExtractor {
             thresholds: config.thresholds,
             margin: config.margin_px,
             scale: grid.scale() as f64,
-        })?;
+        })?
+        .with_split(config.split)?;
         Ok(ContactExtractor {
             exposure: ExposureCompensator::new(config.exposure),
             compensated: Array2::zeros((0, 0)),
@@ -1022,6 +1034,19 @@ mod tests {
         let mut out = FlowField::zeros(0, 0);
         let err = pool_into(&FlowField::zeros(1, 5), 2, &mut out).unwrap_err();
         assert!(matches!(err, Error::TooSmall { .. }), "{err}");
+    }
+
+    #[test]
+    fn the_split_rule_is_a_setting_of_the_extractor() {
+        let on = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+        assert_eq!(on.segmenter().split(), Some(&SplitRule::DEFAULT));
+        let off = ContactExtractor::new(ExtractorConfig::default().with_split(None)).unwrap();
+        assert_eq!(off.segmenter().split(), None);
+        let bad = SplitRule {
+            depth: -1.0,
+            ..SplitRule::DEFAULT
+        };
+        assert!(ContactExtractor::new(ExtractorConfig::default().with_split(Some(bad))).is_err());
     }
 
     #[test]

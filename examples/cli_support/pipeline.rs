@@ -1,5 +1,6 @@
-//! The pipeline the `track` and `live` tools run: the calibrated sensor or,
-//! with `--raw`, the extractor alone; and how they print what they find.
+//! The pipeline the `track`, `live` and `tune` tools run: the calibrated
+//! sensor or, with `--raw`, the extractor alone; and how they print what
+//! they find.
 
 use std::path::PathBuf;
 
@@ -10,16 +11,18 @@ use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
-use optical_tactile::segment::ThresholdPreset;
-use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, SensorConfig, TactileSensor};
+use optical_tactile::segment::{MAX_KERNEL_PX, SplitRule, ThresholdPreset, Thresholds};
+use optical_tactile::sensor::{
+    ContactExtractor, ExtractorConfig, SensorConfig, StageTimings, TactileSensor,
+};
 use optical_tactile::viz;
 
 /// The calibration used unless `--calibration` names another: this crate's.
 pub const DEFAULT_CALIBRATION: &str =
     concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
 
-/// The flags of what runs on the frames, shared by `track` and `live`.
-#[derive(clap::Args, Debug)]
+/// The flags of what runs on the frames, shared by `track`, `live` and `tune`.
+#[derive(clap::Args, Debug, Clone)]
 pub struct PipelineArgs {
     /// Calibration file.
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CALIBRATION)]
@@ -38,6 +41,23 @@ pub struct PipelineArgs {
     /// Segmentation thresholds [default: the calibration's].
     #[arg(long, value_name = "PRESET", value_parser = super::threshold_preset())]
     pub thresholds: Option<ThresholdPreset>,
+    /// Per-pixel |flow| above which a pixel belongs to a patch, full-resolution
+    /// px [default: that of --thresholds or the calibration].
+    #[arg(long, value_name = "PX", value_parser = magnitude)]
+    pub magnitude: Option<f32>,
+    /// Smallest summed |flow| of a patch [default: that of --thresholds or the
+    /// calibration].
+    #[arg(long, value_name = "SUM", value_parser = sum)]
+    pub sum: Option<f32>,
+    /// Erosion kernel, px [default: that of --thresholds or the calibration].
+    #[arg(long, value_name = "PX", value_parser = kernel)]
+    pub erode: Option<usize>,
+    /// Dilation kernel, px [default: that of --thresholds or the calibration].
+    #[arg(long, value_name = "PX", value_parser = kernel)]
+    pub dilate: Option<usize>,
+    /// Cut a patch holding several contacts side by side (the split rule).
+    #[arg(long, value_name = "on|off", default_value = "on", action = clap::ArgAction::Set, value_parser = super::on_off)]
+    pub split: bool,
     /// DIS flow preset [default: the calibration's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = super::dis_preset())]
     pub preset: Option<DisPreset>,
@@ -57,7 +77,8 @@ impl PipelineArgs {
     /// the calibration was fitted with the flags' overrides, then `configure`.
     pub fn build(&self, configure: impl FnOnce(&mut SensorConfig)) -> Result<Pipeline, String> {
         if self.raw {
-            let raw = Raw::new(self.crop, self.preset, self.thresholds, self.exposure)?;
+            let raw = Raw::new(self.crop, self.preset, self.thresholds, self.exposure)?
+                .with_overrides(self)?;
             return Ok(Pipeline::Raw(Box::new(raw)));
         }
         let path = &self.calibration;
@@ -85,12 +106,63 @@ impl PipelineArgs {
         let sensor = b
             .configure(|c| {
                 c.extractor.exposure = exposure;
+                self.override_extractor(&mut c.extractor);
                 configure(c);
             })
             .build()
             .map_err(|e| e.to_string().replace("set force_crop", "pass --force-crop"))?;
         Ok(Pipeline::Calibrated(Box::new(sensor)))
     }
+}
+
+impl PipelineArgs {
+    /// `thresholds` with the single-value flags (`--magnitude`, `--sum`,
+    /// `--erode`, `--dilate`) applied.
+    pub fn override_thresholds(&self, mut t: Thresholds) -> Thresholds {
+        if let Some(m) = self.magnitude {
+            t.magnitude = m;
+        }
+        if let Some(s) = self.sum {
+            t.sum = s;
+        }
+        if let Some(k) = self.erode {
+            t.erode = k;
+        }
+        if let Some(k) = self.dilate {
+            t.dilate = k;
+        }
+        t
+    }
+
+    /// The single-value threshold flags and `--split` applied to `c`.
+    fn override_extractor(&self, c: &mut ExtractorConfig) {
+        c.thresholds = self.override_thresholds(c.thresholds);
+        c.split = self.split.then_some(SplitRule::DEFAULT);
+    }
+}
+
+/// Parses `--magnitude`: a finite number of pixels in `[0, 100]`.
+pub fn magnitude(s: &str) -> Result<f32, String> {
+    s.parse::<f32>()
+        .ok()
+        .filter(|x| (0.0..=100.0).contains(x))
+        .ok_or_else(|| format!("expected a number of pixels in [0, 100], got `{s}`"))
+}
+
+/// Parses `--sum`: a finite number in `[0, 1e9]`.
+pub fn sum(s: &str) -> Result<f32, String> {
+    s.parse::<f32>()
+        .ok()
+        .filter(|x| (0.0..=1e9).contains(x))
+        .ok_or_else(|| format!("expected a number in [0, 1e9], got `{s}`"))
+}
+
+/// Parses `--erode` and `--dilate`: a kernel side in `1..=255` px.
+pub fn kernel(s: &str) -> Result<usize, String> {
+    s.parse::<usize>()
+        .ok()
+        .filter(|k| (1..=MAX_KERNEL_PX).contains(k))
+        .ok_or_else(|| format!("expected a kernel side in 1..={MAX_KERNEL_PX} px, got `{s}`"))
 }
 
 /// Parses `--exposure`: `auto`, `gain-offset`, `offset` or `off`.
@@ -164,6 +236,15 @@ impl Raw {
             crop,
             cropped: Array2::zeros((0, 0)),
         })
+    }
+
+    /// The extractor rebuilt with the single-value threshold flags and
+    /// `--split` of `args` applied.
+    fn with_overrides(mut self, args: &PipelineArgs) -> Result<Raw, String> {
+        let mut config = self.extractor.config().clone();
+        args.override_extractor(&mut config);
+        self.extractor = ContactExtractor::new(config).map_err(|e| e.to_string())?;
+        Ok(self)
     }
 
     fn crop(&mut self, frame: &Array2<f32>) -> optical_tactile::Result<()> {
@@ -247,6 +328,22 @@ impl Pipeline {
         match self {
             Pipeline::Calibrated(s) => viz::debug_panel(s),
             Pipeline::Raw(r) => viz::raw_debug_panel(&r.extractor, &r.cropped),
+        }
+    }
+
+    /// The extractor (flow, patches, segmentation of the last frame).
+    pub fn extractor(&self) -> &ContactExtractor {
+        match self {
+            Pipeline::Calibrated(s) => s.extractor(),
+            Pipeline::Raw(r) => &r.extractor,
+        }
+    }
+
+    /// The stage timings of the last frame.
+    pub fn timings(&self) -> StageTimings {
+        match self {
+            Pipeline::Calibrated(s) => *s.timings(),
+            Pipeline::Raw(r) => *r.extractor.timings(),
         }
     }
 
