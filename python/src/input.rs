@@ -9,10 +9,10 @@
 //! by the library's own conversion (`frame::gray_from_u8_into`, ...), so the
 //! grey values are exactly those of a PNG read by the library.
 
-use ndarray::{Array2, ArrayView2, ArrayView3, ArrayViewD, Axis, Ix3};
+use ndarray::{Array2, ArrayView2, ArrayView3, ArrayViewD, Axis, Ix3, s};
 use numpy::{PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArray};
 use optical_tactile::frame::{
-    Channel, PixelLayout, check_frame_size, gray_from_u8_into, gray_from_u16_into,
+    Channel, PixelLayout, Roi, check_frame_size, gray_from_u8_into, gray_from_u16_into,
 };
 use pyo3::prelude::*;
 
@@ -159,6 +159,64 @@ fn shaped<'a, T>(a: ArrayViewD<'a, T>, what: &str) -> Result<ArrayView3<'a, T>, 
         )));
     }
     Ok(a3)
+}
+
+impl Pixels<'_> {
+    /// `(H, W, C)`.
+    pub fn dim(&self) -> (usize, usize, usize) {
+        match self {
+            Pixels::U8(a) => a.dim(),
+            Pixels::U16(a) => a.dim(),
+            Pixels::F32(a) => a.dim(),
+        }
+    }
+
+    /// The pixels of `r` (which must lie inside).
+    fn window(&self, r: Roi) -> Pixels<'_> {
+        let w = s![r.y..r.y + r.h, r.x..r.x + r.w, ..];
+        match self {
+            Pixels::U8(a) => Pixels::U8(a.slice(w)),
+            Pixels::U16(a) => Pixels::U16(a.slice(w)),
+            Pixels::F32(a) => Pixels::F32(a.slice(w)),
+        }
+    }
+
+    /// Whether [`to_gray`] reads the frame in place (no conversion).
+    fn in_place(&self, colour: Colour) -> bool {
+        matches!(self, Pixels::F32(_)) && (self.dim().2 == 1 || colour.channel == Channel::Green)
+    }
+}
+
+/// [`to_gray`] for a pipeline that reads only `roi` of the frame (the
+/// sensor's crop): a frame that needs converting is converted there only,
+/// into `buf` of the frame's size (the rest of `buf` is left as it is, zero
+/// when first allocated, and never read); `scratch` is reused. A frame read
+/// in place, no `roi` or a `roi` not inside the frame: as [`to_gray`].
+pub fn to_gray_within<'a>(
+    px: &'a Pixels<'_>,
+    colour: Colour,
+    roi: Option<Roi>,
+    buf: &'a mut Array2<f32>,
+    scratch: &mut Array2<f32>,
+) -> Result<ArrayView2<'a, f32>, Failure> {
+    let (h, w, _) = px.dim();
+    let inside = |r: &Roi| {
+        r.w > 0
+            && r.h > 0
+            && r.x.checked_add(r.w).is_some_and(|e| e <= w)
+            && r.y.checked_add(r.h).is_some_and(|e| e <= h)
+    };
+    let Some(r) = roi.filter(|r| !px.in_place(colour) && inside(r)) else {
+        return to_gray(px, colour, buf);
+    };
+    let window = px.window(r);
+    let gray = to_gray(&window, colour, scratch)?;
+    if buf.dim() != (h, w) {
+        *buf = Array2::zeros((h, w));
+    }
+    buf.slice_mut(s![r.y..r.y + r.h, r.x..r.x + r.w])
+        .assign(&gray);
+    Ok(buf.view())
 }
 
 /// The grey image of `px`: a view into the frame itself (grey `float32`, or

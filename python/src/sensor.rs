@@ -17,7 +17,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::errors::{Failure, detached, invalid, lib};
-use crate::input::{Colour, FrameArg, to_gray};
+use crate::input::{Colour, FrameArg, to_gray_within};
 use crate::params;
 
 /// A sensor's calibration: the fitted maps from raw quantities to
@@ -272,11 +272,21 @@ struct State {
     pipeline: Pipeline,
     /// Conversion buffer of integer or luma frames (reused).
     buf: Array2<f32>,
+    /// The converted crop, before it goes into `buf` (reused).
+    scratch: Array2<f32>,
     /// The library's `process()` time of the last frame, ms.
     last_ms: f64,
 }
 
 impl Pipeline {
+    /// The part of a frame the pipeline reads, if not all of it.
+    fn crop(&self) -> Option<Roi> {
+        match self {
+            Pipeline::Calibrated(s) => Some(s.crop()),
+            Pipeline::Raw { crop, .. } => *crop,
+        }
+    }
+
     fn set_reference(&mut self, img: &ArrayRef2<f32>) -> optical_tactile::Result<()> {
         match self {
             Pipeline::Calibrated(s) => s.set_reference(img),
@@ -342,6 +352,7 @@ fn new_sensor(pipeline: Pipeline, colour: Colour) -> Sensor {
         state: Mutex::new(State {
             pipeline,
             buf: Array2::zeros((0, 0)),
+            scratch: Array2::zeros((0, 0)),
             last_ms: f64::NAN,
         }),
         colour,
@@ -452,8 +463,13 @@ impl Sensor {
         let px = arg.pixels("frame").map_err(|e| e.into_py(py))?;
         detached(py, || {
             let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
-            let State { pipeline, buf, .. } = &mut *st;
-            let img = to_gray(&px, colour, buf)?;
+            let State {
+                pipeline,
+                buf,
+                scratch,
+                ..
+            } = &mut *st;
+            let img = to_gray_within(&px, colour, pipeline.crop(), buf, scratch)?;
             pipeline.set_reference(&img)?;
             Ok(())
         })
@@ -475,9 +491,10 @@ impl Sensor {
             let State {
                 pipeline,
                 buf,
+                scratch,
                 last_ms,
             } = &mut *st;
-            let img = to_gray(&px, colour, buf)?;
+            let img = to_gray_within(&px, colour, pipeline.crop(), buf, scratch)?;
             let t = Instant::now();
             let out = pipeline.process(&img, t_s);
             *last_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -593,17 +610,10 @@ impl Sequence {
         slf
     }
 
-    fn __next__<'py>(
-        &mut self,
-        py: Python<'py>,
-    ) -> PyResult<Option<SequenceItem<'py>>> {
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<SequenceItem<'py>>> {
         let source = &mut self.source;
-        let next = py.detach(|| source.next_frame());
-        match next {
-            None => Ok(None),
-            Some(Ok(f)) => Ok(Some((f.name, f.t_s, f.image.into_pyarray(py)))),
-            Some(Err(e)) => Err(lib(py, e)),
-        }
+        let next = detached(py, || Ok(source.next_frame().transpose()?))?;
+        Ok(next.map(|f| (f.name, f.t_s, f.image.into_pyarray(py))))
     }
 
     /// The frame files, in order.

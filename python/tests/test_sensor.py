@@ -208,3 +208,30 @@ def test_sequence_and_read_image(press_frames):
     img = ot.read_image(PRESS / "000003.png")
     assert img.dtype == np.float32 and img.shape == (200, 1600)
     assert np.array_equal(img, press_frames[3][2])
+
+
+def test_frame_larger_than_the_crop(calibration, press_frames):
+    """A camera frame with the strip inside it: integer frames are converted
+    within the crop only, and give the contacts of the float32 frame."""
+
+    def canvas(img):
+        out = np.full((280, 1700), 255.0, np.float32)
+        out[40:240, 60:1660] = img
+        return out
+
+    def sensor():
+        return ot.Sensor.from_calibration(calibration, crop=(60, 40, 1600, 200), force_crop=True)
+
+    want = _summary(track(sensor(), press_frames, canvas))
+    assert sum(len(cs) for _, cs in want) == 12
+    for convert in (
+        lambda img: canvas(img).astype(np.uint8),
+        lambda img: (canvas(img).astype(np.uint16) * np.uint16(257)),
+        lambda img: np.repeat(canvas(img)[..., None], 3, axis=-1).astype(np.uint8),
+    ):
+        assert _summary(track(sensor(), press_frames, convert)) == want
+    # The same contacts as the strip alone with the calibration's own crop.
+    strip = _summary(track(ot.Sensor.from_calibration(calibration), press_frames))
+    assert [[(c[0], c[3], c[4]) for c in cs] for _, cs in want] == [
+        [(c[0], c[3], c[4]) for c in cs] for _, cs in strip
+    ]
