@@ -9,7 +9,7 @@
 //! by the library's own conversion (`frame::gray_from_u8_into`, ...), so the
 //! grey values are exactly those of a PNG read by the library.
 
-use ndarray::{Array2, ArrayView2, ArrayView3, ArrayViewD, Axis, Ix3, s};
+use ndarray::{Array2, ArrayView2, ArrayView3, ArrayViewD, ArrayViewMut2, Axis, Ix3, s};
 use numpy::{PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArray};
 use optical_tactile::frame::{
     Channel, PixelLayout, Roi, check_frame_size, gray_from_u8_into, gray_from_u16_into,
@@ -190,14 +190,15 @@ impl Pixels<'_> {
 /// [`to_gray`] for a pipeline that reads only `roi` of the frame (the
 /// sensor's crop): a frame that needs converting is converted there only,
 /// into `buf` of the frame's size (the rest of `buf` is left as it is, zero
-/// when first allocated, and never read); `scratch` is reused. A frame read
-/// in place, no `roi` or a `roi` not inside the frame: as [`to_gray`].
+/// when first allocated, and never read); `row` is a reused row buffer. A
+/// frame read in place, no `roi` or a `roi` not inside the frame: as
+/// [`to_gray`].
 pub fn to_gray_within<'a>(
     px: &'a Pixels<'_>,
     colour: Colour,
     roi: Option<Roi>,
     buf: &'a mut Array2<f32>,
-    scratch: &mut Array2<f32>,
+    row: &mut Array2<f32>,
 ) -> Result<ArrayView2<'a, f32>, Failure> {
     let (h, w, _) = px.dim();
     let inside = |r: &Roi| {
@@ -209,13 +210,11 @@ pub fn to_gray_within<'a>(
     let Some(r) = roi.filter(|r| !px.in_place(colour) && inside(r)) else {
         return to_gray(px, colour, buf);
     };
-    let window = px.window(r);
-    let gray = to_gray(&window, colour, scratch)?;
     if buf.dim() != (h, w) {
         *buf = Array2::zeros((h, w));
     }
-    buf.slice_mut(s![r.y..r.y + r.h, r.x..r.x + r.w])
-        .assign(&gray);
+    let dest = buf.slice_mut(s![r.y..r.y + r.h, r.x..r.x + r.w]);
+    convert_into(&px.window(r), colour, dest, row)?;
     Ok(buf.view())
 }
 
@@ -226,40 +225,55 @@ pub fn to_gray<'a>(
     colour: Colour,
     buf: &'a mut Array2<f32>,
 ) -> Result<ArrayView2<'a, f32>, Failure> {
-    match px {
-        Pixels::F32(a) => {
-            let c = a.dim().2;
-            if c == 1 {
-                return Ok(a.index_axis(Axis(2), 0));
-            }
-            if colour.channel == Channel::Green {
-                return Ok(a.index_axis(Axis(2), 1));
-            }
-            if c == 4 && colour.bgr {
-                return Err(Failure::Invalid(
-                    "luma of a BGRA frame is not supported: pass (H, W, 3) or RGBA".into(),
-                ));
-            }
-            let (ri, bi) = if colour.bgr { (2, 0) } else { (0, 2) };
-            let (h, w, _) = a.dim();
-            if buf.dim() != (h, w) {
-                *buf = Array2::zeros((h, w));
-            }
-            // Rec. 601 luma, as the library computes it for integer frames.
-            ndarray::Zip::from(buf.view_mut())
-                .and(a.lanes(Axis(2)))
-                .for_each(|o, p| *o = 0.299 * p[ri] + 0.587 * p[1] + 0.114 * p[bi]);
-            Ok(buf.view())
+    if let Pixels::F32(a) = px {
+        if a.dim().2 == 1 {
+            return Ok(a.index_axis(Axis(2), 0));
         }
-        Pixels::U8(a) => {
-            convert_rows(a, colour, buf, gray_from_u8_into)?;
-            Ok(buf.view())
-        }
-        Pixels::U16(a) => {
-            convert_rows(a, colour, buf, gray_from_u16_into)?;
-            Ok(buf.view())
+        if colour.channel == Channel::Green {
+            return Ok(a.index_axis(Axis(2), 1));
         }
     }
+    let (h, w, c) = px.dim();
+    // A C-contiguous integer frame: one call of the library's conversion.
+    let whole = match px {
+        Pixels::U8(a) => a
+            .as_slice()
+            .map(|all| gray_from_u8_into(all, w, h, w * c, layout(c, colour)?, colour.channel, buf))
+            .transpose()?,
+        Pixels::U16(a) => a
+            .as_slice()
+            .map(|all| {
+                gray_from_u16_into(all, w, h, w * c, layout(c, colour)?, colour.channel, buf)
+            })
+            .transpose()?,
+        Pixels::F32(_) => None,
+    };
+    if whole.is_none() {
+        if buf.dim() != (h, w) {
+            *buf = Array2::zeros((h, w));
+        }
+        let mut row = Array2::zeros((0, 0));
+        convert_into(px, colour, buf.view_mut(), &mut row)?;
+    }
+    Ok(buf.view())
+}
+
+/// The library's layout of `c` samples per pixel.
+fn layout(c: usize, colour: Colour) -> optical_tactile::Result<PixelLayout> {
+    Ok(match (c, colour.bgr) {
+        (1, _) => PixelLayout::Gray,
+        (3, false) => PixelLayout::Rgb,
+        (3, true) => PixelLayout::Bgr,
+        (4, false) => PixelLayout::Rgba,
+        // BGRA: green is where RGBA has it; luma would mix the wrong channels.
+        (4, true) if colour.channel == Channel::Green => PixelLayout::Rgba,
+        _ => {
+            return Err(optical_tactile::Error::param(
+                "color_order",
+                "luma of a BGRA frame is not supported: pass (H, W, 3) or RGBA",
+            ));
+        }
+    })
 }
 
 /// The library's conversion of a buffer (`data, width, height, row_stride,
@@ -274,43 +288,50 @@ type Convert<T> = fn(
     &mut Array2<f32>,
 ) -> optical_tactile::Result<()>;
 
-/// Converts an integer frame: in one call when it is C-contiguous, else row
-/// by row (a crop of a larger array).
-fn convert_rows<T: Copy>(
+/// Converts `px` into `dest` (of its height and width) row by row, each row
+/// through `row`.
+fn convert_into(
+    px: &Pixels<'_>,
+    colour: Colour,
+    mut dest: ArrayViewMut2<'_, f32>,
+    row: &mut Array2<f32>,
+) -> Result<(), Failure> {
+    match px {
+        Pixels::U8(a) => rows_into(a, colour, dest, row, gray_from_u8_into),
+        Pixels::U16(a) => rows_into(a, colour, dest, row, gray_from_u16_into),
+        Pixels::F32(a) => {
+            let c = a.dim().2;
+            if c == 1 || colour.channel == Channel::Green {
+                dest.assign(&a.index_axis(Axis(2), if c == 1 { 0 } else { 1 }));
+                return Ok(());
+            }
+            layout(c, colour)?;
+            let (ri, bi) = if colour.bgr { (2, 0) } else { (0, 2) };
+            // Rec. 601 luma, as the library computes it for integer frames.
+            ndarray::Zip::from(dest)
+                .and(a.lanes(Axis(2)))
+                .for_each(|o, p| *o = 0.299 * p[ri] + 0.587 * p[1] + 0.114 * p[bi]);
+            Ok(())
+        }
+    }
+}
+
+fn rows_into<T: Copy>(
     a: &ArrayView3<'_, T>,
     colour: Colour,
-    buf: &mut Array2<f32>,
+    mut dest: ArrayViewMut2<'_, f32>,
+    row: &mut Array2<f32>,
     convert: Convert<T>,
 ) -> Result<(), Failure> {
     let (h, w, c) = a.dim();
-    let layout = match (c, colour.bgr) {
-        (1, _) => PixelLayout::Gray,
-        (3, false) => PixelLayout::Rgb,
-        (3, true) => PixelLayout::Bgr,
-        (4, false) => PixelLayout::Rgba,
-        // BGRA: green is where RGBA has it; luma would mix the wrong channels.
-        (4, true) if colour.channel == Channel::Green => PixelLayout::Rgba,
-        _ => {
-            return Err(Failure::Invalid(
-                "luma of a BGRA frame is not supported: pass (H, W, 3) or RGBA".into(),
-            ));
-        }
-    };
-    if let Some(all) = a.as_slice() {
-        convert(all, w, h, w * c, layout, colour.channel, buf)?;
-        return Ok(());
-    }
-    if buf.dim() != (h, w) {
-        *buf = Array2::zeros((h, w));
-    }
-    let mut row = Array2::zeros((0, 0));
+    let layout = layout(c, colour)?;
     for y in 0..h {
         let r = a.index_axis(Axis(0), y);
         let s = r
             .as_slice()
             .ok_or_else(|| Failure::Invalid("a row's pixels are not contiguous".into()))?;
-        convert(s, w, 1, w * c, layout, colour.channel, &mut row)?;
-        buf.row_mut(y).assign(&row.row(0));
+        convert(s, w, 1, w * c, layout, colour.channel, row)?;
+        dest.row_mut(y).assign(&row.row(0));
     }
     Ok(())
 }
