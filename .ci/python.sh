@@ -14,6 +14,8 @@ python3 --version
 if [ ! -x "$venv/bin/python" ]; then
   python3 -m venv "$venv"
 fi
+# The venv's tools first (maturin's build hook runs `maturin` from PATH).
+export PATH="$venv/bin:$PATH"
 pip=("$venv/bin/python" -m pip --disable-pip-version-check -q)
 "${pip[@]}" install "maturin==1.16.0" "pytest==9.2.0" "numpy==2.4.6"
 
