@@ -47,7 +47,44 @@ macro_rules! set_fields {
     };
 }
 
+/// Largest number of frames (or presses) one `simulate` call writes: a
+/// count past it is refused before anything is written, rather than filling
+/// the disk (the longest shipped scenario writes 7200 tests).
+pub const MAX_SIM_FRAMES: usize = 100_000;
+
+/// Errors if the count option `name` is above `max`.
+fn at_most(name: &str, value: usize, max: usize) -> Result<(), Failure> {
+    if value > max {
+        return Err(Failure::Invalid(format!(
+            "invalid parameter `{name}`: {value} is above {max}, the most one simulate call \
+             writes"
+        )));
+    }
+    Ok(())
+}
+
 fn scenario(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Failure> {
+    let sc = scenario_options(name, kw)?;
+    match &sc {
+        Scenario::Single(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Pair(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Presses(s) => at_most("presses", s.presses, MAX_SIM_FRAMES)?,
+        Scenario::Shear(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Characterization(s) => {
+            at_most("subset", s.subset.unwrap_or(0), MAX_SIM_FRAMES)?;
+            at_most("repeats", s.repeats as usize, 100)?;
+        }
+        Scenario::Perches(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Mapping(s) => {
+            at_most("touches", s.touches, 1000)?;
+            at_most("rods_x_m", s.rods_x_m.len(), 1000)?;
+        }
+        Scenario::Rest(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+    }
+    Ok(sc)
+}
+
+fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Failure> {
     Ok(match name {
         "single" => {
             let mut s = scenario::Single::default();

@@ -100,3 +100,15 @@ def test_simulated_pair_through_the_sensor(calibration, tmp_path):
         ot.simulate("hover", tmp_path / "x")
     with pytest.raises(ValueError, match="spacing_mm"):
         ot.simulate("pair", tmp_path / "x", spacing=10)
+    # Counts are bounded before anything is written; the library checks the rest.
+    with pytest.raises(ValueError, match="frames"):
+        ot.simulate("pair", tmp_path / "big", frames=10**12)
+    with pytest.raises(ValueError, match="repeats"):
+        ot.simulate("characterization", tmp_path / "big", repeats=10**6)
+    with pytest.raises(ValueError, match="frames"):
+        ot.simulate("single", tmp_path / "big", frames=1)
+    with pytest.raises(ValueError, match="force"):
+        ot.simulate("single", tmp_path / "big", force_n=float("nan"))
+    with pytest.raises(TypeError, match="frames"):
+        ot.simulate("single", tmp_path / "big", frames=-1)
+    assert not (tmp_path / "big").exists() or not any((tmp_path / "big").iterdir())
