@@ -12,7 +12,14 @@ venv="$CARGO_TARGET_DIR/python-venv"
 
 python3 --version
 if [ ! -x "$venv/bin/python" ]; then
-  python3 -m venv "$venv"
+  # Debian's python3 needs python3-venv for `-m venv` (ensurepip).
+  if ! python3 -m venv "$venv" 2>/dev/null; then
+    rm -rf "$venv"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq python3-venv >/dev/null
+    python3 -m venv "$venv"
+  fi
 fi
 # The venv's tools first (maturin's build hook runs `maturin` from PATH).
 export PATH="$venv/bin:$PATH"
