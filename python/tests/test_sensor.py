@@ -166,6 +166,13 @@ def test_overrides_change_the_sensor(calibration, press_frames):
     )
     default = track(ot.Sensor.from_calibration(calibration), press_frames)
     assert sum(map(len, (c for _, _, c in high))) < sum(map(len, (c for _, _, c in default)))
+    # Kalman smoothing keeps the contacts and changes their estimates.
+    smooth = track(ot.Sensor.from_calibration(calibration, filter=True), press_frames)
+    assert [len(cs) for _, _, cs in smooth] == [len(cs) for _, _, cs in default]
+    assert _summary(smooth) != _summary(default)
+    # Another flow preset measures other raw quantities.
+    fast = track(ot.Sensor.from_calibration(calibration, preset="fast"), press_frames)
+    assert _summary(fast) != _summary(default)
     with pytest.raises(ValueError, match="preset"):
         ot.Sensor.from_calibration(calibration, preset="slowest")
     with pytest.raises(ValueError, match="thresholds"):
