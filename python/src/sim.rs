@@ -1,0 +1,396 @@
+//! The synthetic sensor (`optical-tactile-sim`) and calibration fitting.
+
+use std::path::PathBuf;
+
+use numpy::{IntoPyArray, PyArray2, PyArray3};
+use optical_tactile::calibration::fit::{FitOptions, extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::contact::ContactPointMethod;
+use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::io::read_gray;
+use optical_tactile::segment::Thresholds;
+use optical_tactile::sensor::ExtractorConfig;
+use optical_tactile_sim::scenario::{self, Common, Scenario};
+use optical_tactile_sim::{Press as SimPress, SimConfig, SyntheticSensor as SimSensor};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::errors::{Failure, detached};
+use crate::params;
+use crate::sensor::Calibration;
+
+/// Sets the fields named in `kw` on `$s`; an unknown name is an error that
+/// lists the known ones.
+macro_rules! set_fields {
+    ($kw:expr, $s:expr, $scenario:expr, $($f:ident),+ $(,)?) => {
+        if let Some(kw) = $kw {
+            for (k, v) in kw.iter() {
+                let key: String = k
+                    .extract()
+                    .map_err(|_| Failure::Type("option names must be strings".into()))?;
+                match key.as_str() {
+                    $(stringify!($f) => {
+                        $s.$f = v
+                            .extract()
+                            .map_err(|e| Failure::Type(format!("option `{key}`: {e}")))?
+                    })+
+                    _ => {
+                        return Err(Failure::Invalid(format!(
+                            "invalid parameter `{key}`: not an option of the `{}` scenario ({})",
+                            $scenario,
+                            [$(stringify!($f)),+].join(", ")
+                        )))
+                    }
+                }
+            }
+        }
+    };
+}
+
+/// Largest number of frames (or presses) one `simulate` call writes: a
+/// count past it is refused before anything is written, rather than filling
+/// the disk (the longest shipped scenario writes 7200 tests).
+pub const MAX_SIM_FRAMES: usize = 100_000;
+
+/// Errors if the count option `name` is above `max`.
+fn at_most(name: &str, value: usize, max: usize) -> Result<(), Failure> {
+    if value > max {
+        return Err(Failure::Invalid(format!(
+            "invalid parameter `{name}`: {value} is above {max}, the most one simulate call \
+             writes"
+        )));
+    }
+    Ok(())
+}
+
+fn scenario(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Failure> {
+    let sc = scenario_options(name, kw)?;
+    match &sc {
+        Scenario::Single(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Pair(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Presses(s) => at_most("presses", s.presses, MAX_SIM_FRAMES)?,
+        Scenario::Shear(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Characterization(s) => {
+            at_most("subset", s.subset.unwrap_or(0), MAX_SIM_FRAMES)?;
+            at_most("repeats", s.repeats as usize, 100)?;
+        }
+        Scenario::Perches(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+        Scenario::Mapping(s) => {
+            at_most("touches", s.touches, 1000)?;
+            at_most("rods_x_m", s.rods_x_m.len(), 1000)?;
+        }
+        Scenario::Rest(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
+    }
+    Ok(sc)
+}
+
+fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Failure> {
+    Ok(match name {
+        "single" => {
+            let mut s = scenario::Single::default();
+            set_fields!(
+                kw,
+                s,
+                name,
+                x_mm,
+                force_n,
+                frames,
+                indenter_mm,
+                yaw_deg,
+                pitch_deg
+            );
+            Scenario::Single(s)
+        }
+        "pair" => {
+            let mut s = scenario::Pair::default();
+            set_fields!(
+                kw,
+                s,
+                name,
+                x_mm,
+                spacing_mm,
+                force_n,
+                force2_n,
+                frames,
+                indenter_mm
+            );
+            Scenario::Pair(s)
+        }
+        "presses" => {
+            let mut s = scenario::Presses::default();
+            set_fields!(
+                kw,
+                s,
+                name,
+                presses,
+                x_max_mm,
+                force_min_n,
+                force_max_n,
+                max_tilt_deg,
+                indenters_mm
+            );
+            Scenario::Presses(s)
+        }
+        "shear" => {
+            let mut s = scenario::Shear::default();
+            set_fields!(kw, s, name, x_mm, force_n, shear_n, frames, indenter_mm);
+            Scenario::Shear(s)
+        }
+        "characterization" => {
+            let mut s = scenario::Characterization::default();
+            set_fields!(kw, s, name, subset, repeats, load_cell_noise_n);
+            Scenario::Characterization(s)
+        }
+        "perches" => {
+            let mut s = scenario::Perches::default();
+            set_fields!(
+                kw,
+                s,
+                name,
+                x_mm,
+                stiffness_n_per_mm,
+                max_penetration_mm,
+                frames,
+                indenter_mm
+            );
+            Scenario::Perches(s)
+        }
+        "mapping" => {
+            let mut s = scenario::Mapping::default();
+            set_fields!(
+                kw,
+                s,
+                name,
+                rods_x_m,
+                rods_top_m,
+                touches,
+                force_n,
+                indenter_mm
+            );
+            Scenario::Mapping(s)
+        }
+        "rest" => {
+            let mut s = scenario::Rest::default();
+            set_fields!(kw, s, name, frames);
+            Scenario::Rest(s)
+        }
+        _ => {
+            return Err(Failure::Invalid(format!(
+                "invalid parameter `scenario`: unknown scenario {name:?} (single, pair, presses, \
+                 shear, characterization, perches, mapping, rest)"
+            )));
+        }
+    })
+}
+
+/// Writes a synthetic recording of `scenario` (`"single"`, `"pair"`,
+/// `"presses"`, `"shear"`, `"characterization"`, `"perches"`, `"mapping"`,
+/// `"rest"`) into the directory `out`, in the formats of docs/formats.md:
+/// frames `000000.png, ...` (frame 0 unloaded) and `truth.jsonl`, or for
+/// `characterization` a dataset (`tests.csv`, `frames/`) for `calibrate`.
+/// The scenario's options are keywords (e.g. `force_n=2.0, frames=8` for
+/// `single`; `subset=400` for `characterization`); `flow` also writes the
+/// true dense motion (`.flo`), `full_frame` renders the whole camera frame.
+/// Returns the number of frames written.
+#[pyfunction]
+#[pyo3(signature = (scenario, out, *, seed=1, flow=false, fps=50.0, full_frame=false, **options))]
+#[allow(clippy::too_many_arguments)]
+pub fn simulate(
+    py: Python<'_>,
+    scenario: &str,
+    out: PathBuf,
+    seed: u64,
+    flow: bool,
+    fps: f64,
+    full_frame: bool,
+    options: Option<&Bound<'_, PyDict>>,
+) -> PyResult<usize> {
+    let sc = self::scenario(scenario, options).map_err(|e| e.into_py(py))?;
+    let mut common = Common::new(out);
+    common.seed = seed;
+    common.flow = flow;
+    common.fps = fps;
+    common.config.full_frame = full_frame;
+    let summary = detached(py, || Ok(scenario::run(&sc, &common)?))?;
+    Ok(summary.frames)
+}
+
+/// One rod pressing on the synthetic sensor.
+#[pyclass(module = "optical_tactile", frozen, get_all)]
+#[derive(Clone, Debug)]
+pub struct Press {
+    /// Chord position of the rod's axis, mm.
+    pub x_mm: f64,
+    /// Force on the skin `(Fx, Fy, Fz)`, N, sensor frame (a press has `Fz < 0`).
+    pub force_n: (f64, f64, f64),
+    /// Rod diameter, mm.
+    pub diameter_mm: f64,
+    /// Width of the pressed area, mm (`None`: the rod's Hertz width).
+    pub contact_width_mm: Option<f64>,
+}
+
+#[pymethods]
+impl Press {
+    /// A rod of `diameter_mm` at chord `x_mm` applying `force_n`.
+    #[new]
+    #[pyo3(signature = (x_mm, force_n, diameter_mm=5.0))]
+    fn new(x_mm: f64, force_n: (f64, f64, f64), diameter_mm: f64) -> Self {
+        Press {
+            x_mm,
+            force_n,
+            diameter_mm,
+            contact_width_mm: None,
+        }
+    }
+
+    /// A broad soft press (a fingertip's): `force_n` spread over `width_mm`.
+    #[staticmethod]
+    fn pad(x_mm: f64, force_n: (f64, f64, f64), width_mm: f64) -> Self {
+        Press {
+            x_mm,
+            force_n,
+            diameter_mm: width_mm,
+            contact_width_mm: Some(width_mm),
+        }
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Press(x_mm={}, force_n={:?}, diameter_mm={})",
+            self.x_mm, self.force_n, self.diameter_mm
+        )
+    }
+}
+
+impl Press {
+    fn lib(&self) -> SimPress {
+        let (a, b, c) = self.force_n;
+        SimPress {
+            x_mm: self.x_mm,
+            force_n: [a, b, c],
+            diameter_mm: self.diameter_mm,
+            contact_width_mm: self.contact_width_mm,
+        }
+    }
+}
+
+/// A physics-based synthetic marker sensor (the 1600x200 strip, or the
+/// whole 1920x1080 camera frame with `full_frame`): frames for any presses.
+#[pyclass(module = "optical_tactile", frozen)]
+pub struct SyntheticSensor {
+    inner: SimSensor,
+}
+
+/// A rendered frame, with the true flow when asked for.
+type Rendered<'py> = (Bound<'py, PyArray2<f32>>, Option<Bound<'py, PyArray3<f32>>>);
+
+#[pymethods]
+impl SyntheticSensor {
+    /// The default synthetic sensor; `seed` fixes the marker layout.
+    #[new]
+    #[pyo3(signature = (*, seed=1, full_frame=false))]
+    fn new(py: Python<'_>, seed: u64, full_frame: bool) -> PyResult<Self> {
+        let config = SimConfig {
+            full_frame,
+            ..SimConfig::default()
+        };
+        detached(py, || Ok(SimSensor::new(config, seed)?)).map(|inner| SyntheticSensor { inner })
+    }
+
+    /// The sensing strip's rectangle in the rendered frame, `(x, y, w, h)`.
+    #[getter]
+    fn crop(&self) -> (usize, usize, usize, usize) {
+        let c = self.inner.config();
+        if c.full_frame {
+            c.camera.crop()
+        } else {
+            let (w, h) = c.image_size();
+            (0, 0, w, h)
+        }
+    }
+
+    /// Renders frame number `index` (which fixes its noise) under
+    /// `presses`: a `float32` grey image `(H, W)` (integer-valued, 0-255)
+    /// and, with `flow=True`, the true motion `(H, W, 2)` from the unloaded
+    /// skin, else `None`.
+    #[pyo3(signature = (presses=Vec::new(), *, index=0, flow=false))]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        presses: Vec<PyRef<'py, Press>>,
+        index: u64,
+        flow: bool,
+    ) -> PyResult<Rendered<'py>> {
+        let presses: Vec<SimPress> = presses.iter().map(|p| p.lib()).collect();
+        let r = detached(py, || {
+            let r = self.inner.render_indexed(index, &presses, flow)?;
+            let f = r.flow.map(|f| {
+                let (w, h) = f.size();
+                let mut out = ndarray::Array3::zeros((h, w, 2));
+                out.index_axis_mut(ndarray::Axis(2), 0).assign(&f.u);
+                out.index_axis_mut(ndarray::Axis(2), 1).assign(&f.v);
+                out
+            });
+            Ok((r.frame, f))
+        })?;
+        Ok((r.0.into_pyarray(py), r.1.map(|f| f.into_pyarray(py))))
+    }
+}
+
+/// Fits a calibration from a characterization dataset (`tests.csv` and its
+/// frames, docs/formats.md; `simulate("characterization", ...)` makes one):
+/// runs the pipeline on every test (on all cores, the GIL released), then
+/// fits the location and force maps with the library's order search.
+/// `thresholds`: a preset name or a dict; `preset`: the flow preset
+/// (default: the library's); `crop`: `(x, y, w, h)` of the frames (default:
+/// the whole frame). The result's `test_mae` has the test split's errors.
+#[pyfunction]
+#[pyo3(signature = (dataset_dir, *, thresholds=None, preset=None, crop=None))]
+pub fn calibrate(
+    py: Python<'_>,
+    dataset_dir: PathBuf,
+    thresholds: Option<&Bound<'_, PyAny>>,
+    preset: Option<&str>,
+    crop: Option<(usize, usize, usize, usize)>,
+) -> PyResult<Calibration> {
+    let setup = || -> Result<ExtractorConfig, Failure> {
+        let mut config = ExtractorConfig::default();
+        config = config.with_thresholds(match thresholds {
+            None => Thresholds::HIGH,
+            Some(t) => params::thresholds(t, Thresholds::HIGH)?,
+        });
+        if let Some(p) = preset {
+            config = config.with_flow(params::flow(p)?);
+        }
+        Ok(config)
+    };
+    let config = setup().map_err(|e| e.into_py(py))?;
+    let crop = crop.map(params::crop);
+    let inner = detached(py, || {
+        let rows = read_dataset(&dataset_dir)?;
+        let full = match crop {
+            Some(c) => c,
+            None => {
+                let img = read_gray(dataset_dir.join(&rows[0].reference))?;
+                Roi::full(img.ncols(), img.nrows())
+            }
+        };
+        let point = ContactPointMethod::DEFAULT;
+        let ex = extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?;
+        let fit = fit_dataset(
+            &ex,
+            &config,
+            point,
+            full,
+            SensorGeometry::default(),
+            // As the `calibrate` example: y2d stays out of the force maps
+            // (the characterization's rods span the width).
+            &FitOptions {
+                force_use_y2d: false,
+                ..FitOptions::default()
+            },
+        )?;
+        Ok(fit.calibration)
+    })?;
+    Ok(Calibration { inner })
+}

@@ -1,0 +1,114 @@
+"""The stages alone: dis_flow against the Rust `flow` example, nhhd against
+the reference decompositions in fixtures/hhd, segment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import optical_tactile as ot
+from conftest import FIXTURES, PRESS, example, run
+
+
+def read_flo(path) -> np.ndarray:
+    """A Middlebury .flo file as a float32 (H, W, 2) array."""
+    data = np.fromfile(path, dtype="<f4")
+    assert data[0] == np.float32(202021.25), "bad .flo magic"
+    w, h = np.frombuffer(data[1:3].tobytes(), dtype="<i4")
+    return data[3:].reshape(h, w, 2)
+
+
+@pytest.mark.parametrize("preset", ["accurate", "fast"])
+def test_dis_flow_equals_flow_example_bit_for_bit(preset, tmp_path):
+    ref, cur = PRESS / "000000.png", PRESS / "000006.png"
+    out = tmp_path / "flow.flo"
+    run([example("flow"), ref, cur, "--preset", preset, "--repeat", "1", "--out", out])
+    expected = read_flo(out)
+    got = ot.dis_flow(ot.read_image(ref), ot.read_image(cur), preset=preset)
+    assert got.dtype == np.float32 and got.shape == expected.shape == (200, 1600, 2)
+    assert np.abs(got).max() > 0.5  # the press moved the markers
+    assert got.tobytes() == expected.tobytes()
+
+
+def test_dis_flow_of_a_frame_with_itself_is_zero_and_dtypes_agree():
+    ref = ot.read_image(PRESS / "000000.png")
+    cur = ot.read_image(PRESS / "000007.png")
+    assert np.abs(ot.dis_flow(ref, ref, preset="fast")).max() < 1e-3
+    a = ot.dis_flow(ref, cur, preset="fast")
+    b = ot.dis_flow(ref.astype(np.uint8), cur.astype(np.uint8), preset="fast")
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("case", ["analytic_17x23", "press_32x32", "random_12x40"])
+def test_nhhd_matches_the_reference_decomposition(case):
+    d = FIXTURES / "hhd" / case
+    dx, dy = map(float, (d / "spacing.txt").read_text().split())
+    u, v = np.load(d / "u.npy"), np.load(d / "v.npy")
+    dd, rr, hh, D, R = ot.nhhd(u, v, dx, dy)
+    for got, name in [(D, "D"), (R, "R")]:
+        want = np.load(d / f"{name}.npy")
+        assert got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+    for field, name in [(dd, "d"), (rr, "r"), (hh, "h")]:
+        for k, comp in enumerate("uv"):
+            want = np.load(d / f"{name}_{comp}.npy")
+            np.testing.assert_allclose(
+                field[..., k], want, rtol=1e-9, atol=1e-9 * max(np.abs(want).max(), 1e-300)
+            )
+    # The three parts add up to the field.
+    np.testing.assert_allclose(dd + rr + hh, np.stack([u, v], axis=-1), atol=1e-9)
+    # float32 input is decomposed too.
+    D32 = ot.nhhd(u.astype(np.float32), v.astype(np.float32), dx, dy)[3]
+    np.testing.assert_allclose(D32, D, rtol=1e-4, atol=1e-4 * np.abs(D).max())
+
+
+def test_segment_finds_the_two_rods():
+    ref = ot.read_image(PRESS / "000000.png")
+    cur = ot.read_image(PRESS / "000007.png")
+    flow = ot.dis_flow(ref, cur, preset="accurate")
+    patches = ot.segment(flow, "low")
+    assert len(patches) == 2
+    left, right = sorted(patches, key=lambda p: p.bbox[0])
+    # The rods press at columns ~700 and ~900 of the strip.
+    assert left.bbox[0] < 700 < left.bbox[0] + left.bbox[2]
+    assert right.bbox[0] < 900 < right.bbox[0] + right.bbox[2]
+    assert all(p.flow_sum > 0 and p.area > 0 for p in patches)
+    # No motion, no patch; thresholds above the motion, no patch.
+    assert ot.segment(np.zeros_like(flow)) == []
+    assert ot.segment(flow, {"magnitude": 50.0}) == []
+
+
+def test_simulated_pair_through_the_sensor(calibration, tmp_path):
+    n = ot.simulate("pair", tmp_path / "pair", frames=4, force_n=2.0, force2_n=2.0)
+    assert n == 4
+    frames = list(ot.Sequence(tmp_path / "pair"))
+    assert len(frames) == 4
+    sensor = ot.Sensor.from_calibration(calibration)
+    sensor.set_reference(frames[0][2])
+    last = sensor.process(frames[-1][2], frames[-1][1])
+    assert len(last) == 2
+    # The synthetic sensor in memory renders the same frames (same seed and index).
+    sim = ot.SyntheticSensor(seed=1)
+    assert sim.crop == (0, 0, 1600, 200)
+    img, flow = sim.render([], index=0)
+    assert flow is None and img.shape == (200, 1600)
+    assert np.array_equal(img, frames[0][2])
+    press = ot.Press(-20.0, (0.0, 0.0, -2.0), 5.0)
+    img, flow = sim.render([press], index=1, flow=True)
+    assert flow.shape == (200, 1600, 2) and np.abs(flow).max() > 0.5
+    with pytest.raises(ValueError, match="scenario"):
+        ot.simulate("hover", tmp_path / "x")
+    with pytest.raises(ValueError, match="spacing_mm"):
+        ot.simulate("pair", tmp_path / "x", spacing=10)
+    # Counts are bounded before anything is written; the library checks the rest.
+    with pytest.raises(ValueError, match="frames"):
+        ot.simulate("pair", tmp_path / "big", frames=10**12)
+    with pytest.raises(ValueError, match="repeats"):
+        ot.simulate("characterization", tmp_path / "big", repeats=10**6)
+    with pytest.raises(ValueError, match="frames"):
+        ot.simulate("single", tmp_path / "big", frames=1)
+    with pytest.raises(ValueError, match="force"):
+        ot.simulate("single", tmp_path / "big", force_n=float("nan"))
+    with pytest.raises(TypeError, match="frames"):
+        ot.simulate("single", tmp_path / "big", frames=-1)
+    assert not (tmp_path / "big").exists() or not any((tmp_path / "big").iterdir())
