@@ -119,7 +119,7 @@ class Sensor:
         preset: Optional[PresetName] = None,
         crop: Optional[Box] = None,
         force_crop: bool = False,
-        exposure: Literal["off", "offset", "gain-offset"] = "off",
+        exposure: Literal["auto", "gain-offset", "offset", "off"] = "auto",
         filter: bool = False,
         hold: Optional[int] = None,
         rereference: bool = True,
@@ -133,7 +133,7 @@ class Sensor:
         crop: Optional[Box] = None,
         thresholds: Optional[ThresholdsArg] = None,
         preset: Optional[PresetName] = None,
-        exposure: Literal["off", "offset", "gain-offset"] = "off",
+        exposure: Literal["auto", "gain-offset", "offset", "off"] = "auto",
         channel: Literal["green", "luma"] = "green",
         color_order: Literal["rgb", "bgr"] = "rgb",
     ) -> Sensor:

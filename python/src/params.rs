@@ -67,7 +67,7 @@ pub fn flow(preset: &str) -> Result<DisParams, Failure> {
     Ok(DisParams::preset(DisPreset::parse(preset)?))
 }
 
-/// An exposure compensation name (`"off"`, `"offset"`, `"gain-offset"`).
+/// An exposure compensation name (`"auto"`, `"gain-offset"`, `"offset"`, `"off"`).
 pub fn exposure(name: &str) -> Result<ExposureCompensation, Failure> {
     Ok(ExposureCompensation::parse(name)?)
 }

@@ -367,7 +367,7 @@ impl Sensor {
     #[staticmethod]
     #[pyo3(signature = (
         calibration, *, thresholds=None, preset=None, crop=None, force_crop=false,
-        exposure="off", filter=false, hold=None, rereference=true, channel="green",
+        exposure="auto", filter=false, hold=None, rereference=true, channel="green",
         color_order="rgb"
     ))]
     #[allow(clippy::too_many_arguments)]
@@ -421,7 +421,7 @@ impl Sensor {
     /// thresholds to the library's defaults.
     #[staticmethod]
     #[pyo3(signature = (
-        *, crop=None, thresholds=None, preset=None, exposure="off", channel="green",
+        *, crop=None, thresholds=None, preset=None, exposure="auto", channel="green",
         color_order="rgb"
     ))]
     fn raw(
