@@ -30,8 +30,10 @@
 //! no exposure change) a calibration fitted and scored with it keeps the
 //! accuracy of one without compensation (x 0.18 mm, Fx 0.0123, Fz 0.0445 N
 //! against 0.18 mm, 0.0123, 0.0442 N), whereas compensating every frame
-//! (`GainOffset`) reached 0.26 mm and Fx 0.0147 N (Fz 0.0422 N). Fit a
-//! calibration with the setting the sensor runs with.
+//! (`GainOffset`) reached 0.26 mm and Fx 0.0147 N (Fz 0.0422 N). A
+//! calibration records the setting it was fitted with
+//! (`PipelineSettings::exposure`), and a sensor built from it runs with that
+//! one.
 
 use ndarray::{Array2, ArrayRef2, Zip};
 
@@ -55,7 +57,10 @@ pub const AUTO_GAIN_BAND: f64 = 0.01;
 
 /// Which changes of the camera the extractor takes out of each frame before
 /// the flow.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum ExposureCompensation {
     /// None: frames go to the flow as they come (the default).
     Off,

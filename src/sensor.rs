@@ -129,18 +129,22 @@ impl ExtractorConfig {
 
     /// The settings a calibration was fitted with, so that a sensor measures
     /// the raw quantities the same way: the thresholds of `setup.thresholds`
-    /// and, when recorded, the flow preset, margin and sub-pixel switch of
-    /// `setup.pipeline` (otherwise the defaults).
+    /// and, when recorded, the flow preset, margin, sub-pixel switch and
+    /// exposure compensation of `setup.pipeline` (otherwise the defaults,
+    /// with the compensation off: such a file predates it).
     pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
         setup.thresholds.validate()?;
         let mut config = ExtractorConfig {
             thresholds: setup.thresholds,
             ..ExtractorConfig::default()
         };
+        // A file without pipeline settings predates exposure compensation.
+        config.exposure = ExposureCompensation::Off;
         if let Some(p) = &setup.pipeline {
             config.flow = DisParams::preset(DisPreset::parse(&p.flow_preset)?);
             config.margin_px = p.margin_px;
             config.subpixel = p.subpixel;
+            config.exposure = p.exposure_compensation();
         }
         Ok(config)
     }

@@ -1122,3 +1122,30 @@ fn load_cell_spread_pools_the_repetitions_variance() {
     assert_eq!(load_cell_spread(&[rows[0].clone(), other]), None);
     assert_eq!(load_cell_spread(&[]), None);
 }
+
+/// The calibration file records the exposure compensation its frames went
+/// through, and a sensor built from it runs with that one; a file without
+/// the record was fitted without compensation; an unknown name is refused.
+#[test]
+fn the_exposure_compensation_travels_with_the_calibration() {
+    use optical_tactile::exposure::ExposureCompensation;
+    use optical_tactile::sensor::SensorConfig;
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
+    let text = std::fs::read_to_string(path).unwrap();
+    let bundled = Calibration::load(path).unwrap();
+    let recorded = bundled.setup.pipeline.as_ref().unwrap().exposure;
+    assert_eq!(recorded, Some(ExposureCompensation::Auto));
+    let config = SensorConfig::from_calibration(&bundled).unwrap();
+    assert_eq!(config.extractor.exposure, ExposureCompensation::Auto);
+    let key = "\"exposure\": \"auto\"";
+    assert_eq!(text.matches(key).count(), 1, "the record as written");
+    let older = tmp("calibration_without_exposure.json");
+    std::fs::write(&older, text.replace(&format!(",\n    {key}"), "")).unwrap();
+    let old = Calibration::load(&older).unwrap();
+    assert_eq!(old.setup.pipeline.as_ref().unwrap().exposure, None);
+    let config = SensorConfig::from_calibration(&old).unwrap();
+    assert_eq!(config.extractor.exposure, ExposureCompensation::Off);
+    let unknown = tmp("calibration_unknown_exposure.json");
+    std::fs::write(&unknown, text.replace(key, "\"exposure\": \"sometimes\"")).unwrap();
+    assert!(Calibration::load(&unknown).is_err());
+}

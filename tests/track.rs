@@ -249,11 +249,16 @@ fn extractor_settings_come_from_the_calibration() {
             subpixel: false,
             contact_window_px: 400,
             contact_point: None,
+            exposure: Some(optical_tactile::exposure::ExposureCompensation::GainOffset),
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();
     assert_eq!(c.flow, DisParams::preset(DisPreset::Fast));
     assert_eq!((c.margin_px, c.subpixel), (16, false));
+    assert_eq!(
+        c.exposure,
+        optical_tactile::exposure::ExposureCompensation::GainOffset
+    );
     assert_eq!(c.thresholds.magnitude, 0.2);
     assert_eq!(
         (c.thresholds.sum, c.thresholds.erode, c.thresholds.dilate),

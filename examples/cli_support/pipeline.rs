@@ -63,10 +63,10 @@ pub struct PipelineArgs {
     pub preset: Option<DisPreset>,
     /// Take the camera's exposure changes (gain, black level) out of each
     /// frame against the reference: auto (gain and offset, once the gain
-    /// departs by more than 1%: steps and drift), gain-offset
-    /// (every frame), offset or off. Fit the calibration the same way.
-    #[arg(long, value_name = "MODE", default_value = "auto", value_parser = exposure)]
-    pub exposure: ExposureCompensation,
+    /// departs by more than 1%: steps and drift), gain-offset (every frame),
+    /// offset or off [default: the calibration's; auto with --raw].
+    #[arg(long, value_name = "MODE", value_parser = exposure)]
+    pub exposure: Option<ExposureCompensation>,
     /// Which channel of colour frames becomes the grey image.
     #[arg(long, value_name = "green|luma", default_value = "green", value_parser = channel)]
     pub channel: Channel,
@@ -77,7 +77,8 @@ impl PipelineArgs {
     /// the calibration was fitted with the flags' overrides, then `configure`.
     pub fn build(&self, configure: impl FnOnce(&mut SensorConfig)) -> Result<Pipeline, String> {
         if self.raw {
-            let raw = Raw::new(self.crop, self.preset, self.thresholds, self.exposure)?
+            let exposure = self.exposure.unwrap_or_default();
+            let raw = Raw::new(self.crop, self.preset, self.thresholds, exposure)?
                 .with_overrides(self)?;
             return Ok(Pipeline::Raw(Box::new(raw)));
         }
@@ -105,7 +106,9 @@ impl PipelineArgs {
         let exposure = self.exposure;
         let sensor = b
             .configure(|c| {
-                c.extractor.exposure = exposure;
+                if let Some(e) = exposure {
+                    c.extractor.exposure = e;
+                }
                 self.override_extractor(&mut c.extractor);
                 configure(c);
             })

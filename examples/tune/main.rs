@@ -133,7 +133,9 @@ fn fixed_args(a: &Cli) -> Vec<String> {
         v.push("--force-crop".into());
     }
     v.push(format!("--channel {}", channel_name(p.channel)));
-    v.push(format!("--exposure {}", p.exposure.name()));
+    if let Some(e) = p.exposure {
+        v.push(format!("--exposure {}", e.name()));
+    }
     v
 }
 

@@ -119,7 +119,7 @@ class Sensor:
         preset: Optional[PresetName] = None,
         crop: Optional[Box] = None,
         force_crop: bool = False,
-        exposure: Literal["auto", "gain-offset", "offset", "off"] = "auto",
+        exposure: Literal["auto", "gain-offset", "offset", "off"] | None = None,
         filter: bool = False,
         hold: Optional[int] = None,
         rereference: bool = True,

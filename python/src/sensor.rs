@@ -362,12 +362,12 @@ fn new_sensor(pipeline: Pipeline, colour: Colour) -> Sensor {
 
 #[pymethods]
 impl Sensor {
-    /// A calibrated sensor. Crop, thresholds and flow preset come from the
-    /// calibration; the keywords override them.
+    /// A calibrated sensor. Crop, thresholds, flow preset and exposure
+    /// compensation come from the calibration; the keywords override them.
     #[staticmethod]
     #[pyo3(signature = (
         calibration, *, thresholds=None, preset=None, crop=None, force_crop=false,
-        exposure="auto", filter=false, hold=None, rereference=true, channel="green",
+        exposure=None, filter=false, hold=None, rereference=true, channel="green",
         color_order="rgb"
     ))]
     #[allow(clippy::too_many_arguments)]
@@ -378,7 +378,7 @@ impl Sensor {
         preset: Option<&str>,
         crop: Option<(usize, usize, usize, usize)>,
         force_crop: bool,
-        exposure: &str,
+        exposure: Option<&str>,
         filter: bool,
         hold: Option<u32>,
         rereference: bool,
@@ -399,10 +399,12 @@ impl Sensor {
             if let Some(c) = crop {
                 b = b.crop(params::crop(c)).force_crop(force_crop);
             }
-            let exposure = params::exposure(exposure)?;
+            let exposure = exposure.map(params::exposure).transpose()?;
             let sensor = b
                 .configure(|c| {
-                    c.extractor.exposure = exposure;
+                    if let Some(e) = exposure {
+                        c.extractor.exposure = e;
+                    }
                     c.tracker.filter = filter.then(FilterConfig::default);
                     if let Some(h) = hold {
                         c.tracker.max_missed = h;

@@ -654,6 +654,7 @@ pub fn fit_dataset(
                 _ => 0,
             },
             contact_point: Some(contact_point),
+            exposure: Some(config.exposure),
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).

@@ -63,6 +63,7 @@ use serde::{Deserialize, Serialize};
 use crate::contact::profile::{ForceMatcher, ProfileModel};
 use crate::contact::{Contact, ContactLocator, ContactPointMethod, RawContact};
 use crate::error::{Error, Result};
+use crate::exposure::ExposureCompensation;
 use crate::frame::Roi;
 use crate::geometry::SensorGeometry;
 use crate::io::{Split, TestRow};
@@ -126,6 +127,11 @@ pub struct PipelineSettings {
     /// the energy centroid with that half-window).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_point: Option<ContactPointMethod>,
+    /// The exposure compensation the frames went through (`off`, `offset`,
+    /// `gain-offset`, `auto`). Absent in older files, which were fitted
+    /// without compensation ([`PipelineSettings::exposure_compensation`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure: Option<ExposureCompensation>,
 }
 
 impl SensorSetup {
@@ -162,6 +168,12 @@ impl SensorSetup {
 }
 
 impl PipelineSettings {
+    /// The exposure compensation to run with: the recorded one, or `Off` for
+    /// a file that predates the record (fitted without compensation).
+    pub fn exposure_compensation(&self) -> ExposureCompensation {
+        self.exposure.unwrap_or(ExposureCompensation::Off)
+    }
+
     /// How the contact column is measured (see [`PipelineSettings::contact_point`]).
     pub fn contact_point_method(&self) -> ContactPointMethod {
         match (self.contact_point, self.contact_window_px) {

@@ -968,6 +968,7 @@ mod tests {
             subpixel: true,
             contact_window_px: 0,
             contact_point: None,
+            exposure: None,
         };
         assert_eq!(
             p.contact_point_method(),
