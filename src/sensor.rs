@@ -41,8 +41,8 @@ use rayon::prelude::*;
 use crate::calibration::{Calibration, SensorSetup};
 use crate::contact::profile::ForceMatcher;
 use crate::contact::{
-    Contact, ContactLocator, PatchFields, PatchGrid, RawContact, raw_quantities,
-    sensor_displacements,
+    Contact, ContactLocator, ContactPointMethod, PatchFields, PatchGrid, RawContact,
+    raw_quantities, sensor_displacements,
 };
 use crate::error::{Error, Result};
 use crate::exposure::{ExposureCompensation, ExposureCompensator};
@@ -330,6 +330,7 @@ pub struct ContactExtractor {
     patches: Vec<ContactPatch>,
     slots: Vec<Slot>,
     raws: Vec<RawContact>,
+    locator: ContactLocator,
     timings: StageTimings,
 }
 
@@ -354,6 +355,7 @@ impl ContactExtractor {
             patches: Vec::new(),
             slots: Vec::new(),
             raws: Vec::new(),
+            locator: ContactLocator::new(),
             timings: StageTimings::default(),
         })
     }
@@ -361,6 +363,21 @@ impl ContactExtractor {
     /// The configuration.
     pub fn config(&self) -> &ExtractorConfig {
         &self.config
+    }
+
+    /// Measures the contact column (`x_px`) of every contact of the last
+    /// [`extract`](Self::extract) again by `method`, from the finest flow,
+    /// and returns them. [`extract`](Self::extract) gives each contact the
+    /// argmin of its divergence potential, which shear slides sideways; a
+    /// calibrated sensor re-measures with its calibration's method, and
+    /// without a calibration [`ContactPointMethod::DEFAULT`] (the slope
+    /// peak) is the one to use, as `track --raw` does. Errors on a method
+    /// parameter out of its range.
+    pub fn locate(&mut self, method: ContactPointMethod) -> Result<&[RawContact]> {
+        let (flow, scale) = self.grid.finest();
+        self.locator
+            .refine(method, &mut self.raws, flow.u.view(), scale as f64)?;
+        Ok(&self.raws)
     }
 
     /// Sets the reference (unloaded) frame, already cropped.

@@ -302,3 +302,45 @@ fn non_finite_contacts_never_leave_the_sensor() {
     }
     assert!(sensor.non_finite_dropped() > 0);
 }
+
+/// Without a calibration, `locate` measures the contact column as a new
+/// calibration would: on a dot grid pressed by a rod at the middle and then
+/// sheared, the slope peak stays near the rod where the divergence
+/// potential's minimum (what `extract` gives) slides away under the shear;
+/// `PotentialMinimum` leaves the columns as `extract` gave them.
+#[test]
+fn locate_keeps_the_raw_contact_column_at_the_rod_under_shear() {
+    use optical_tactile::contact::ContactPointMethod;
+    use optical_tactile_sim::scenario::Shear;
+    use optical_tactile_sim::{DotGrid, SimConfig, SyntheticSensor};
+    let sim = SyntheticSensor::new(SimConfig::dot_grid(DotGrid::default()), 4).unwrap();
+    let shear = Shear {
+        shear_n: [0.6, Shear::default().shear_n[1]],
+        ..Shear::default()
+    };
+    let reference = sim.render_indexed(0, &[], false).unwrap().frame;
+    let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+    ex.set_reference(&reference).unwrap();
+    let rod_px = 0.5 * reference.ncols() as f64; // the rod at x = 0, the middle
+    let mut worst = (0.0f64, 0.0f64);
+    for frame in 2..=7 {
+        let press = shear.press(frame).unwrap();
+        let img = sim
+            .render_indexed(frame as u64, &[press], false)
+            .unwrap()
+            .frame;
+        let raws = ex.extract(&img).unwrap().to_vec();
+        assert_eq!(raws.len(), 1, "frame {frame}: one patch");
+        let same = ex.locate(ContactPointMethod::PotentialMinimum).unwrap();
+        assert_eq!(same[0].x_px, raws[0].x_px);
+        let located = ex.locate(ContactPointMethod::DEFAULT).unwrap()[0].x_px;
+        eprintln!(
+            "MEASURE frame {frame}: potential minimum {:.1} px, slope peak {located:.1} px, rod {rod_px}",
+            raws[0].x_px
+        );
+        worst.0 = worst.0.max((raws[0].x_px - rod_px).abs());
+        worst.1 = worst.1.max((located - rod_px).abs());
+    }
+    assert!(worst.1 <= 15.0, "slope peak up to {} px off", worst.1);
+    assert!(worst.0 > 2.0 * worst.1, "{worst:?}");
+}

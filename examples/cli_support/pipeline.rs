@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use ndarray::Array2;
 use optical_tactile::calibration::Calibration;
-use optical_tactile::contact::{Contact, RawContact};
+use optical_tactile::contact::{Contact, ContactPointMethod, RawContact};
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
@@ -321,7 +321,10 @@ impl Pipeline {
             Pipeline::Calibrated(s) => Ok(Found::Contacts(s.process(frame, t_s)?.to_vec())),
             Pipeline::Raw(r) => {
                 r.crop(frame)?;
-                Ok(Found::Patches(r.extractor.extract(&r.cropped)?.to_vec()))
+                r.extractor.extract(&r.cropped)?;
+                // The contact column as a calibration measures it by default.
+                let raws = r.extractor.locate(ContactPointMethod::DEFAULT)?;
+                Ok(Found::Patches(raws.to_vec()))
             }
         }
     }

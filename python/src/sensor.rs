@@ -7,7 +7,7 @@ use std::time::Instant;
 use ndarray::{Array2, ArrayRef2};
 use numpy::{IntoPyArray, PyArray2};
 use optical_tactile::capture::{FrameSource, SequenceSource};
-use optical_tactile::contact::{Contact as LibContact, RawContact as LibRaw};
+use optical_tactile::contact::{Contact as LibContact, ContactPointMethod, RawContact as LibRaw};
 use optical_tactile::frame::Roi;
 use optical_tactile::io::read_gray_channel;
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
@@ -320,8 +320,11 @@ impl Pipeline {
                 }
                 let roi = crop.unwrap_or_else(|| Roi::full(img.ncols(), img.nrows()));
                 let view = roi.crop(img)?;
+                extractor.extract(&view)?;
+                // The contact column as a calibration measures it by default
+                // (as `track --raw`).
                 Ok(extractor
-                    .extract(&view)?
+                    .locate(ContactPointMethod::DEFAULT)?
                     .iter()
                     .enumerate()
                     .map(|(k, r)| Contact::raw_patch(k, r))
