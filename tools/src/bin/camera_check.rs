@@ -1,6 +1,7 @@
 //! What the camera alone does to the pipeline: simulated rest frames with
 //! exposure steps and slow drift of gain and offset, through the raw
-//! extractor (frames with a patch) and the calibrated sensor (contacts),
+//! extractor (frames with a patch) and the calibrated sensor (contacts, and
+//! contacts not marked out of the calibration's domain),
 //! for each exposure compensation; plus the re-referencing policy's quiet
 //! statistic (the largest mean `|flow|` over textured tiles) at rest, for
 //! several tile sizes. Printed as markdown.
@@ -114,7 +115,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     )?;
     writeln!(
         out,
-        "| seed | read noise | compensation | frames with a patch (raw) | frames with a contact (calibrated) | |gain-1| max | quiet flow p50 / p99 / max, tiles {} px | ms per frame (extract) |",
+        "| seed | read noise | compensation | frames with a patch (raw) | frames with a contact (calibrated), of which with one in domain | |gain-1| max | quiet flow p50 / p99 / max, tiles {} px | ms per frame (extract) |",
         cli.tiles
     )?;
     writeln!(out, "|---|---|---|---|---|---|---|---|")?;
@@ -142,7 +143,16 @@ fn run(cli: &Cli) -> Result<(), Failure> {
                     })
                     .build()?;
                 sensor.set_reference(&reference)?;
-                runs.push((mode, ex, sensor, 0usize, 0usize, 0.0f64, Vec::new(), 0.0f64));
+                runs.push((
+                    mode,
+                    ex,
+                    sensor,
+                    0usize,
+                    (0usize, 0usize),
+                    0.0f64,
+                    Vec::new(),
+                    0.0f64,
+                ));
             }
             for k in 1..=cli.frames {
                 let frame = sim.render_indexed(k as u64, &[], false)?.frame;
@@ -160,8 +170,10 @@ fn run(cli: &Cli) -> Result<(), Failure> {
                             .map(|&t| quiet(flow, scale, &reference, t as usize))
                             .collect::<Vec<f64>>(),
                     );
-                    let c = sensor.process(&frame, k as f64 * 0.02)?.len();
-                    *contacts += usize::from(c > 0);
+                    let c = sensor.process(&frame, k as f64 * 0.02)?;
+                    contacts.0 += usize::from(!c.is_empty());
+                    // Contacts not marked out of the calibration's domain.
+                    contacts.1 += usize::from(c.iter().any(|c| !c.out_of_domain));
                 }
             }
             // Light presses: the smallest quiet statistic over positions,
@@ -206,10 +218,12 @@ fn run(cli: &Cli) -> Result<(), Failure> {
                     .collect();
                 writeln!(
                     out,
-                    "| {seed} | {read} | {} | {patches} / {} | {contacts} / {} | {gain:.4} | {} | {:.2} |",
+                    "| {seed} | {read} | {} | {patches} / {} | {} / {}, {} | {gain:.4} | {} | {:.2} |",
                     mode.name(),
                     cli.frames,
+                    contacts.0,
                     cli.frames,
+                    contacts.1,
                     stats.join("; "),
                     1e3 * busy / cli.frames as f64
                 )?;
