@@ -368,6 +368,12 @@ impl DisParams {
         }
     }
 
+    /// Whether a reference with this fraction of untextured finest-level
+    /// patches counts as a sparse texture (see `sparse_texture`).
+    fn is_sparse(&self, untextured: f64) -> bool {
+        untextured > self.sparse_texture as f64
+    }
+
     /// The same parameters with OpenCV's iteration semantics: no early stop
     /// of the descent, the refinement on every level, OpenCV's stripes and
     /// coarsest level, and its step at the stop. `Fast` and `Ultrafast` are
@@ -640,7 +646,7 @@ impl Dis {
     /// Whether the reference's texture is sparse (see
     /// [`DisParams::sparse_texture`]); `false` before a reference is set.
     pub fn sparse_texture(&self) -> bool {
-        self.untextured > self.params.sparse_texture as f64
+        self.params.is_sparse(self.untextured)
     }
 
     /// Fraction of the finest level's patches that are untextured (below
@@ -728,7 +734,7 @@ impl Dis {
             pyramid::sobel(&i0, lw, lh, grad_scale, &mut gx, &mut gy)?;
             // Sparse texture (decided on the finest level, built first):
             // overlapping patches on the coarser levels.
-            let sparse = untextured > p.sparse_texture as f64;
+            let sparse = p.is_sparse(untextured);
             let stride = if k > 0 && sparse {
                 (stride / 2).max(1)
             } else {
