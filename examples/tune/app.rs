@@ -141,6 +141,30 @@ pub struct State {
     pub fps: f64,
 }
 
+impl State {
+    /// The state at start: `settings` asked for and started with, playing,
+    /// nothing seen yet.
+    pub fn new(settings: Settings) -> State {
+        State {
+            frame: None,
+            panel: None,
+            panel_fetched: false,
+            png: None,
+            encode_ms: 0.0,
+            settings: settings.clone(),
+            version: 0,
+            initial: settings,
+            paused: false,
+            steps: 0,
+            take_reference: false,
+            rest_request: false,
+            rest: Rest::Idle,
+            error: None,
+            fps: 0.0,
+        }
+    }
+}
+
 /// The fixed facts of the run and the shared state.
 pub struct App {
     /// The shared state.
@@ -611,23 +635,7 @@ mod tests {
             rereference: true,
         };
         App {
-            state: Mutex::new(State {
-                frame: None,
-                panel: None,
-                panel_fetched: false,
-                png: None,
-                encode_ms: 0.0,
-                settings: settings.clone(),
-                version: 0,
-                initial: settings,
-                paused: false,
-                steps: 0,
-                take_reference: false,
-                rest_request: false,
-                rest: Rest::Idle,
-                error: None,
-                fps: 0.0,
-            }),
+            state: Mutex::new(State::new(settings)),
             changed: Condvar::new(),
             calibration,
             save_dir: dir.to_path_buf(),

@@ -54,7 +54,7 @@ use clap::{ArgAction, Parser};
 use cli_support::Failure;
 use cli_support::pipeline::PipelineArgs;
 
-use app::{App, Rest, State};
+use app::{App, State};
 use runner::{Looped, Runner, Source};
 
 /// The sequence run with no argument: this crate's fixture.
@@ -201,23 +201,7 @@ fn run(a: Cli) -> Result<ExitCode, Failure> {
     };
     let settings = runner::settings_of(&pipeline, a.pipeline.split, a.filter, a.rereference);
     let app = Arc::new(App {
-        state: Mutex::new(State {
-            frame: None,
-            panel: None,
-            panel_fetched: false,
-            png: None,
-            encode_ms: 0.0,
-            settings: settings.clone(),
-            version: 0,
-            initial: settings,
-            paused: false,
-            steps: 0,
-            take_reference: false,
-            rest_request: false,
-            rest: Rest::Idle,
-            error: None,
-            fps: 0.0,
-        }),
+        state: Mutex::new(State::new(settings)),
         changed: Condvar::new(),
         calibration,
         save_dir,
