@@ -363,6 +363,33 @@ fn new_sensor(pipeline: Pipeline, colour: Colour) -> Sensor {
     }
 }
 
+impl Sensor {
+    /// Reads `frame` as the pipeline's grey image (within its crop) and
+    /// hands the pipeline, the image and the last `process()` time to `f`,
+    /// with the GIL released and the sensor's state locked.
+    fn with_frame<T: Send>(
+        &self,
+        py: Python<'_>,
+        frame: &Bound<'_, PyAny>,
+        f: impl FnOnce(&mut Pipeline, &ArrayRef2<f32>, &mut f64) -> Result<T, Failure> + Send,
+    ) -> PyResult<T> {
+        let arg = FrameArg::extract(frame, "frame").map_err(|e| e.into_py(py))?;
+        let colour = self.colour;
+        let px = arg.pixels("frame").map_err(|e| e.into_py(py))?;
+        detached(py, || {
+            let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            let State {
+                pipeline,
+                buf,
+                scratch,
+                last_ms,
+            } = &mut *st;
+            let img = to_gray_within(&px, colour, pipeline.crop(), buf, scratch)?;
+            f(pipeline, &img, last_ms)
+        })
+    }
+}
+
 #[pymethods]
 impl Sensor {
     /// A calibrated sensor. Crop, thresholds, flow preset and exposure
@@ -463,20 +490,8 @@ impl Sensor {
 
     /// Takes `frame` (unloaded: nothing touches the skin) as the reference.
     fn set_reference(&self, py: Python<'_>, frame: &Bound<'_, PyAny>) -> PyResult<()> {
-        let arg = FrameArg::extract(frame, "frame").map_err(|e| e.into_py(py))?;
-        let colour = self.colour;
-        let px = arg.pixels("frame").map_err(|e| e.into_py(py))?;
-        detached(py, || {
-            let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
-            let State {
-                pipeline,
-                buf,
-                scratch,
-                ..
-            } = &mut *st;
-            let img = to_gray_within(&px, colour, pipeline.crop(), buf, scratch)?;
-            pipeline.set_reference(&img)?;
-            Ok(())
+        self.with_frame(py, frame, |pipeline, img, _| {
+            Ok(pipeline.set_reference(img)?)
         })
     }
 
@@ -488,20 +503,9 @@ impl Sensor {
         t_s: f64,
     ) -> PyResult<Vec<Contact>> {
         finite(py, "t_s", t_s)?;
-        let arg = FrameArg::extract(frame, "frame").map_err(|e| e.into_py(py))?;
-        let colour = self.colour;
-        let px = arg.pixels("frame").map_err(|e| e.into_py(py))?;
-        detached(py, || {
-            let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
-            let State {
-                pipeline,
-                buf,
-                scratch,
-                last_ms,
-            } = &mut *st;
-            let img = to_gray_within(&px, colour, pipeline.crop(), buf, scratch)?;
+        self.with_frame(py, frame, |pipeline, img, last_ms| {
             let t = Instant::now();
-            let out = pipeline.process(&img, t_s);
+            let out = pipeline.process(img, t_s);
             *last_ms = t.elapsed().as_secs_f64() * 1e3;
             Ok(out?)
         })
