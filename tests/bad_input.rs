@@ -4,6 +4,9 @@
 //! images declaring more pixels than a frame may have, non-finite numbers
 //! on their way into JSON or in from CSV.
 
+#[path = "common/png.rs"]
+mod png;
+
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -212,7 +215,7 @@ fn png_header_only(w: u32, h: u32) -> Vec<u8> {
         let start = out.len();
         out.extend_from_slice(kind);
         out.extend_from_slice(data);
-        let crc = crc32(&out[start..]);
+        let crc = png::crc32(&out[start..]);
         out.extend_from_slice(&crc.to_be_bytes());
     }
     let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
@@ -228,21 +231,6 @@ fn png_header_only(w: u32, h: u32) -> Vec<u8> {
     );
     chunk(&mut out, b"IEND", &[]);
     out
-}
-
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut c = !0u32;
-    for &b in bytes {
-        c ^= u32::from(b);
-        for _ in 0..8 {
-            c = if c & 1 != 0 {
-                (c >> 1) ^ 0xEDB8_8320
-            } else {
-                c >> 1
-            };
-        }
-    }
-    !c
 }
 
 #[test]

@@ -11,6 +11,9 @@
 //! sets, so a run can be repeated. For longer runs outside CI, see `fuzz/`
 //! (cargo-fuzz).
 
+#[path = "common/png.rs"]
+mod png;
+
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -339,7 +342,7 @@ proptest! {
         b[16..20].copy_from_slice(&w.to_be_bytes());
         b[20..24].copy_from_slice(&h.to_be_bytes());
         if fix_crc {
-            let crc = crc32(&b[12..29]);
+            let crc = png::crc32(&b[12..29]);
             b[29..33].copy_from_slice(&crc.to_be_bytes());
         }
         if poke {
@@ -405,19 +408,4 @@ proptest! {
             prop_assert_eq!(io::read_jsonl::<FrameRecord>(&q).unwrap().len(), records.len());
         }
     }
-}
-
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut c = !0u32;
-    for &b in bytes {
-        c ^= u32::from(b);
-        for _ in 0..8 {
-            c = if c & 1 != 0 {
-                (c >> 1) ^ 0xEDB8_8320
-            } else {
-                c >> 1
-            };
-        }
-    }
-    !c
 }
