@@ -50,6 +50,7 @@ use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
 use crate::hhd::{Decomposition, NaturalHhd};
+use crate::segment::morphology::Mask;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -246,6 +247,34 @@ impl AnalysisGrid {
         }
     }
 
+    /// Where a segmentation on this grid may see motion, for `dis`'s
+    /// reference (set with [`Segmenter::set_observable`]): `None`
+    /// (everywhere) on a sparse texture ([`Dis::sparse_texture`]), whose
+    /// untextured patches take the motion of the textured ones around them;
+    /// on a dense texture, the grid pixels that a textured patch of the
+    /// reference reaches ([`Dis::textured_coverage_into`]). Beyond them (the
+    /// dark coating past the skin's markers) the flow holds only the
+    /// camera's noise, which a change of exposure turned into false
+    /// contacts. `None` as well before `dis` has a reference.
+    pub fn observable(&self, dis: &Dis) -> Option<Mask> {
+        if dis.sparse_texture() {
+            return None;
+        }
+        let mut covered = Vec::new();
+        let (w, h) = dis.textured_coverage_into(&mut covered);
+        let factor = self.scale / self.fine_scale;
+        let (gw, gh) = (w / factor, h / factor);
+        if gw == 0 || gh == 0 {
+            return None;
+        }
+        // A grid pixel averages `factor x factor` native pixels (a partial
+        // last row or column is left out, as in the pooling).
+        Some(Mask::from_fn(gw, gh, |x, y| {
+            (y * factor..(y + 1) * factor)
+                .any(|r| covered[r * w + x * factor..r * w + (x + 1) * factor].contains(&true))
+        }))
+    }
+
     /// The analysis-grid flow (full-resolution units) and its scale.
     pub fn flow(&self) -> (&FlowField, usize) {
         (&self.flow, self.scale)
@@ -384,6 +413,8 @@ impl ContactExtractor {
     pub fn set_reference(&mut self, reference: &ArrayRef2<f32>) -> Result<()> {
         self.dis.set_reference(reference)?;
         self.exposure.set_reference(reference);
+        self.segmenter
+            .set_observable(self.grid.observable(&self.dis));
         Ok(())
     }
 

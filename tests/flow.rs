@@ -752,3 +752,76 @@ fn sparse_texture_is_decided_on_the_reference() {
     };
     assert!(matches!(Dis::new(nan), Err(Error::InvalidParameter { .. })));
 }
+
+/// `Dis::textured_coverage_into` on a skin of markers inside a plain, noisy
+/// surround (the dark coating past a sensor's skin): every pixel well inside
+/// the markers is covered, none well outside them, for any placement of the
+/// skin, marker pitch and noise.
+#[test]
+fn textured_coverage_follows_the_markers() {
+    let (w, h) = (160usize, 96usize);
+    runner(12)
+        .run(
+            &(
+                (0usize..40, 0usize..30),
+                (60usize..120, 40usize..66),
+                3.5f64..6.0,
+                0.0f64..1.5,
+                0u64..1000,
+            ),
+            |((x0, y0), (sw, sh), pitch, noise, seed)| {
+                let (x1, y1) = ((x0 + sw).min(w), (y0 + sh).min(h));
+                // Markers (dark, sigma 1 px) whose blobs stay inside the skin.
+                let inside = |&(x, y): &(f64, f64)| {
+                    x >= x0 as f64 + 4.0
+                        && x < x1 as f64 - 4.0
+                        && y >= y0 as f64 + 4.0
+                        && y < y1 as f64 - 4.0
+                };
+                let centres: Vec<_> = support::marker_centres(w, h, pitch, seed)
+                    .into_iter()
+                    .filter(inside)
+                    .collect();
+                let mut rng = support::Rng::new(seed ^ 0x5eed);
+                let mut img = support::render_markers(w, h, &centres, 1.0);
+                for v in img.iter_mut() {
+                    // About Gaussian, of sd `noise`: a sum of 12 uniforms.
+                    let u: f64 = (0..12).map(|_| rng.uniform()).sum::<f64>() - 6.0;
+                    *v = (*v + (noise * u) as f32).clamp(0.0, 255.0);
+                }
+                let mut dis = Dis::with_preset(DisPreset::Fine);
+                dis.set_reference(&img).unwrap();
+                let mut covered = Vec::new();
+                let (cw, ch) = dis.textured_coverage_into(&mut covered);
+                prop_assert_eq!((cw, ch), (w, h));
+                prop_assert_eq!(covered.len(), w * h);
+                // Distance (in pixels, per axis) from the marker blobs' region.
+                let (mx0, my0, mx1, my1) = (x0 + 4, y0 + 4, x1 - 4, y1 - 4);
+                let patch = dis.params().patch_size;
+                // The prefilter and gradient reach 3 px past a blob's 4-sigma
+                // extent; a pixel's patch reaches `patch - 1` px beyond it.
+                let reach = patch - 1 + 3 + 4;
+                for y in 0..h {
+                    for x in 0..w {
+                        let c = covered[y * w + x];
+                        let deep_in = x >= mx0 + patch
+                            && x + patch < mx1
+                            && y >= my0 + patch
+                            && y + patch < my1;
+                        let far_out = x + reach < mx0
+                            || x >= mx1 + reach
+                            || y + reach < my0
+                            || y >= my1 + reach;
+                        if deep_in {
+                            prop_assert!(c, "({x}, {y}) inside the skin is not covered");
+                        }
+                        if far_out {
+                            prop_assert!(!c, "({x}, {y}) outside the skin is covered");
+                        }
+                    }
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}

@@ -344,3 +344,73 @@ fn locate_keeps_the_raw_contact_column_at_the_rod_under_shear() {
     assert!(worst.1 <= 15.0, "slope peak up to {} px off", worst.1);
     assert!(worst.0 > 2.0 * worst.1, "{worst:?}");
 }
+
+/// The dark coating past the skin's markers holds only the camera's noise:
+/// however that noise changes, the extractor reads no motion there, while a
+/// segmentation of the same flow that looks everywhere finds a patch (so the
+/// check is not vacuous). On a dot grid (a sparse texture) the whole image
+/// stays observable.
+#[test]
+fn the_dark_border_past_the_skin_is_not_read_as_motion() {
+    use optical_tactile::FlowField;
+    use optical_tactile::segment::{Segmenter, SegmenterConfig};
+    use optical_tactile_sim::{DotGrid, SimConfig, SyntheticSensor};
+    let thresholds = Thresholds {
+        magnitude: 0.2,
+        sum: 600.0,
+        ..Thresholds::LOW
+    };
+    let mut unmasked_patches = 0;
+    for seed in [6u64, 7] {
+        let sim = SyntheticSensor::new(SimConfig::default(), seed).unwrap();
+        let reference = sim.render_indexed(0, &[], false).unwrap().frame;
+        let mut ex =
+            ContactExtractor::new(ExtractorConfig::default().with_thresholds(thresholds)).unwrap();
+        ex.set_reference(&reference).unwrap();
+        let observable = ex.segmenter().observable().expect("a dense texture");
+        let (gw, gh) = observable.size();
+        // The strip's dark ends (about 30 px at each end) are not observable,
+        // its middle is.
+        assert!(!observable.get(2, gh / 2) && !observable.get(gw - 3, gh / 2));
+        assert!(observable.get(gw / 2, gh / 2));
+        // A rest frame whose dark ends got a brighter, noisier black level
+        // (the markers and everything else unchanged).
+        let mut rng = 0x9e37_79b9_7f4a_7c15u64 ^ seed;
+        let mut frame = reference.clone();
+        for ((_, x), v) in frame.indexed_iter_mut() {
+            if !(32..reference.ncols() - 32).contains(&x) {
+                rng ^= rng << 13;
+                rng ^= rng >> 7;
+                rng ^= rng << 17;
+                *v += 4.0 + 8.0 * (rng >> 40) as f32 / (1u64 << 24) as f32;
+            }
+        }
+        assert!(ex.extract(&frame).unwrap().is_empty(), "seed {seed}");
+        // The same flow, segmented everywhere, in the grid's own units.
+        let (flow, scale) = ex.flow();
+        let grid_units = FlowField::from_planes(
+            flow.u.mapv(|u| u / scale as f32),
+            flow.v.mapv(|v| v / scale as f32),
+        )
+        .unwrap();
+        let mut plain = Segmenter::new(SegmenterConfig {
+            thresholds,
+            margin: 24,
+            scale: scale as f64,
+        })
+        .unwrap();
+        let mut patches = Vec::new();
+        plain.segment_into(&grid_units, &mut patches).unwrap();
+        unmasked_patches += patches.len();
+    }
+    assert!(
+        unmasked_patches > 0,
+        "the border noise gave no patch at all"
+    );
+
+    let sim = SyntheticSensor::new(SimConfig::dot_grid(DotGrid::default()), 2).unwrap();
+    let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+    ex.set_reference(&sim.render_indexed(0, &[], false).unwrap().frame)
+        .unwrap();
+    assert!(ex.segmenter().observable().is_none());
+}

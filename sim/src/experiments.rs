@@ -197,6 +197,17 @@ impl Bench {
         })
     }
 
+    /// Sets the reference, and each segmenter's observable region as the
+    /// extractor does.
+    fn set_reference(&mut self, reference: &ndarray::Array2<f32>) -> Result<()> {
+        self.dis.set_reference(reference)?;
+        let observable = self.grid.observable(&self.dis);
+        for seg in &mut self.segs {
+            seg.set_observable(observable.clone());
+        }
+        Ok(())
+    }
+
     /// Full-resolution pixels per pixel of the analysis grid.
     fn scale(&self) -> f64 {
         self.grid.scale() as f64
@@ -297,7 +308,7 @@ pub fn rest_sweep(
                 let bench = worker(slot, || Bench::new(o))?;
                 let r = sensor.render_indexed(REST_BASE + 2 * k, &[], false)?;
                 let f = sensor.render_indexed(REST_BASE + 2 * k + 1, &[], false)?;
-                bench.dis.set_reference(&r.frame)?;
+                bench.set_reference(&r.frame)?;
                 let tiles_x =
                     textured_tiles_into(&r.frame, QUIET_TILE_PX, QUIET_MIN_TEXTURE, textured);
                 let mut patches = vec![0usize; n];
@@ -453,7 +464,7 @@ pub fn mdf_sweep(
                 let mut idx = (c * (1 + nf)) as u64;
                 let r = sensor.render_indexed(idx, &[], false)?;
                 idx += 1;
-                bench.dis.set_reference(&r.frame)?;
+                bench.set_reference(&r.frame)?;
                 let mut hit = vec![vec![false; nf]; n];
                 let mut stray = vec![0usize; n];
                 let scale = bench.scale();

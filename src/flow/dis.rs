@@ -656,6 +656,37 @@ impl Dis {
         self.untextured
     }
 
+    /// Which pixels of the native flow (the finest level: `(width, height)`
+    /// of [`native_flow`](Self::native_flow)) lie under at least one
+    /// textured patch of the reference (texture at or above
+    /// [`DisParams::min_texture`]), row-major into `out`; returns the
+    /// level's `(width, height)`, `(0, 0)` before a reference is set. Where
+    /// no textured patch reaches, the reference holds only sensor noise
+    /// (the black coating beyond the skin, a saturated spot) and the flow
+    /// there is not a measurement. With `min_texture` 0 only patches with
+    /// no 2-D gradient structure at all fall out.
+    pub fn textured_coverage_into(&self, out: &mut Vec<bool>) -> (usize, usize) {
+        out.clear();
+        let Some(lvl) = self.levels.first() else {
+            return (0, 0);
+        };
+        out.resize(lvl.w * lvl.h, false);
+        let psz = self.params.patch_size;
+        let ws = lvl.ws();
+        for (i, &y0) in lvl.py.iter().enumerate() {
+            for (j, &x0) in lvl.px.iter().enumerate() {
+                if !lvl.patches[i * ws + j].textured {
+                    continue;
+                }
+                let (x0, y0) = (x0 as usize, y0 as usize);
+                for row in out[y0 * lvl.w..(y0 + psz) * lvl.w].chunks_exact_mut(lvl.w) {
+                    row[x0..x0 + psz].fill(true);
+                }
+            }
+        }
+        (lvl.w, lvl.h)
+    }
+
     /// The coarsest scale OpenCV would choose for this image size.
     pub fn auto_coarsest_scale(width: usize, height: usize, patch_size: usize) -> usize {
         let maxd = width.max(height) as f64;

@@ -158,15 +158,15 @@ pub const MAX_KERNEL_PX: usize = 255;
 /// The presets [`Thresholds::LOW`], [`Thresholds::MID`] and
 /// [`Thresholds::HIGH`] were chosen on the simulator (default 1600 x 200 px
 /// strip, 5 px/mm) through [`ContactExtractor`](crate::sensor::ContactExtractor)
-/// with the default (accurate) DIS flow at its native resolution (scale 2).
-/// Measured with `cargo run --release -p optical-tactile-tools --bin sweep` (seed 1; tables in
-/// docs/results.md):
+/// with the default (`fine`) DIS flow, segmented on the analysis grid
+/// (scale 2). Measured with `cargo run --release -p optical-tactile-tools
+/// --bin sweep -- all --rest 1500` (seed 1; tables in docs/results.md):
 ///
 /// | preset | min. detectable force (>= 95%) | every press from | false contacts at rest |
 /// |---|---|---|---|
-/// | LOW  | 0.4 N (target < 0.5 N; wish <= 0.3 N not met: 89% at 0.3 N) | 0.6 N | 0 / 1500 pairs |
-/// | MID  | 0.8 N (target 0.5-1 N) | 1.2 N | 0 / 1500 pairs |
-/// | HIGH | 1.2 N (target 1-1.5 N) | 1.8 N | 0 / 1500 pairs |
+/// | LOW  | 0.4 N (target < 0.5 N; 95% at 0.3 N, 86% at 0.2 N) | 0.4 N | 0 / 1500 pairs |
+/// | MID  | 0.8 N (target 0.5-1 N) | 1.3 N | 0 / 1500 pairs |
+/// | HIGH | 1.2 N (target 1-1.5 N) | 2.0 N | 0 / 1500 pairs |
 ///
 /// Minimum detectable force: smallest force of a 0.1 N ladder from which at
 /// least 95% of single presses are detected (a patch covering the rod), over
@@ -175,14 +175,14 @@ pub const MAX_KERNEL_PX: usize = 255;
 /// straight, or a tilt that cancels the skin's slope), which move markers
 /// least. Rest pairs: a reference against another unloaded frame with fresh
 /// noise and flicker; the largest summed `|flow|` of any rest contour was
-/// 1390 (LOW's kernels), 960 (MID's and HIGH's), below every preset's `sum`.
+/// 256 (LOW's kernels) and 0 (MID's and HIGH's: no pixel left after
+/// erosion), far below every preset's `sum`.
 ///
 /// With the [`SplitRule`], two straight rods of equal force are two
-/// contacts, each within 3 mm of its rod, at every spacing from 35 mm down
-/// to 10-12.5 mm (LOW and MID at 1.5 and 3 N, HIGH at 3 N; 2, 5 and 10 mm
-/// rods; midpoints -60, 0 and 60 mm); before it, 20-40 mm at the centre
-/// only. HIGH at 1.5 N does not detect a centred pair at all below 20-30
-/// mm (see docs/results.md).
+/// contacts, each within 3 mm of its rod, at every spacing from 40 mm down
+/// to 10 mm (LOW and MID at 1.5 and 3 N, HIGH at 3 N; 2, 5 and 10 mm rods;
+/// midpoints -60, 0 and 60 mm); none at 7.5 mm. HIGH at 1.5 N does not
+/// detect a centred pair at all below 30 mm (see docs/results.md).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Thresholds {
     /// Per-pixel `|flow|` above which a pixel belongs to the mask, in
@@ -202,10 +202,10 @@ pub struct Thresholds {
 
 impl Thresholds {
     /// Low thresholds: the most sensitive. Minimum detectable force 0.4 N
-    /// on the simulator (target below 0.5 N); just above the accurate flow's
-    /// rest noise (typically ~0.14 px), so the sum test (1500, above the
-    /// largest rest contour's 1390) is what rejects noise: little headroom
-    /// for a noisier camera.
+    /// on the simulator (target below 0.5 N). Its magnitude is below the
+    /// `fine` flow's rest noise (peak 0.23 px per frame, median), so the sum
+    /// test is what rejects noise: 1500 against 256 for the largest contour
+    /// seen at rest.
     pub const LOW: Thresholds = Thresholds {
         magnitude: 0.15,
         sum: 1500.0,
@@ -541,6 +541,9 @@ pub struct Segmenter {
     cuts: Vec<usize>,
     /// Number of cuts the split rule made in the last call.
     split_count: usize,
+    /// Where motion can be seen at all (see [`Segmenter::set_observable`]);
+    /// `None`: everywhere.
+    observable: Option<Mask>,
 }
 
 impl Segmenter {
@@ -586,7 +589,22 @@ impl Segmenter {
             divergence: Vec::new(),
             cuts: Vec::new(),
             split_count: 0,
+            observable: None,
         })
+    }
+
+    /// Restricts the magnitude test to the pixels set in `mask` (the flow's
+    /// size; checked at each call), or lifts the restriction with `None`.
+    /// Where a frame has no texture (the dark coating beyond the skin's
+    /// markers) the flow holds only the camera's noise, which the magnitude
+    /// test would otherwise read as motion.
+    pub fn set_observable(&mut self, mask: Option<Mask>) {
+        self.observable = mask;
+    }
+
+    /// The mask of [`set_observable`](Self::set_observable), if any.
+    pub fn observable(&self) -> Option<&Mask> {
+        self.observable.as_ref()
     }
 
     /// Sets the rule that splits one group of contours holding several
@@ -662,6 +680,9 @@ impl Segmenter {
         let (w, h) = flow.size();
         let st = self.scaled;
         self.raw.threshold_flow_into(flow, st.magnitude)?;
+        if let Some(observable) = &self.observable {
+            self.raw.and_assign(observable)?;
+        }
         self.morph
             .erode(&self.raw, &mut self.eroded, &st.erode, 1)?;
         self.morph

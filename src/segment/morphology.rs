@@ -201,6 +201,18 @@ impl Mask {
         self.bits.iter().all(|&w| w == 0)
     }
 
+    /// Keeps only the pixels also set in `other` (`self &= other`). Errors
+    /// if the sizes differ.
+    pub fn and_assign(&mut self, other: &Mask) -> Result<()> {
+        if self.size() != other.size() {
+            return Err(Error::shape("mask against mask", other.size(), self.size()));
+        }
+        for (a, b) in self.bits.iter_mut().zip(&other.bits) {
+            *a &= b;
+        }
+        Ok(())
+    }
+
     /// The complement (within the image; pad bits stay 0).
     pub fn not(&self) -> Mask {
         let mut out = self.clone();
