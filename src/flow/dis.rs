@@ -236,9 +236,12 @@ pub struct DisParams {
     /// lit gel, most patches hold only noise: left to pick among their
     /// start, the zero vector and their neighbours' vectors by a cost that
     /// is noise, many pick zero and leave whole blocks of the flow at
-    /// exactly zero. On a sparse texture the search therefore (1) lets
-    /// untextured patches keep the vector the coarser level gives them, with
-    /// no candidate competing, (2) places the coarser levels' patches at half
+    /// exactly zero. On a sparse texture the search therefore (1) lets no
+    /// candidate compete for untextured patches: on the coarser levels they
+    /// keep the vector the level above gives them, and on the finest level
+    /// they take the mean vector of the nearest textured patches (as
+    /// `fill_untextured` does), the dots' edges that move with the gel
+    /// around them, (2) places the coarser levels' patches at half
     /// the stride, so that their dense flow, which starts the finer level,
     /// averages overlapping patches and has no holes either, and (3) tries
     /// no zero vector at the finest level. On a dense texture (the
@@ -879,7 +882,9 @@ impl Dis {
                 zero_candidate: self.params.zero_candidate && !(sparse && k == 0),
             };
             search_level(lvl, &self.params, search);
-            if self.params.fill_untextured {
+            // On a sparse texture the finest level's untextured patches take
+            // their textured neighbours' motion, not the coarse levels' guess.
+            if self.params.fill_untextured || (sparse && k == 0) {
                 fill_untextured(lvl);
             }
             densify(lvl, self.params.patch_size);
