@@ -460,3 +460,61 @@ fn a_fingertip_on_a_small_sensor_is_one_patch() {
         )
         .unwrap();
 }
+
+/// A fingertip on the simulated flat sensor (a grid of dark dots on a thin
+/// gel bonded to its window, 320x240 px at 10 px/mm): pressed anywhere in
+/// the middle with 0.5-3 N, sheared by up to half that in any direction, on
+/// grids of several pitches, dot sizes and seeds, the default extractor
+/// (`fine` flow, high thresholds: what `track --raw` runs) finds one patch,
+/// around the fingertip, and none at rest.
+#[test]
+fn a_simulated_fingertip_on_a_dot_grid_is_one_patch() {
+    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
+    use optical_tactile_sim::{DotGrid, Material, Press, SimConfig, SyntheticSensor};
+    let strategy = (
+        (-5.0f64..5.0, -3.0f64..3.0, 15.0f64..20.0),
+        (0.5f64..3.0, 0.0f64..0.8, 0.0f64..6.3),
+        (22.0f64..36.0, 6.0f64..10.0, 0u64..1000),
+    );
+    runner(64)
+        .run(
+            &strategy,
+            |((x, y, tip), (fz, shear, angle), (pitch, dot, seed))| {
+                let mut cfg = SimConfig::dot_grid(DotGrid {
+                    pitch_px: pitch,
+                    diameter_px: dot,
+                    jitter_px: 1.0,
+                    ..DotGrid::default()
+                });
+                cfg.material = Material {
+                    youngs_kpa: 600.0,
+                    poisson: 0.47,
+                    layer_mm: 3.0,
+                };
+                let sim = SyntheticSensor::new(cfg, seed).unwrap();
+                let reference = sim.render_indexed(0, &[], false).unwrap().frame;
+                let f = [shear * fz * angle.cos(), shear * fz * angle.sin(), -fz];
+                let press = Press::fingertip(x, y, f, tip);
+                let frame = sim.render_indexed(1, &[press], false).unwrap().frame;
+                let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+                ex.set_reference(&reference).unwrap();
+                // At rest first: nothing.
+                let rest = sim.render_indexed(2, &[], false).unwrap().frame;
+                let at_rest = ex.extract(&rest).unwrap().len();
+                prop_assert_eq!(at_rest, 0, "patches at rest");
+                let n = ex.extract(&frame).unwrap().len();
+                let scale = ex.scale() as f64;
+                let boxes: Vec<_> = ex.patches().iter().map(|p| p.bbox).collect();
+                // The fingertip's centre in pixels (the image's centre is the
+                // skin's).
+                let (cx, cy) = (160.0 + 10.0 * x, 120.0 + 10.0 * y);
+                prop_assert_eq!(n, 1, "{:?}", boxes);
+                let b = boxes[0];
+                let inside = (b.x as f64 * scale..=(b.x + b.width) as f64 * scale).contains(&cx)
+                    && (b.y as f64 * scale..=(b.y + b.height) as f64 * scale).contains(&cy);
+                prop_assert!(inside, "{:?} misses ({cx}, {cy})", b);
+                Ok(())
+            },
+        )
+        .unwrap();
+}

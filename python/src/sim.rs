@@ -270,6 +270,7 @@ impl Press {
             force_n: [a, b, c],
             diameter_mm: self.diameter_mm,
             contact_width_mm: self.contact_width_mm,
+            y_mm: None,
         }
     }
 }

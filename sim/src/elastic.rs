@@ -356,6 +356,115 @@ impl RodLoad {
     }
 }
 
+/// A round contact (a fingertip, a spherical tip) on a thin gel layer
+/// bonded to a rigid base, the build of flat fingertip sensors (a gel of a
+/// few mm on an acrylic window).
+///
+/// Such a layer, pressed over an area much wider than it is thick, does not
+/// behave as a half-space: the nearly incompressible gel cannot move down
+/// without flowing sideways, so it is squeezed *outward* from under the
+/// contact, and the markers near its surface spread apart. The model is the
+/// thin-layer (lubrication) limit of an incompressible layer of thickness
+/// `T` and shear modulus `G` (Johnson, *Contact Mechanics*, thin layers):
+/// the pressure `p` and the tangential traction `q` are constant through the
+/// thickness, and at height `z` above the base
+///
+/// - lateral: `u(z) = (z^2 - 2 T z) grad p / (2 G) + q z / G`, zero on the
+///   base, free of shear from the pressure at the surface;
+/// - normal (up): `w(z) = -(z^3 / 3 - T z^2) lap p / (2 G) - z^2 div q / (2 G)`,
+///   from the incompressibility `dw/dz = -div u`, so the volume pressed down
+///   under the contact bulges up around it (and a shear piles the gel up
+///   ahead of the contact).
+///
+/// A sphere of radius `R` on such a layer takes a pressure `p0 (1 - r^2/a^2)^2`
+/// over a contact of radius `a`; the tangential traction is given the same
+/// profile (the contact sticks). With that profile every displacement goes
+/// smoothly to zero at the contact's edge. Outside the contact the thin-layer
+/// limit gives no motion (in a real layer it fades over about `T`).
+#[derive(Debug, Clone)]
+pub struct RoundLoad {
+    /// Arc position of the contact's centre, mm.
+    pub s_mm: f64,
+    /// Across position of the contact's centre, mm.
+    pub y_mm: f64,
+    /// Contact radius `a`, mm.
+    pub radius: f64,
+    /// Total local force `[f_t, f_y, f_n]`, N (`f_n` into the gel).
+    pub force: [f64; 3],
+}
+
+impl RoundLoad {
+    /// Contact radius (mm) of a sphere of radius `tip_radius_mm` pressed
+    /// with `f_n` (N) into a thin incompressible layer of `mat`'s thickness
+    /// bonded to a rigid base: the indentation of the profile above,
+    /// `8 p0 T^3 / (3 G a^2)`, set equal to the sphere's `a^2 / (2 R)`, with
+    /// `p0 = 3 f_n / (pi a^2)`, gives `a^6 = 16 f_n T^3 R / (pi G)`.
+    pub fn sphere_contact_radius(mat: &Material, tip_radius_mm: f64, f_n: f64) -> f64 {
+        let t = mat.layer_mm;
+        (16.0 * f_n.max(0.0) * t * t * t * tip_radius_mm / (PI * mat.shear_modulus()))
+            .powf(1.0 / 6.0)
+    }
+
+    /// Displacement (mm, `[along s, across, into the gel]`) of a marker at
+    /// depth `z` below the surface (clamped to the layer), at `(s, y)`.
+    pub fn layer(&self, mat: &Material, s: f64, y: f64, z: f64) -> [f64; 3] {
+        let a = self.radius;
+        if a <= 0.0 {
+            return [0.0; 3];
+        }
+        let (dx, dy) = (s - self.s_mm, y - self.y_mm);
+        let rho2 = (dx * dx + dy * dy) / (a * a);
+        if rho2 >= 1.0 {
+            return [0.0; 3];
+        }
+        let t = mat.layer_mm;
+        let g = mat.shear_modulus();
+        // Height above the base.
+        let h = (t - z.clamp(0.0, t)).max(0.0);
+        let area = PI * a * a;
+        let p0 = 3.0 * self.force[2] / area;
+        let one = 1.0 - rho2;
+        let profile = one * one;
+        // grad p = -4 p0 (1 - rho^2) (dx, dy) / a^2; lap p = -8 p0 (1 - 2 rho^2) / a^2.
+        let grad = [
+            -4.0 * p0 * one * dx / (a * a),
+            -4.0 * p0 * one * dy / (a * a),
+        ];
+        let lap = -8.0 * p0 * (1.0 - 2.0 * rho2) / (a * a);
+        let squeeze = (h * h - 2.0 * t * h) / (2.0 * g);
+        let shear = 3.0 * profile * h / (area * g);
+        // div q, the traction having the pressure's profile.
+        let div_q = 3.0 / area * (-4.0 * one / (a * a)) * (self.force[0] * dx + self.force[1] * dy);
+        let up = -(h * h * h / 3.0 - t * h * h) * lap / (2.0 * g) - h * h * div_q / (2.0 * g);
+        [
+            squeeze * grad[0] + shear * self.force[0],
+            squeeze * grad[1] + shear * self.force[1],
+            -up,
+        ]
+    }
+}
+
+/// One contact's load on the unrolled skin.
+#[derive(Debug, Clone)]
+pub enum Load {
+    /// A rod across the skin's width ([`RodLoad`]).
+    Rod(RodLoad),
+    /// A round contact on a thin bonded layer ([`RoundLoad`]).
+    Round(RoundLoad),
+}
+
+impl Load {
+    /// Displacement (mm) of a marker at `(s, y)` and depth `z` (see
+    /// [`RodLoad::layer`] and [`RoundLoad::layer`]).
+    #[inline]
+    pub fn layer(&self, mat: &Material, q: &QuadratureCache, s: f64, y: f64, z: f64) -> [f64; 3] {
+        match self {
+            Load::Rod(l) => l.layer(mat, q, s, y, z),
+            Load::Round(l) => l.layer(mat, s, y, z),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -556,5 +665,139 @@ mod tests {
             .is_err()
         );
         mat().validate().unwrap();
+    }
+
+    fn thin() -> Material {
+        Material {
+            youngs_kpa: 150.0,
+            poisson: 0.47,
+            layer_mm: 2.5,
+        }
+    }
+
+    fn round(force: [f64; 3]) -> RoundLoad {
+        RoundLoad {
+            s_mm: 1.0,
+            y_mm: -2.0,
+            radius: 5.0,
+            force,
+        }
+    }
+
+    /// The closed form against the equations it solves, by finite
+    /// differences at points inside the contact: lateral equilibrium
+    /// `G d2u/dz2 = grad p`, incompressibility `dw/dz = -div u` (`w` up), a
+    /// base that does not move, and a surface whose shear is the traction.
+    #[test]
+    fn round_load_solves_the_thin_layer_equations() {
+        let m = thin();
+        let (t, g) = (m.layer_mm, m.shear_modulus());
+        let load = round([0.3, -0.2, 1.5]);
+        let a = load.radius;
+        let area = PI * a * a;
+        // The pressure and traction profiles, written out independently.
+        let profile = |s: f64, y: f64| {
+            let r2 = ((s - load.s_mm).powi(2) + (y - load.y_mm).powi(2)) / (a * a);
+            if r2 < 1.0 { (1.0 - r2).powi(2) } else { 0.0 }
+        };
+        let p = |s: f64, y: f64| 3.0 * load.force[2] / area * profile(s, y);
+        // Displacement at height `h` above the base, `w` up.
+        let at = |s: f64, y: f64, h: f64| {
+            let u = load.layer(&m, s, y, t - h);
+            [u[0], u[1], -u[2]]
+        };
+        let e = 1e-3;
+        for &(s, y, h) in &[
+            (2.0, -1.0, 1.0),
+            (-1.5, -3.0, 2.0),
+            (3.5, 0.5, 0.4),
+            (1.2, -2.3, 1.7),
+        ] {
+            let u = at(s, y, h);
+            // Equilibrium.
+            let (up, um) = (at(s, y, h + e), at(s, y, h - e));
+            let dp = [
+                (p(s + e, y) - p(s - e, y)) / (2.0 * e),
+                (p(s, y + e) - p(s, y - e)) / (2.0 * e),
+            ];
+            for k in 0..2 {
+                let d2 = (up[k] - 2.0 * u[k] + um[k]) / (e * e);
+                assert!(
+                    (g * d2 - dp[k]).abs() < 1e-4 * dp[k].abs().max(1e-3),
+                    "equilibrium {k} at ({s}, {y}, {h}): {} vs {}",
+                    g * d2,
+                    dp[k]
+                );
+            }
+            // Incompressibility.
+            let dw = (up[2] - um[2]) / (2.0 * e);
+            let div = (at(s + e, y, h)[0] - at(s - e, y, h)[0]) / (2.0 * e)
+                + (at(s, y + e, h)[1] - at(s, y - e, h)[1]) / (2.0 * e);
+            assert!(
+                (dw + div).abs() < 1e-5,
+                "incompressibility at ({s}, {y}, {h}): {dw} vs {}",
+                -div
+            );
+            // The base is bonded.
+            assert!(at(s, y, 0.0).iter().all(|v| v.abs() < 1e-15));
+            // At the surface the shear stress is the traction.
+            // (Second-order one-sided difference: exact for `u`, quadratic in z.)
+            let (top, b1, b2) = (at(s, y, t), at(s, y, t - e), at(s, y, t - 2.0 * e));
+            for k in 0..2 {
+                let shear = g * (3.0 * top[k] - 4.0 * b1[k] + b2[k]) / (2.0 * e);
+                let q = 3.0 * load.force[k] / area * profile(s, y);
+                assert!(
+                    (shear - q).abs() < 2e-3 * q.abs().max(1e-3),
+                    "surface shear {k}: {shear} vs {q}"
+                );
+            }
+        }
+    }
+
+    /// A normal press spreads the surface outward, the volume it presses
+    /// down bulges up around it (none is lost), nothing moves outside the
+    /// contact, and a sphere's contact radius makes the indentation at the
+    /// centre the sphere's own `a^2 / (2 R)`.
+    #[test]
+    fn a_round_press_squeezes_the_layer_outward() {
+        let m = thin();
+        let mut load = round([0.0, 0.0, 2.0]);
+        let a = load.radius;
+        for &(dx, dy) in &[(1.0, 0.0), (0.0, -2.5), (-3.0, 2.0), (4.0, 1.0)] {
+            let u = load.layer(&m, load.s_mm + dx, load.y_mm + dy, 0.0);
+            assert!(u[0] * dx + u[1] * dy > 0.0, "inward at ({dx}, {dy}): {u:?}");
+            assert!((u[0] * dy - u[1] * dx).abs() < 1e-12, "not radial");
+        }
+        assert_eq!(
+            load.layer(&m, load.s_mm + a * 1.01, load.y_mm, 0.0),
+            [0.0; 3]
+        );
+        // Volume: the surface's normal displacement integrates to zero.
+        let n = 400;
+        let step = 2.0 * a / n as f64;
+        let mut volume = 0.0;
+        let mut pressed = 0.0;
+        for i in 0..n {
+            for j in 0..n {
+                let (x, y) = (-a + (i as f64 + 0.5) * step, -a + (j as f64 + 0.5) * step);
+                let w = load.layer(&m, load.s_mm + x, load.y_mm + y, 0.0)[2];
+                volume += w * step * step;
+                pressed += w.max(0.0) * step * step;
+            }
+        }
+        assert!(
+            volume.abs() < 1e-3 * pressed,
+            "volume {volume} of {pressed} pressed"
+        );
+        // A sphere of radius 10 mm.
+        let r_tip = 10.0;
+        load.radius = RoundLoad::sphere_contact_radius(&m, r_tip, load.force[2]);
+        let depth = load.layer(&m, load.s_mm, load.y_mm, 0.0)[2];
+        let a = load.radius;
+        assert!(
+            (depth - a * a / (2.0 * r_tip)).abs() < 1e-9 * depth,
+            "{depth} vs {}",
+            a * a / (2.0 * r_tip)
+        );
     }
 }

@@ -230,9 +230,12 @@ impl Frame<'_> {
                 let inside = in_y && xf >= bx0 && xf <= bx1;
                 let bg = if inside { n.background } else { n.outside };
                 let k = r * w + x;
-                let light = (bg + rows[k])
+                // Overlapping dark dots cannot take away more light than
+                // there is.
+                let light = ((bg + rows[k]).max(0.0)
                     * cfg.camera.vignetting(n.vignetting, xf + ox, yf + oy)
-                    * self.gain;
+                    * self.gain)
+                    .max(0.0);
                 let sd = (n.shot * light + read2).sqrt();
                 let z = approx_normal_from_bits(hash64(self.stream, (y * w + x) as u64));
                 rows[k] = (light + sd * z + self.offset).round().clamp(0.0, 255.0);

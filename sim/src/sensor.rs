@@ -6,12 +6,13 @@ use optical_tactile::flow::FlowField;
 use rayon::prelude::*;
 
 use super::config::{DotGrid, MarkerLayout, Markers, Rendered, SimConfig};
-use super::elastic::{QuadratureCache, RodLoad, hertz_half_width};
+use super::elastic::{Load, QuadratureCache, RodLoad, RoundLoad, hertz_half_width};
 use super::render;
 use super::rng::{SplitMix64, mix64};
 
-/// One rod contact, given in the sensor frame (docs/pipeline.md): the rod lies across the
-/// whole width of the skin at chord position `x_mm`.
+/// One contact, given in the sensor frame (docs/pipeline.md): a rod lying
+/// across the whole width of the skin at chord position `x_mm`, or a round
+/// tip (a fingertip, a sphere) centred at `(x_mm, y_mm)` ([`Press::fingertip`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Press {
     /// Chord position of the rod's axis, mm (sensor x).
@@ -24,8 +25,15 @@ pub struct Press {
     /// Width of the pressed area along the skin, mm: `None` takes the
     /// Hertz contact width of the rod on the gel (about 1-8 mm for the
     /// characterization's rods), a number spreads the load over that width
-    /// with the same elliptic pressure ([`Press::pad`]).
+    /// with the same elliptic pressure ([`Press::pad`]). For a round tip, a
+    /// number is the contact's diameter instead of the one its force gives.
     pub contact_width_mm: Option<f64>,
+    /// Across position of a round tip's centre, mm (sensor y): `None` for a
+    /// rod across the whole width. A round tip of diameter `diameter_mm`
+    /// loads a thin layer bonded to a rigid base
+    /// ([`RoundLoad`](crate::elastic::RoundLoad)), the build of flat fingertip
+    /// sensors.
+    pub y_mm: Option<f64>,
 }
 
 impl Press {
@@ -36,6 +44,7 @@ impl Press {
             force_n,
             diameter_mm,
             contact_width_mm: None,
+            y_mm: None,
         }
     }
 
@@ -48,6 +57,22 @@ impl Press {
             force_n,
             diameter_mm: width_mm,
             contact_width_mm: Some(width_mm),
+            y_mm: None,
+        }
+    }
+
+    /// A round tip of `diameter_mm` (a fingertip: 15-20 mm; a spherical
+    /// indenter) centred at `(x_mm, y_mm)` applying `force_n`, on a thin
+    /// gel layer bonded to a rigid base: the gel squeezed from under it
+    /// spreads outward, and its contact grows with the force
+    /// ([`RoundLoad::sphere_contact_radius`](crate::elastic::RoundLoad::sphere_contact_radius)).
+    pub fn fingertip(x_mm: f64, y_mm: f64, force_n: [f64; 3], diameter_mm: f64) -> Self {
+        Press {
+            x_mm,
+            force_n,
+            diameter_mm,
+            contact_width_mm: None,
+            y_mm: Some(y_mm),
         }
     }
 }
@@ -112,8 +137,8 @@ impl SyntheticSensor {
         self.next_index
     }
 
-    /// Turns contacts into rod loads on the unrolled skin, checking them.
-    pub fn loads(&self, contacts: &[Press]) -> Result<Vec<RodLoad>> {
+    /// Turns contacts into loads on the unrolled skin, checking them.
+    pub fn loads(&self, contacts: &[Press]) -> Result<Vec<Load>> {
         let skin = &self.config.skin;
         let mat = &self.config.material;
         contacts
@@ -145,6 +170,30 @@ impl SyntheticSensor {
                     ));
                 }
                 let w = skin.width_mm();
+                if let Some(y) = c.y_mm {
+                    if !(y.is_finite() && y.abs() <= 0.5 * w) {
+                        return Err(Error::param(
+                            "y_mm",
+                            format!("must lie on the skin (|y| <= {} mm), got {y}", 0.5 * w),
+                        ));
+                    }
+                    let radius = match c.contact_width_mm {
+                        None => RoundLoad::sphere_contact_radius(mat, 0.5 * c.diameter_mm, f_in),
+                        Some(width) if width.is_finite() && width > 0.0 => 0.5 * width,
+                        Some(width) => {
+                            return Err(Error::param(
+                                "contact_width_mm",
+                                format!("must be finite and > 0, got {width}"),
+                            ));
+                        }
+                    };
+                    return Ok(Load::Round(RoundLoad {
+                        s_mm: s,
+                        y_mm: y,
+                        radius,
+                        force: [local[0], local[1], f_in],
+                    }));
+                }
                 let b = match c.contact_width_mm {
                     None => hertz_half_width(mat, 0.5 * c.diameter_mm, skin.radius_mm(), f_in / w),
                     Some(width) if width.is_finite() && width > 0.0 => 0.5 * width,
@@ -155,20 +204,20 @@ impl SyntheticSensor {
                         ));
                     }
                 };
-                Ok(RodLoad {
+                Ok(Load::Rod(RodLoad {
                     s_mm: s,
                     y_lo: -0.5 * w,
                     y_hi: 0.5 * w,
                     half_width: b,
                     force: [local[0], local[1], f_in],
-                })
+                }))
             })
             .collect()
     }
 
     /// Displacement (mm, local frame `[along s, across, into the gel]`) at a point
     /// of the gel `(s, y, depth)` under `loads`.
-    pub fn displacement_at(&self, loads: &[RodLoad], s: f64, y: f64, depth: f64) -> [f64; 3] {
+    pub fn displacement_at(&self, loads: &[Load], s: f64, y: f64, depth: f64) -> [f64; 3] {
         let mut u = [0.0; 3];
         for l in loads {
             let d = l.layer(&self.config.material, &self.quad, s, y, depth);
@@ -209,7 +258,7 @@ impl SyntheticSensor {
         (du as f32, dv as f32)
     }
 
-    pub(crate) fn marker_pixel_motion(&self, loads: &[RodLoad]) -> PixelMotion {
+    pub(crate) fn marker_pixel_motion(&self, loads: &[Load]) -> PixelMotion {
         let m = &self.markers;
         if loads.is_empty() {
             return vec![(0.0, 0.0); m.s.len()];
@@ -226,7 +275,7 @@ impl SyntheticSensor {
     /// `(nx, ny, du, dv)`.
     pub(crate) fn mean_depth_grid(
         &self,
-        loads: &[RodLoad],
+        loads: &[Load],
         step: (usize, usize),
     ) -> (usize, usize, Vec<f32>, Vec<f32>) {
         let cam = &self.config.camera;
