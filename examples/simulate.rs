@@ -382,9 +382,15 @@ pub struct ShearArgs {
     /// Frames including the reference.
     #[arg(long, value_name = "N", default_value_t = Shear::default().frames)]
     pub frames: usize,
-    /// Rod diameter, mm.
+    /// Rod diameter, mm (with --fingertip-y-mm, the tip's diameter: 15-20 mm
+    /// for a fingertip).
     #[arg(long, value_name = "D", default_value_t = Shear::default().indenter_mm)]
     pub indenter_mm: f64,
+    /// A round tip (a fingertip) centred at (--x-mm, this) instead of a rod
+    /// across the skin, mm. On a flat fingertip sensor, give its thin gel too,
+    /// e.g. --dot-grid --youngs-kpa 600 --layer-mm 3.
+    #[arg(long, value_name = "Y", allow_negative_numbers = true)]
+    pub fingertip_y_mm: Option<f64>,
 }
 
 /// `characterization`'s options.
@@ -533,6 +539,7 @@ impl Command {
                     shear_n: [o.shear_x_n, o.shear_y_n],
                     frames: o.frames,
                     indenter_mm: o.indenter_mm,
+                    fingertip_y_mm: o.fingertip_y_mm,
                 }),
                 &common,
                 true,

@@ -515,30 +515,44 @@ struct DotGridCase {
     dot: f64,
     jitter: f64,
     shear_x: f64,
+    /// A fingertip `(x_mm, y_mm, diameter_mm, shear_y_n)` on a thin, stiff
+    /// gel (600 kPa, 3 mm) instead of the default rod on the default gel.
+    fingertip: Option<(f64, f64, f64, f64)>,
     medium: [(f64, f64); 2],
 }
 
-fn dot_grid_case(c: &DotGridCase, check_medium_ratio: bool) {
+fn dot_grid_case(c: &DotGridCase, presets: &[DisPreset], check_medium_ratio: bool) {
     use optical_tactile_sim::scenario::Shear;
     use optical_tactile_sim::{DotGrid, SimConfig, SyntheticSensor};
-    let cfg = SimConfig::dot_grid(DotGrid {
+    let mut cfg = SimConfig::dot_grid(DotGrid {
         pitch_px: c.pitch,
         diameter_px: c.dot,
         jitter_px: c.jitter,
         ..DotGrid::default()
     });
-    let sensor = SyntheticSensor::new(cfg, c.seed).unwrap();
-    let shear = Shear {
+    let mut shear = Shear {
         shear_n: [c.shear_x, Shear::default().shear_n[1]],
         ..Shear::default()
     };
+    if let Some((x, y, diameter, shear_y)) = c.fingertip {
+        cfg.material = optical_tactile_sim::Material {
+            youngs_kpa: 600.0,
+            poisson: 0.47,
+            layer_mm: 3.0,
+        };
+        shear.x_mm = x;
+        shear.fingertip_y_mm = Some(y);
+        shear.indenter_mm = diameter;
+        shear.shear_n[1] = shear_y;
+    }
+    let sensor = SyntheticSensor::new(cfg, c.seed).unwrap();
     let centres = sensor.marker_positions();
     let reference = sensor.render_indexed(0, &[], false).unwrap().frame;
     for (k, frame) in [4usize, 8].into_iter().enumerate() {
         let rod = shear.press(frame).unwrap();
         let r = sensor.render_indexed(frame as u64, &[rod], true).unwrap();
         let truth = r.flow.unwrap();
-        for preset in [DisPreset::Fine, DisPreset::Accurate, DisPreset::Balanced] {
+        for &preset in presets {
             let flow = flow_of(preset, &reference, &r.frame);
             let (mean, max) = marker_errors(&flow, &truth, &centres);
             // Exact zeros where the skin moves by 0.3 px or more (on the
@@ -580,9 +594,15 @@ const MEDIUM_B4: (f64, f64) = (0.07050, 0.26624);
 const MEDIUM_B8: (f64, f64) = (0.08312, 0.33933);
 const MEDIUM_C4: (f64, f64) = (0.04582, 0.12960);
 const MEDIUM_C8: (f64, f64) = (0.07142, 0.26867);
+// A fingertip on a thin gel: the same with `--fingertip-y-mm 1.5 --x-mm -2
+// --indenter-mm 16 --youngs-kpa 600 --layer-mm 3 --force-n 2 --shear-x-n 0.8
+// --shear-y-n 0.3` (seed 1, pitch 30, dots 8).
+const MEDIUM_D4: (f64, f64) = (0.09641, 0.33369);
+const MEDIUM_D8: (f64, f64) = (0.11250, 0.38396);
 
-/// On a regular grid of dark dots on a lit gel, pressed and then strongly
-/// sheared, the sensor's flow presets leave no exact-zero holes and no
+/// On a regular grid of dark dots on a lit gel, pressed (by a rod, or by a
+/// fingertip on a thin gel) and then strongly sheared, the sensor's flow
+/// presets leave no exact-zero holes and no
 /// gross error at the markers, and `fine` (the sensor's default) stays
 /// within 1.2 times OpenCV MEDIUM's mean error there.
 #[test]
@@ -594,6 +614,7 @@ fn dot_grids_under_press_and_shear() {
             dot: 8.0,
             jitter: 0.0,
             shear_x: 0.6,
+            fingertip: None,
             medium: [MEDIUM_A4, MEDIUM_A8],
         },
         DotGridCase {
@@ -602,11 +623,47 @@ fn dot_grids_under_press_and_shear() {
             dot: 8.0,
             jitter: 2.0,
             shear_x: 0.8,
+            fingertip: None,
             medium: [MEDIUM_B4, MEDIUM_B8],
         },
     ] {
-        dot_grid_case(&c, true);
+        dot_grid_case(&c, &ALL_SENSOR_PRESETS, true);
     }
+}
+
+/// The sensor's flow presets with full-resolution or half-resolution
+/// patches.
+const ALL_SENSOR_PRESETS: [DisPreset; 3] =
+    [DisPreset::Fine, DisPreset::Accurate, DisPreset::Balanced];
+
+/// A fingertip (16 mm) on a thin, stiff gel, pressed then sheared across
+/// both axes: `fine` and `accurate` leave no hole and `fine` stays within
+/// 1.2 times MEDIUM's error at the dots (it is at a third of it). A known
+/// limit: `balanced` leaves 5 pixels at exactly zero on the sheared frame
+/// (checked by `balanced_leaves_a_few_zeros_under_a_sheared_fingertip`).
+#[test]
+fn a_fingertip_on_a_dot_grid_under_press_and_shear() {
+    dot_grid_case(
+        &FINGERTIP_CASE,
+        &[DisPreset::Fine, DisPreset::Accurate],
+        true,
+    );
+}
+
+const FINGERTIP_CASE: DotGridCase = DotGridCase {
+    seed: 1,
+    pitch: 30.0,
+    dot: 8.0,
+    jitter: 0.0,
+    shear_x: 0.8,
+    fingertip: Some((-2.0, 1.5, 16.0, 0.3)),
+    medium: [MEDIUM_D4, MEDIUM_D8],
+};
+
+#[test]
+#[ignore = "known limit: balanced leaves 5 exact-zero pixels under a sheared fingertip"]
+fn balanced_leaves_a_few_zeros_under_a_sheared_fingertip() {
+    dot_grid_case(&FINGERTIP_CASE, &[DisPreset::Balanced], false);
 }
 
 /// Dots twice the patch size (16 px every 34 px): the dots' inside is
@@ -623,8 +680,10 @@ fn dot_grid_with_large_dots() {
             dot: 16.0,
             jitter: 1.0,
             shear_x: 0.9,
+            fingertip: None,
             medium: [MEDIUM_C4, MEDIUM_C8],
         },
+        &ALL_SENSOR_PRESETS,
         true,
     );
 }

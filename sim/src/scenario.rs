@@ -198,8 +198,11 @@ pub struct Shear {
     pub shear_n: [f64; 2],
     /// Number of frames including the unloaded reference (at least 3).
     pub frames: usize,
-    /// Rod diameter, mm.
+    /// Rod diameter, mm (the tip's diameter for a fingertip).
     pub indenter_mm: f64,
+    /// `Some(y_mm)`: a round tip (a fingertip, [`Press::fingertip`]) centred
+    /// at `(x_mm, y_mm)` instead of a rod across the skin.
+    pub fingertip_y_mm: Option<f64>,
 }
 
 impl Default for Shear {
@@ -210,6 +213,7 @@ impl Default for Shear {
             shear_n: [0.6, 0.2],
             frames: 9,
             indenter_mm: 5.0,
+            fingertip_y_mm: None,
         }
     }
 }
@@ -450,15 +454,17 @@ impl<'p> SequenceWriter<'p> {
 pub fn truth_record(sensor: &SyntheticSensor, c: &Press) -> ContactRecord {
     let cfg = sensor.config();
     let s = cfg.skin.geometry.chord_to_arc(c.x_mm);
+    // A rod lies across the whole skin: its point is on the centre line.
+    let y = c.y_mm.unwrap_or(0.0);
     ContactRecord {
         x_mm: c.x_mm,
-        y_mm: 0.0,
+        y_mm: y,
         z_mm: cfg.skin.z_at(c.x_mm),
         fx_n: c.force_n[0],
         fy_n: c.force_n[1],
         fz_n: c.force_n[2],
         x_px: Some(cfg.camera.s_to_px(&cfg.skin, s)),
-        y_px: Some(cfg.camera.y_to_px(0.0)),
+        y_px: Some(cfg.camera.y_to_px(y)),
         ..Default::default()
     }
 }
@@ -639,7 +645,10 @@ fn shear_press(o: &Shear, k: usize) -> Option<Press> {
         o.shear_n[1] * shear,
         -o.force_n * normal,
     ];
-    Some(Press::rod(o.x_mm, f, o.indenter_mm))
+    Some(match o.fingertip_y_mm {
+        Some(y) => Press::fingertip(o.x_mm, y, f, o.indenter_mm),
+        None => Press::rod(o.x_mm, f, o.indenter_mm),
+    })
 }
 
 fn shear(
