@@ -163,3 +163,37 @@ fn the_sensor_re_references_at_rest_with_the_default_flow() {
         assert_eq!(fired, 1, "seed {seed}, read noise {read}: re-references");
     }
 }
+
+/// On a flat dot-grid sensor (320x240, dark dots on a lit gel) the same
+/// exposure steps and drift make no patch with the raw mode's default (high)
+/// thresholds nor with the mid ones, over grids of several pitches and dot
+/// sizes, read noise 1 and 2.
+#[test]
+fn exposure_changes_on_a_dot_grid_make_no_patch() {
+    use optical_tactile_sim::DotGrid;
+    for (seed, read) in [(1u64, 1.0f32), (2, 2.0), (3, 1.0)] {
+        let mut cfg = SimConfig::dot_grid(DotGrid {
+            pitch_px: 24.0 + 3.0 * seed as f64,
+            diameter_px: 6.0 + seed as f64,
+            jitter_px: 1.0,
+            ..DotGrid::default()
+        });
+        cfg.noise.read = read;
+        cfg.noise.exposure = changes();
+        let sim = SyntheticSensor::new(cfg, seed).unwrap();
+        let reference = rest(&sim, 0);
+        for thresholds in [Thresholds::HIGH, Thresholds::MID] {
+            let mut ex =
+                ContactExtractor::new(ExtractorConfig::default().with_thresholds(thresholds))
+                    .unwrap();
+            ex.set_reference(&reference).unwrap();
+            let with_patch = (1..=80)
+                .filter(|&k| !ex.extract(&rest(&sim, k)).unwrap().is_empty())
+                .count();
+            assert_eq!(
+                with_patch, 0,
+                "seed {seed}, read noise {read}, {thresholds:?}"
+            );
+        }
+    }
+}
