@@ -359,6 +359,9 @@ pub struct ContactExtractor {
     patches: Vec<ContactPatch>,
     slots: Vec<Slot>,
     raws: Vec<RawContact>,
+    /// The last frame's patches whose motion lies only where the reference
+    /// has no texture ([`ContactPatch::seen`] false): not contacts.
+    unseen: Vec<RawContact>,
     locator: ContactLocator,
     timings: StageTimings,
 }
@@ -384,6 +387,7 @@ impl ContactExtractor {
             patches: Vec::new(),
             slots: Vec::new(),
             raws: Vec::new(),
+            unseen: Vec::new(),
             locator: ContactLocator::new(),
             timings: StageTimings::default(),
         })
@@ -404,8 +408,16 @@ impl ContactExtractor {
     /// parameter out of its range.
     pub fn locate(&mut self, method: ContactPointMethod) -> Result<&[RawContact]> {
         let (flow, scale) = self.grid.finest();
-        self.locator
-            .refine(method, &mut self.raws, flow.u.view(), scale as f64)?;
+        // The unseen patches (motion past the skin's texture only) are not
+        // contacts, but they bound each contact's search as any neighbour
+        // does: the contacts come out as they would with them.
+        let n = self.raws.len();
+        self.raws.append(&mut self.unseen);
+        let refined = self
+            .locator
+            .refine(method, &mut self.raws, flow.u.view(), scale as f64);
+        self.unseen.extend(self.raws.drain(n..));
+        refined?;
         Ok(&self.raws)
     }
 
@@ -460,8 +472,14 @@ impl ContactExtractor {
                 slot.raw = Some(measure(slot, flow, patch, s, subpixel));
             });
         self.raws.clear();
-        for slot in &mut self.slots[..n] {
-            self.raws.push(slot.raw.take().expect("set above")?);
+        self.unseen.clear();
+        for (slot, patch) in self.slots[..n].iter_mut().zip(&self.patches) {
+            let raw = slot.raw.take().expect("set above")?;
+            if patch.seen {
+                self.raws.push(raw);
+            } else {
+                self.unseen.push(raw);
+            }
         }
         self.raws.sort_by(|a, b| b.strength.total_cmp(&a.strength));
         self.timings.hhd_ms = ms(t);
@@ -471,6 +489,15 @@ impl ContactExtractor {
     /// The raw contacts of the last [`extract`](Self::extract).
     pub fn raws(&self) -> &[RawContact] {
         &self.raws
+    }
+
+    /// The last frame's patches that are not contacts: their motion lies
+    /// only where the reference has no texture ([`ContactPatch::seen`]),
+    /// such as the dark coating past the skin's markers, where the flow is
+    /// the camera's noise. [`locate`](Self::locate) still counts them as
+    /// neighbours, and they are measured as contacts are.
+    pub fn unseen(&self) -> &[RawContact] {
+        &self.unseen
     }
 
     /// The last flow on the analysis grid (where the patches and their
@@ -694,7 +721,6 @@ pub struct TactileSensor {
     detections: Vec<Contact>,
     /// The last frame's raw contacts, as the calibration measures them.
     raws: Vec<RawContact>,
-    locator: ContactLocator,
     matcher: ForceMatcher,
     /// Per quiet tile of the reference: textured (re-referencing check).
     textured: Vec<bool>,
@@ -853,7 +879,6 @@ impl TactileSensor {
             cropped: Array2::zeros((0, 0)),
             detections: Vec::new(),
             raws: Vec::new(),
-            locator: ContactLocator::new(),
             matcher: ForceMatcher::new(),
             textured: Vec::new(),
             textured_x: 0,
@@ -927,15 +952,16 @@ impl TactileSensor {
         // Measure the contact columns the way the calibration was fitted
         // (shear-robust window, if it records one), then locate each contact
         // and rotate its displacements into the sensor frame there.
+        // The unseen patches (motion past the skin's texture only) take part
+        // as every patch did, then are dropped: not contacts.
+        let seen = self
+            .extractor
+            .locate(self.calibration.contact_point_method())?
+            .len();
         self.raws.clear();
         self.raws.extend_from_slice(self.extractor.raws());
+        self.raws.extend_from_slice(self.extractor.unseen());
         let (flow, scale) = self.extractor.finest_flow();
-        self.calibration.refine_contacts_with(
-            &mut self.locator,
-            &mut self.raws,
-            flow.u.view(),
-            scale as f64,
-        )?;
         self.calibration.match_forces_with(
             &mut self.matcher,
             &mut self.raws,
@@ -943,6 +969,7 @@ impl TactileSensor {
             flow.v.view(),
             scale as f64,
         )?;
+        self.raws.truncate(seen);
         // Patches with motion but no press (far-field motion) are dropped.
         let cal = &self.calibration;
         self.raws.retain(|r| cal.is_press(r));

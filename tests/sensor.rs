@@ -346,9 +346,9 @@ fn locate_keeps_the_raw_contact_column_at_the_rod_under_shear() {
 }
 
 /// The dark coating past the skin's markers holds only the camera's noise:
-/// however that noise changes, the extractor reads no motion there, while a
-/// segmentation of the same flow that looks everywhere finds a patch (so the
-/// check is not vacuous). On a dot grid (a sparse texture) the whole image
+/// however that noise changes, the extractor reports no contact there; a
+/// segmentation of the same flow that looks everywhere finds patches (so the
+/// check is not vacuous), which the extractor sets apart as unseen. On a dot grid (a sparse texture) the whole image
 /// stays observable.
 #[test]
 fn the_dark_border_past_the_skin_is_not_read_as_motion() {
@@ -360,7 +360,7 @@ fn the_dark_border_past_the_skin_is_not_read_as_motion() {
         sum: 600.0,
         ..Thresholds::LOW
     };
-    let mut unmasked_patches = 0;
+    let (mut unmasked_patches, mut unseen) = (0, 0);
     for seed in [6u64, 7] {
         let sim = SyntheticSensor::new(SimConfig::default(), seed).unwrap();
         let reference = sim.render_indexed(0, &[], false).unwrap().frame;
@@ -386,6 +386,7 @@ fn the_dark_border_past_the_skin_is_not_read_as_motion() {
             }
         }
         assert!(ex.extract(&frame).unwrap().is_empty(), "seed {seed}");
+        unseen += ex.unseen().len();
         // The same flow, segmented everywhere, in the grid's own units.
         let (flow, scale) = ex.flow();
         let grid_units = FlowField::from_planes(
@@ -407,6 +408,8 @@ fn the_dark_border_past_the_skin_is_not_read_as_motion() {
         unmasked_patches > 0,
         "the border noise gave no patch at all"
     );
+    // The extractor found those patches too, and set them apart.
+    assert_eq!(unseen, unmasked_patches);
 
     let sim = SyntheticSensor::new(SimConfig::dot_grid(DotGrid::default()), 2).unwrap();
     let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();

@@ -26,7 +26,7 @@ use super::{
 use crate::contact::profile::{
     ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
 };
-use crate::contact::{ContactLocator, ContactPointMethod, RawContact, sensor_displacements};
+use crate::contact::{ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
 use crate::frame::Roi;
 use crate::geometry::SensorGeometry;
@@ -534,21 +534,16 @@ pub fn extract_dataset(
     let total = rows.len();
     rows.par_iter()
         .map_init(
-            || {
-                (
-                    ContactExtractor::new(config.clone()).expect("configuration checked above"),
-                    ContactLocator::new(),
-                )
-            },
-            |(ex, locator), row| {
+            || ContactExtractor::new(config.clone()).expect("configuration checked above"),
+            |ex, row| {
                 let mut one = || -> Result<Extraction> {
                     let reference = load(dir, &row.reference, crop)?;
                     let frame = load(dir, &row.frame, crop)?;
                     ex.set_reference(&reference)?;
-                    let mut raws = ex.extract(&frame)?.to_vec();
+                    ex.extract(&frame)?;
+                    let raws = ex.locate(contact_point)?.to_vec();
                     let (flow, s) = ex.finest_flow();
                     let s = s as f64;
-                    locator.refine(contact_point, &mut raws, flow.u.view(), s)?;
                     let mut profiles = [Vec::new(), Vec::new()];
                     if !raws.is_empty() {
                         column_profile_into(flow.u.view(), s, &mut profiles[0]);

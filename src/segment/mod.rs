@@ -460,6 +460,9 @@ pub struct ContactPatch {
     pub bbox: BoundingBox,
     /// Union of the contour boxes it came from (before the margin).
     pub core: BoundingBox,
+    /// Whether its motion is seen where the reference has texture (see
+    /// [`Segmenter::set_observable`]); always `true` without that mask.
+    pub seen: bool,
     /// Summed `|flow|` over `bbox`, in the flow's pixels.
     pub flow_sum: f64,
     /// Number of mask pixels (after erosion and dilation) inside `bbox`.
@@ -544,6 +547,10 @@ pub struct Segmenter {
     /// Where motion can be seen at all (see [`Segmenter::set_observable`]);
     /// `None`: everywhere.
     observable: Option<Mask>,
+    /// The thresholded mask within `observable`.
+    masked: Mask,
+    /// Boxes of the observable contours that pass the sum test.
+    seen: Vec<BoundingBox>,
 }
 
 impl Segmenter {
@@ -590,14 +597,21 @@ impl Segmenter {
             cuts: Vec::new(),
             split_count: 0,
             observable: None,
+            masked: Mask::default(),
+            seen: Vec::new(),
         })
     }
 
-    /// Restricts the magnitude test to the pixels set in `mask` (the flow's
-    /// size; checked at each call), or lifts the restriction with `None`.
-    /// Where a frame has no texture (the dark coating beyond the skin's
-    /// markers) the flow holds only the camera's noise, which the magnitude
-    /// test would otherwise read as motion.
+    /// Tells which patches are seen where motion can be seen: with a `mask`
+    /// (the flow's size; checked at each call), a patch is
+    /// [`seen`](ContactPatch::seen) only if its contours meet a contour of
+    /// the thresholded flow's part within the mask that passes the sum test
+    /// on its own; every patch keeps the box it has without the mask.
+    /// `None` lifts the restriction. Where a frame has no
+    /// texture (the dark coating beyond the skin's markers) the flow holds
+    /// only the camera's noise, which the magnitude test would otherwise read
+    /// as motion, while a press near the skin's end moves the flow on both
+    /// sides of it.
     pub fn set_observable(&mut self, mask: Option<Mask>) {
         self.observable = mask;
     }
@@ -680,8 +694,25 @@ impl Segmenter {
         let (w, h) = flow.size();
         let st = self.scaled;
         self.raw.threshold_flow_into(flow, st.magnitude)?;
+        // Where motion can be seen: the contours of the observable part of
+        // the mask that pass the sum test. A patch is `seen` if its contours
+        // meet one of them; its box is cut from the whole mask as without
+        // the restriction, so a contact whose motion spills past the skin's
+        // texture is measured whole.
+        self.seen.clear();
         if let Some(observable) = &self.observable {
-            self.raw.and_assign(observable)?;
+            self.masked.copy_from(&self.raw);
+            self.masked.and_assign(observable)?;
+            self.morph
+                .erode(&self.masked, &mut self.eroded, &st.erode, 1)?;
+            self.morph
+                .dilate(&self.eroded, &mut self.mask, &st.dilate, 1)?;
+            self.contours.external_boxes(&self.mask, &mut self.boxes);
+            for b in &self.boxes {
+                if box_sum_where(flow, b, observable) >= st.sum {
+                    self.seen.push(*b);
+                }
+            }
         }
         self.morph
             .erode(&self.raw, &mut self.eroded, &st.erode, 1)?;
@@ -762,9 +793,12 @@ impl Segmenter {
                         set_range(&mut bbox, along_x, start, Some(g));
                     }
                 }
+                let seen =
+                    self.observable.is_none() || self.seen.iter().any(|o| o.intersects(&piece));
                 out.push(ContactPatch {
                     bbox,
                     core: piece,
+                    seen,
                     flow_sum: box_sum(flow, &bbox),
                     area: self
                         .mask
@@ -1137,6 +1171,20 @@ fn check_flow(flow: &FlowField) -> Result<()> {
 
 /// Sum of `|flow|` over a box: per row in f32 with eight lanes (vectorises),
 /// rows accumulated in f64. A row whose f32 squares overflow is redone in f64.
+/// Summed `|flow|` over the pixels of box `b` set in `mask` (the slow,
+/// plain sum: it runs only on the few contours of the observable part).
+fn box_sum_where(flow: &FlowField, b: &BoundingBox, mask: &Mask) -> f64 {
+    let mut sum = 0.0f64;
+    for y in b.y..b.y_end() {
+        for x in b.x..b.x_end() {
+            if mask.get(x, y) {
+                sum += f64::from(flow.u[[y, x]]).hypot(f64::from(flow.v[[y, x]]));
+            }
+        }
+    }
+    sum
+}
+
 fn box_sum(flow: &FlowField, b: &BoundingBox) -> f64 {
     let exact = |u: &[f32], v: &[f32]| -> f64 {
         u.iter()
@@ -1273,6 +1321,7 @@ mod tests {
         let p = ContactPatch {
             bbox: BoundingBox::new(3, 5, 10, 4),
             core: BoundingBox::new(4, 6, 8, 2),
+            seen: true,
             flow_sum: 1.0,
             area: 16,
         };
