@@ -158,19 +158,28 @@ struct Slot {
     raw: Option<Result<RawContact>>,
 }
 
-/// Time spent in each stage of the last frame, ms.
+/// Time spent in each stage of the last frame, ms: wall-clock time read
+/// from [`Instant`] at each stage's ends (a few tens of nanoseconds per
+/// frame), kept by [`ContactExtractor::timings`] and
+/// [`TactileSensor::timings`]. The stages run one after the other, so
+/// `crop + flow + segment + hhd + contacts + tracking` is `total` up to the
+/// time between them.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StageTimings {
     /// Crop and copy.
     pub crop_ms: f64,
-    /// Optical flow.
+    /// Exposure compensation, optical flow, and its averaging down to the
+    /// analysis grid.
     pub flow_ms: f64,
     /// Segmentation.
     pub segment_ms: f64,
-    /// nHHD and raw quantities of every patch (in parallel).
+    /// nHHD and raw quantities of every patch (patches in parallel).
     pub hhd_ms: f64,
-    /// Calibration, tracking and re-referencing.
+    /// Calibration: contact columns, force profiles, location and force maps.
     pub contacts_ms: f64,
+    /// Tracking, the re-referencing check, and taking a new reference when
+    /// it says so.
+    pub tracking_ms: f64,
     /// The whole call.
     pub total_ms: f64,
 }
@@ -400,7 +409,8 @@ impl ContactExtractor {
     /// The raw quantities of every contact patch of `frame` (cropped, same
     /// size as the reference), strongest first.
     pub fn extract(&mut self, frame: &ArrayRef2<f32>) -> Result<&[RawContact]> {
-        let t = Instant::now();
+        let t0 = Instant::now();
+        let t = t0;
         if self.dis.size() == (0, 0) {
             return Err(Error::NoReference);
         }
@@ -434,6 +444,7 @@ impl ContactExtractor {
         }
         self.raws.sort_by(|a, b| b.strength.total_cmp(&a.strength));
         self.timings.hhd_ms = ms(t);
+        self.timings.total_ms = ms(t0);
         Ok(&self.raws)
     }
 
@@ -485,7 +496,8 @@ impl ContactExtractor {
         self.exposure.last()
     }
 
-    /// Stage timings of the last frame (crop and contacts left at 0 here).
+    /// Stage timings of the last frame (crop, contacts and tracking left at
+    /// 0 here; `total` is flow, segmentation and nHHD).
     pub fn timings(&self) -> &StageTimings {
         &self.timings
     }
@@ -929,6 +941,8 @@ impl TactileSensor {
                 self.non_finite += 1;
             }
         }
+        let contacts_ms = ms(t);
+        let t = Instant::now();
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);
         let live = self.tracker.update(&self.detections, dt).len();
@@ -944,7 +958,8 @@ impl TactileSensor {
         }
         let mut timings = *self.extractor.timings();
         timings.crop_ms = crop_ms;
-        timings.contacts_ms = ms(t);
+        timings.contacts_ms = contacts_ms;
+        timings.tracking_ms = ms(t);
         timings.total_ms = ms(t0);
         self.timings = timings;
         Ok(self.contacts())
