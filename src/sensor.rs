@@ -49,7 +49,7 @@ use crate::exposure::{ExposureCompensation, ExposureCompensator};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
-use crate::hhd::{Decomposition, NaturalHhd};
+use crate::hhd::{DivergentPart, NaturalHhd};
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
 
@@ -150,11 +150,12 @@ impl ExtractorConfig {
     }
 }
 
-/// One patch's working set: its planner, decomposition and result.
+/// One patch's working set: its planner, the divergent part of its nHHD
+/// (all the raw quantities read) and its result.
 #[derive(Debug, Default)]
 struct Slot {
     hhd: NaturalHhd,
-    dec: Option<Decomposition>,
+    part: DivergentPart,
     raw: Option<Result<RawContact>>,
 }
 
@@ -476,12 +477,14 @@ impl ContactExtractor {
         &self.patches
     }
 
-    /// The decomposition of the `k`-th patch of the last frame (same order as
-    /// [`patches`](Self::patches)).
-    pub fn decomposition(&self, k: usize) -> Option<&Decomposition> {
-        (k < self.patches.len())
-            .then(|| self.slots[k].dec.as_ref())
-            .flatten()
+    /// The divergent part of the nHHD of the `k`-th patch of the last frame
+    /// (same order as [`patches`](Self::patches)): the divergence, its
+    /// potential `D` and `d = grad D`, all the raw quantities read. The
+    /// rotational and harmonic parts are not computed;
+    /// [`NaturalHhd::decompose`] gives them for a patch's flow
+    /// ([`ContactPatch::view`] of [`flow`](Self::flow)).
+    pub fn divergent_part(&self, k: usize) -> Option<&DivergentPart> {
+        (k < self.patches.len()).then(|| &self.slots[k].part)
     }
 
     /// The segmenter (its mask and contour boxes, for display).
@@ -513,16 +516,14 @@ fn measure(
 ) -> Result<RawContact> {
     let b = patch.bbox;
     let (u, v) = patch.view(flow)?;
-    let dec = slot
-        .dec
-        .get_or_insert_with(|| Decomposition::zeros(b.height, b.width));
-    slot.hhd.decompose_into(u, v, s, s, dec)?;
+    let part = &mut slot.part;
+    slot.hhd.divergent_into(u, v, s, s, part)?;
     let fields = PatchFields {
         u,
         v,
-        potential_d: dec.potential_d.view(),
-        d_u: dec.d.u.view(),
-        d_v: dec.d.v.view(),
+        potential_d: part.potential_d.view(),
+        d_u: part.d.u.view(),
+        d_v: part.d.v.view(),
     };
     let mut raw = raw_quantities(
         &fields,
@@ -1003,7 +1004,7 @@ impl TactileSensor {
         self.references
     }
 
-    /// The extractor (flow, patches, decompositions of the last frame).
+    /// The extractor (flow, patches, divergent parts of the last frame).
     pub fn extractor(&self) -> &ContactExtractor {
         &self.extractor
     }
