@@ -271,17 +271,16 @@ impl AnalysisGrid {
     }
 }
 
-/// `out = flow * gain`, resized to `flow`'s size if needed.
+/// `out = flow * gain`, resized to `flow`'s size if needed; the two
+/// components in parallel.
 fn scale_into(flow: &FlowField, gain: f32, out: &mut FlowField) {
     if out.size() != flow.size() {
         *out = FlowField::zeros(flow.width(), flow.height());
     }
-    ndarray::Zip::from(&mut out.u)
-        .and(&flow.u)
-        .for_each(|o, &x| *o = x * gain);
-    ndarray::Zip::from(&mut out.v)
-        .and(&flow.v)
-        .for_each(|o, &x| *o = x * gain);
+    let scale = |o: &mut Array2<f32>, x: &Array2<f32>| {
+        ndarray::Zip::from(o).and(x).for_each(|o, &x| *o = x * gain)
+    };
+    rayon::join(|| scale(&mut out.u, &flow.u), || scale(&mut out.v, &flow.v));
 }
 
 /// Averages `flow` over `factor x factor` blocks into `out`, in the pixel
@@ -303,7 +302,8 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
     }
     let norm = 1.0 / (factor * factor * factor) as f32;
     let sw = flow.width();
-    for (src, dst) in [(&flow.u, &mut out.u), (&flow.v, &mut out.v)] {
+    // The two components in parallel.
+    let pool = |src: &Array2<f32>, dst: &mut Array2<f32>| {
         // Plain row slices let the inner loops run without per-element
         // index arithmetic (a standard-layout copy only if `flow` is not).
         let src = src.as_standard_layout();
@@ -321,7 +321,8 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
                 *o *= norm;
             }
         }
-    }
+    };
+    rayon::join(|| pool(&flow.u, &mut out.u), || pool(&flow.v, &mut out.v));
     Ok(())
 }
 

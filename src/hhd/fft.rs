@@ -242,64 +242,71 @@ impl GreenConvolver {
     fn green_spectrum(&self) -> Vec<f64> {
         let (py, px) = (self.py, self.px);
         let (qy, qx) = (py / 2 + 1, px / 2 + 1);
-        // Torus index k holds offset min(k, p - k): every offset a grid of
-        // up to max_shape can produce is then exact, and G stays even.
-        let mut scratch = vec![Complex64::default(); self.scratch_len];
-        // Stage 1: rows oy = 0..qy, a pair per FFT; bins kx < qx kept,
-        // column-major ([kx * qy + oy]) so that stage 2 reads them in order.
-        let mut rows = vec![0.0; qx * qy];
-        let mut buf = vec![Complex64::default(); px];
-        let (mut ga, mut gb) = (vec![0.0; qx], vec![0.0; qx]);
-        for oy in (0..qy).step_by(2) {
-            let pair = oy + 1 < qy;
-            for ox in 0..qx {
-                ga[ox] = green(oy, ox, self.dx, self.dy);
-                gb[ox] = if pair {
+        // A large torus (a new size of a large patch) shares the work with
+        // rayon's pool: every 1-D transform is still done whole by one
+        // thread, so the spectrum is the same to the bit.
+        let par = py * px >= PARALLEL_MIN_CELLS;
+        let work = || {
+            (
+                vec![Complex64::default(); self.scratch_len],
+                vec![Complex64::default(); px.max(py)],
+            )
+        };
+        // Stage 1: rows oy = 0..qy, a pair per FFT, bins kx < qx kept:
+        // rows[oy * qx + kx]. Torus index k holds offset min(k, p - k):
+        // every offset a grid of up to max_shape can produce is then
+        // exact, and G stays even.
+        let mut rows = vec![0.0; qy.next_multiple_of(2) * qx];
+        let stage1 = |(scratch, buf): &mut (Vec<Complex64>, Vec<Complex64>),
+                      (pair, out): (usize, &mut [f64])| {
+            let oy = 2 * pair;
+            let buf = &mut buf[..px];
+            let has_b = oy + 1 < qy;
+            for (ox, z) in buf[..qx].iter_mut().enumerate() {
+                let b = if has_b {
                     green(oy + 1, ox, self.dx, self.dy)
                 } else {
                     0.0
                 };
+                *z = Complex64::new(green(oy, ox, self.dx, self.dy), b);
             }
-            for (kx, z) in buf.iter_mut().enumerate() {
-                let ox = kx.min(px - kx);
-                *z = Complex64::new(ga[ox], gb[ox]);
+            for kx in qx..px {
+                buf[kx] = buf[px - kx];
             }
-            self.fwd_x.process_with_scratch(&mut buf, &mut scratch);
-            for (col, z) in rows.chunks_exact_mut(qy).zip(&buf[..qx]) {
-                col[oy] = z.re;
-                if pair {
-                    col[oy + 1] = z.im;
-                }
+            self.fwd_x.process_with_scratch(buf, scratch);
+            let (a, b) = out.split_at_mut(qx);
+            for ((a, b), z) in a.iter_mut().zip(b).zip(&buf[..qx]) {
+                *a = z.re;
+                *b = z.im;
             }
-        }
+        };
+        chunk_halves(&mut rows, 2 * qx, par, work, stage1);
         // Stage 2: columns kx = 0..qx over the whole torus height (row ky
         // holds offset min(ky, py - ky)), a pair per FFT.
         let scale = self.dx * self.dy / (py * px) as f64;
-        let mut hat = vec![0.0; qx * py];
-        let mut buf = vec![Complex64::default(); py];
-        for kx in (0..qx).step_by(2) {
-            let pair = kx + 1 < qx;
-            let a = &rows[kx * qy..][..qy];
-            let b = if pair {
-                &rows[(kx + 1) * qy..][..qy]
-            } else {
-                a
-            };
+        let mut hat = vec![0.0; qx.next_multiple_of(2) * py];
+        let rows = &rows;
+        let stage2 = |(scratch, buf): &mut (Vec<Complex64>, Vec<Complex64>),
+                      (pair, out): (usize, &mut [f64])| {
+            let kx = 2 * pair;
+            let buf = &mut buf[..py];
+            let has_b = kx + 1 < qx;
             for (ky, z) in buf.iter_mut().enumerate() {
                 let oy = ky.min(py - ky);
-                *z = Complex64::new(a[oy], if pair { b[oy] } else { 0.0 });
+                let b = if has_b { rows[oy * qx + kx + 1] } else { 0.0 };
+                *z = Complex64::new(rows[oy * qx + kx], b);
             }
-            self.fwd_y.process_with_scratch(&mut buf, &mut scratch);
+            self.fwd_y.process_with_scratch(buf, scratch);
             // The spectra are real up to rounding: the parts that should
             // vanish are dropped on purpose.
-            let (a, b) = hat[kx * py..].split_at_mut(py);
-            for (ky, z) in buf.iter().enumerate() {
-                a[ky] = z.re * scale;
-                if pair {
-                    b[ky] = z.im * scale;
-                }
+            let (a, b) = out.split_at_mut(py);
+            for ((a, b), z) in a.iter_mut().zip(b).zip(buf.iter()) {
+                *a = z.re * scale;
+                *b = z.im * scale;
             }
-        }
+        };
+        chunk_halves(&mut hat, 2 * py, par, work, stage2);
+        hat.truncate(qx * py);
         hat
     }
 
@@ -575,6 +582,32 @@ fn halves(
     rayon::join(|| f(a, 0, s1), || f(b, cut, s2));
 }
 
+/// Runs `f(state, (k, chunk))` on every `len`-long chunk `k` of `data`
+/// (the last one possibly shorter), with a `state` from `init`: with `par`,
+/// the first half of the chunks on one thread and the rest on another
+/// (`rayon::join`), each with its own state.
+fn chunk_halves<S>(
+    data: &mut [f64],
+    len: usize,
+    par: bool,
+    init: impl Fn() -> S + Sync,
+    f: impl Fn(&mut S, (usize, &mut [f64])) + Sync,
+) {
+    let run = |part: &mut [f64], first: usize| {
+        let mut state = init();
+        for (k, chunk) in part.chunks_mut(len).enumerate() {
+            f(&mut state, (first + k, chunk));
+        }
+    };
+    let n = data.len().div_ceil(len);
+    if !par || n < 2 {
+        run(data, 0);
+        return;
+    }
+    let (a, b) = data.split_at_mut(n / 2 * len);
+    rayon::join(|| run(a, 0), || run(b, n / 2));
+}
+
 /// [`halves`] for the row passes of [`GreenConvolver::potential`]: `rows`
 /// holds pairs of rows (`px` each), `half` the two half spectra (`qx` bins
 /// each) of every pair; pairs `..cut` and `cut..` go to the two threads,
@@ -812,6 +845,8 @@ mod tests {
             (5, 8, 1.0, 3.0),
             (13, 28, 2.0, 2.0),
             (40, 33, 0.3, 1.1),
+            // Past PARALLEL_MIN_CELLS: the spectrum is shared with the pool.
+            (130, 260, 2.0, 2.0),
         ] {
             let conv = GreenConvolver::new(&mut planner, ny, nx, dx, dy).unwrap();
             let (py, px) = conv.padded_shape();
