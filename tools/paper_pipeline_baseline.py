@@ -4,7 +4,7 @@
 usage: python3 tools/paper_pipeline_baseline.py SEQ_DIR [--crop X,Y,W,H]
            [--thresholds low|mid|high | --magnitude PX --sum S --erode K --dilate K]
            [--threads 2] [--rounds 3]
-           [--track TRACK_BIN [--track-args "ARGS"]]
+           [--track TRACK_BIN ... [--track-args "ARGS"]]
 
 What the paper describes (Aucone et al., "Multi-contact Sensing
 Methodology"), with the libraries it names, run frame by frame against the
@@ -31,12 +31,13 @@ without reading the PNG, and prints the median, 90th percentile and largest
 over the frames, ms. `--rounds N` runs the sequence N times and takes every
 frame's median over the rounds.
 
-`--track BIN` (the built `track` example, e.g. target/release/examples/track)
-runs it on the same sequence between the rounds (`BIN SEQ_DIR --quiet
---timings` plus `--track-args`), reads the median of its `process` column
-(the whole `TactileSensor::process` call, reading excluded) and prints the
-ratio of the two medians: both measured in the same minutes on the same
-machine.
+`--track BIN` (the built `track` example, e.g. target/release/examples/track;
+repeatable, to compare builds) runs it on the same sequence after each round
+(`BIN SEQ_DIR --quiet --timings` plus `--track-args`), reads the median of
+its `process` column (the whole `TactileSensor::process` call, reading
+excluded) and prints, per binary, its per-stage medians (median over the
+rounds) and the ratio of the paper pipeline's median to its median: all
+measured in the same minutes on the same machine.
 
 Needs numpy, scipy and opencv-python-headless (OpenCV 4.x or 5.x).
 """
@@ -134,8 +135,8 @@ def quantile(v, q):
     return v[round((len(v) - 1) * q)]
 
 
-def run_track(a):
-    cmd = [a.track, a.seq, "--quiet", "--timings"] + a.track_args.split()
+def run_track(a, binary):
+    cmd = [binary, a.seq, "--quiet", "--timings"] + a.track_args.split()
     out = subprocess.run(cmd, capture_output=True, text=True)
     if out.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{out.stderr}{out.stdout}")
@@ -158,7 +159,7 @@ def main():
     ap.add_argument("--dilate", type=int)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1)
-    ap.add_argument("--track")
+    ap.add_argument("--track", action="append", default=[])
     ap.add_argument("--track-args", default="")
     a = ap.parse_args()
     crop = tuple(int(v) for v in a.crop.split(",")) if a.crop else None
@@ -178,7 +179,7 @@ def main():
     dis.calc(ref, rest[0], None)  # warm-up
 
     per_frame = [{s: [] for s in STAGES} for _ in rest]
-    track_runs = []
+    track_runs = {b: [] for b in a.track}
     patches = largest = 0
     for _ in range(a.rounds):
         for k, cur in enumerate(rest):
@@ -188,8 +189,8 @@ def main():
             patches = max(patches, len(boxes))
             for _, _, w, h in boxes:
                 largest = max(largest, w * h)
-        if a.track:
-            track_runs.append(run_track(a))
+        for b in a.track:
+            track_runs[b].append(run_track(a, b))
     print(
         f"paper pipeline (OpenCV {cv2.__version__} DIS FAST, {a.threads} threads; "
         f"thresholds {th[0]} px / {th[1]} / {th[2]} / {th[3]}): {len(rest)} frames x "
@@ -199,14 +200,17 @@ def main():
     med = {s: [statistics.median(f[s]) for f in per_frame] for s in STAGES}
     for label, q in (("median", 0.5), ("p90", 0.9), ("max", 1.0)):
         print(f"{label:<8}" + "".join(f" {quantile(med[s], q):>9.2f}" for s in STAGES))
-    if track_runs:
-        ours = statistics.median(r["process"] for r in track_runs)
-        rounds = ", ".join(f"{r['process']:.2f}" for r in track_runs)
-        paper = quantile(med["frame"], 0.5)
+    paper = quantile(med["frame"], 0.5)
+    for b, runs in track_runs.items():
+        cols = list(runs[0])
+        print(f"track {b} ({' '.join([a.seq] + a.track_args.split())}), medians over {len(runs)} rounds:")
+        print(f"{'ms':<8}" + "".join(f" {c:>9}" for c in cols))
+        print(f"{'median':<8}" + "".join(f" {statistics.median(r[c] for r in runs):>9.2f}" for c in cols))
+        ours = statistics.median(r["process"] for r in runs)
+        rounds = ", ".join(f"{r['process']:.2f}" for r in runs)
         print(
-            f"track ({' '.join([a.seq] + a.track_args.split())}): median process "
-            f"{ours:.2f} ms (per round: {rounds}); "
-            f"paper pipeline median {paper:.2f} ms; ratio {paper / ours:.1f}x"
+            f"median process {ours:.2f} ms (rounds: {rounds}); paper pipeline median "
+            f"{paper:.2f} ms; ratio {paper / ours:.1f}x"
         )
 
 
