@@ -34,6 +34,7 @@
 use std::sync::Arc;
 
 use ndarray::{ArrayRef2, ArrayView2};
+use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
@@ -75,6 +76,62 @@ pub fn green(oy: usize, ox: usize, dx: f64, dy: f64) -> f64 {
     }
     let (y, x) = (oy as f64 * dy, ox as f64 * dx);
     (y * y + x * x).ln() * (0.25 / std::f64::consts::PI)
+}
+
+/// [`green`] tabulated for offsets `(oy, ox)` below `(rows, cols)` at one
+/// spacing: planning a new torus then reads G instead of evaluating a
+/// logarithm per offset, which is most of a new spectrum's cost. Grows to
+/// the largest torus seen (for a 1600x200 strip on a 2 px grid, 101 x 801
+/// values).
+#[derive(Debug, Default)]
+pub(crate) struct GreenTable {
+    dx: f64,
+    dy: f64,
+    rows: usize,
+    cols: usize,
+    g: Vec<f64>,
+}
+
+impl GreenTable {
+    /// Whether the table holds every offset below `(rows, cols)` at `(dx, dy)`.
+    fn holds(&self, rows: usize, cols: usize, dx: f64, dy: f64) -> bool {
+        rows <= self.rows
+            && cols <= self.cols
+            && self.dx.to_bits() == dx.to_bits()
+            && self.dy.to_bits() == dy.to_bits()
+    }
+
+    /// Makes the table hold every offset below `(rows, cols)` at `(dx, dy)`:
+    /// grown (to at least the size it had, at the same spacing) or made
+    /// anew for another spacing.
+    pub(crate) fn ensure(&mut self, rows: usize, cols: usize, dx: f64, dy: f64) {
+        if self.holds(rows, cols, dx, dy) {
+            return;
+        }
+        let same = self.dx.to_bits() == dx.to_bits() && self.dy.to_bits() == dy.to_bits();
+        let (rows, cols) = if same {
+            (rows.max(self.rows), cols.max(self.cols))
+        } else {
+            (rows, cols)
+        };
+        self.g.clear();
+        self.g.resize(rows * cols, 0.0);
+        let fill = |(oy, row): (usize, &mut [f64])| {
+            for (ox, v) in row.iter_mut().enumerate() {
+                *v = green(oy, ox, dx, dy);
+            }
+        };
+        if rows * cols >= PARALLEL_MIN_CELLS / 4 {
+            self.g.par_chunks_mut(cols).enumerate().for_each(fill);
+        } else {
+            self.g.chunks_mut(cols).enumerate().for_each(fill);
+        }
+        (self.dx, self.dy, self.rows, self.cols) = (dx, dy, rows, cols);
+    }
+
+    fn get(&self, oy: usize, ox: usize) -> f64 {
+        self.g[oy * self.cols + ox]
+    }
 }
 
 /// Working buffers shared by all [`GreenConvolver`]s of one planner: they grow
@@ -181,6 +238,19 @@ impl GreenConvolver {
         dx: f64,
         dy: f64,
     ) -> Result<Self> {
+        Self::with_table(planner, None, ny, nx, dx, dy)
+    }
+
+    /// [`new`](Self::new), reading G from `table` when it holds the offsets
+    /// and spacing needed (the same values, without their logarithms).
+    pub(crate) fn with_table(
+        planner: &mut FftPlanner<f64>,
+        table: Option<&GreenTable>,
+        ny: usize,
+        nx: usize,
+        dx: f64,
+        dy: f64,
+    ) -> Result<Self> {
         check_grid(ny, nx, dx, dy)?;
         let (py, px) = Self::torus_for(ny, nx);
         let fwd_x = planner.plan_fft_forward(px);
@@ -204,7 +274,9 @@ impl GreenConvolver {
             scratch_len,
             green_hat: Vec::new(),
         };
-        conv.green_hat = conv.green_spectrum();
+        let (qy, qx) = (py / 2 + 1, px / 2 + 1);
+        let table = table.filter(|t| t.holds(qy, qx, dx, dy));
+        conv.green_hat = conv.green_spectrum(table);
         Ok(conv)
     }
 
@@ -239,7 +311,11 @@ impl GreenConvolver {
     ///
     /// About a quarter of the full transform's work, which matters because a
     /// new patch size means a new spectrum.
-    fn green_spectrum(&self) -> Vec<f64> {
+    fn green_spectrum(&self, table: Option<&GreenTable>) -> Vec<f64> {
+        let g = |oy: usize, ox: usize| match table {
+            Some(t) => t.get(oy, ox),
+            None => green(oy, ox, self.dx, self.dy),
+        };
         let (py, px) = (self.py, self.px);
         let (qy, qx) = (py / 2 + 1, px / 2 + 1);
         // A large torus (a new size of a large patch) shares the work with
@@ -263,12 +339,8 @@ impl GreenConvolver {
             let buf = &mut buf[..px];
             let has_b = oy + 1 < qy;
             for (ox, z) in buf[..qx].iter_mut().enumerate() {
-                let b = if has_b {
-                    green(oy + 1, ox, self.dx, self.dy)
-                } else {
-                    0.0
-                };
-                *z = Complex64::new(green(oy, ox, self.dx, self.dy), b);
+                let b = if has_b { g(oy + 1, ox) } else { 0.0 };
+                *z = Complex64::new(g(oy, ox), b);
             }
             for kx in qx..px {
                 buf[kx] = buf[px - kx];
@@ -898,6 +970,34 @@ mod tests {
             assert_eq!(out[0], out[1], "{ny}x{nx}");
             assert_ne!(out[0], input);
         }
+    }
+
+    #[test]
+    fn a_tabulated_green_gives_the_same_spectrum_to_the_bit() {
+        let mut planner = FftPlanner::new();
+        let mut table = GreenTable::default();
+        // The table grows with the tori, and is made anew for a spacing.
+        for (ny, nx, dx, dy) in [
+            (5, 8, 1.0, 3.0),
+            (40, 33, 1.0, 3.0),
+            (13, 28, 1.0, 3.0),
+            (13, 28, 2.0, 2.0),
+            (130, 260, 2.0, 2.0),
+        ] {
+            let (py, px) = GreenConvolver::torus_for(ny, nx);
+            table.ensure(py / 2 + 1, px / 2 + 1, dx, dy);
+            let want = GreenConvolver::new(&mut planner, ny, nx, dx, dy).unwrap();
+            let got =
+                GreenConvolver::with_table(&mut planner, Some(&table), ny, nx, dx, dy).unwrap();
+            assert_eq!(got.green_hat, want.green_hat, "{ny}x{nx}");
+        }
+        // The largest torus, 270 x 540 for 130 x 260.
+        assert_eq!((table.rows, table.cols), (136, 271));
+        // A table that does not hold the offsets is not read.
+        let small = GreenTable::default();
+        let got = GreenConvolver::with_table(&mut planner, Some(&small), 9, 9, 1.0, 1.0).unwrap();
+        let want = GreenConvolver::new(&mut planner, 9, 9, 1.0, 1.0).unwrap();
+        assert_eq!(got.green_hat, want.green_hat);
     }
 
     #[test]

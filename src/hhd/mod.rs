@@ -49,6 +49,8 @@ mod tests_reference;
 
 pub use fft::{FftWorkspace, GreenConvolver, PARALLEL_MIN_CELLS};
 
+use fft::GreenTable;
+
 use std::sync::Arc;
 
 use ndarray::{Array2, ArrayRef2, ArrayView2};
@@ -271,6 +273,8 @@ pub struct NaturalHhd {
     cache: Vec<Arc<GreenConvolver>>,
     capacity: usize,
     workspace: FftWorkspace,
+    /// G at the offsets of the largest torus planned so far.
+    table: GreenTable,
 }
 
 impl Default for NaturalHhd {
@@ -307,6 +311,7 @@ impl NaturalHhd {
             cache: Vec::with_capacity(capacity),
             capacity,
             workspace: FftWorkspace::new(),
+            table: GreenTable::default(),
         })
     }
 
@@ -342,7 +347,16 @@ impl NaturalHhd {
                 c
             }
             None => {
-                let c = Arc::new(GreenConvolver::new(&mut self.planner, ny, nx, dx, dy)?);
+                let (py, px) = torus;
+                self.table.ensure(py / 2 + 1, px / 2 + 1, dx, dy);
+                let c = Arc::new(GreenConvolver::with_table(
+                    &mut self.planner,
+                    Some(&self.table),
+                    ny,
+                    nx,
+                    dx,
+                    dy,
+                )?);
                 if self.cache.len() == self.capacity {
                     self.cache.remove(0);
                 }
