@@ -3,7 +3,8 @@
 # --help (status 0, a usage text) and an unknown flag (status 2); track runs
 # with its default inputs from another directory and prints contacts; a
 # closed pipe (track | head -3) ends track quietly with status 0; text
-# streams go to stdout with `-`, binary outputs refuse it; the tune server
+# streams go to stdout with `-`, binary outputs refuse it; track --timings
+# prints its stage table; the tune server
 # starts, prints its address and stops with --run-for.
 #
 #   .ci/tools-check.sh                # builds the release examples first
@@ -168,6 +169,14 @@ if [[ -x $track ]]; then
       pass "track --magnitude 100 finds no contact"
     else
       fail "track --magnitude 100: contacts found" "$(cat "$work/out")"
+    fi
+  fi
+  # The time per stage: a row per statistic, the slowest frame named.
+  if check_status "track --timings" 0 "$track" --quiet --timings; then
+    if grep -q "^median .*[0-9]" "$work/out" && grep -q "^slowest frame: 0000" "$work/out"; then
+      pass "track --timings prints the stage table and the slowest frame"
+    else
+      fail "track --timings: no stage table" "$(cat "$work/out" "$work/err")"
     fi
   fi
   if check_status "track --erode 0" 2 "$track" --erode 0; then

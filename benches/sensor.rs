@@ -14,6 +14,13 @@
 //! motion spreads along most of the strip and so does its one patch, the
 //! nHHD's largest case.
 //!
+//! `sensor_large_presses`: the strip with 1, 2 and 4 large presses (10 mm
+//! rods at 2.5-3 N with 0.3-0.8 N of shear, 70 mm apart), `fine` preset,
+//! the LOW thresholds (0.15 px): each press's patch spreads 60-130 mm along
+//! the strip, the case where the time per frame grows with the contacts.
+//! After each case it prints the medians of the sensor's own stage timings
+//! (`StageTimings`) over 41 further calls, ms.
+//!
 //! `cargo bench --bench sensor` (short measurement times; on a shared machine
 //! compare ratios within one run).
 
@@ -27,7 +34,7 @@ use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::segment::{Shape, Thresholds};
-use optical_tactile::sensor::{ExtractorConfig, SensorConfig, TactileSensor};
+use optical_tactile::sensor::{ExtractorConfig, SensorConfig, StageTimings, TactileSensor};
 use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
 /// A linear calibration for the strip `crop` (x = (x_px - 799.5) / 5 mm,
@@ -99,7 +106,7 @@ fn bench_process(c: &mut Criterion) {
         let (reference, pressed, crop) = frames(full_frame);
         let size = format!("{}x{}", reference.ncols(), reference.nrows());
         for preset in [DisPreset::Fast, DisPreset::Accurate, DisPreset::Fine] {
-            let mut sensor = ready(preset, 0.5, crop, &reference, &pressed, &size);
+            let mut sensor = ready(preset, threshold(0.5), crop, &reference, &pressed, &size);
             let mut t = 0.02;
             g.bench_function(BenchmarkId::new(preset.name(), &size), |b| {
                 pool.install(|| {
@@ -121,7 +128,14 @@ fn bench_process(c: &mut Criterion) {
     let size = format!("{}x{}", reference.ncols(), reference.nrows());
     // The shipped calibration's 0.2 px threshold, at which such a press's
     // patch spreads along most of the strip.
-    let mut sensor = ready(DisPreset::Fine, 0.2, crop, &reference, &pressed, &size);
+    let mut sensor = ready(
+        DisPreset::Fine,
+        threshold(0.2),
+        crop,
+        &reference,
+        &pressed,
+        &size,
+    );
     let mut t = 0.02;
     let b = sensor.extractor().patches()[0].bbox;
     eprintln!(
@@ -137,14 +151,88 @@ fn bench_process(c: &mut Criterion) {
         })
     });
     g.finish();
+
+    let mut g = c.benchmark_group("sensor_large_presses");
+    g.sample_size(20)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(3));
+    let presses = [
+        Press::rod(-105.0, [0.8, 0.0, -2.9], 10.0),
+        Press::rod(35.0, [-0.5, 0.0, -2.5], 10.0),
+        Press::rod(-35.0, [0.3, 0.0, -3.0], 10.0),
+        Press::rod(105.0, [-0.6, 0.0, -2.7], 10.0),
+    ];
+    for n in [1, 2, 4] {
+        let (reference, pressed, crop) = frames_of(false, &presses[..n]);
+        let mut sensor = ready(
+            DisPreset::Fine,
+            Thresholds::LOW,
+            crop,
+            &reference,
+            &pressed,
+            &format!("{n} presses"),
+        );
+        let patches = sensor.extractor().patches();
+        let cells: Vec<String> = patches
+            .iter()
+            .map(|p| format!("{}x{}", p.bbox.width, p.bbox.height))
+            .collect();
+        eprintln!(
+            "{n} large presses: {} patches of {} cells",
+            patches.len(),
+            cells.join(", ")
+        );
+        let mut t = 0.02;
+        g.bench_function(BenchmarkId::new("fine_low", n), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    t += 0.02;
+                    sensor.process(&pressed, t).expect("process").len()
+                })
+            })
+        });
+        let stages: Vec<StageTimings> = pool.install(|| {
+            (0..41)
+                .map(|_| {
+                    t += 0.02;
+                    sensor.process(&pressed, t).expect("process");
+                    *sensor.timings()
+                })
+                .collect()
+        });
+        let median = |f: fn(&StageTimings) -> f64| {
+            let mut v: Vec<f64> = stages.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        eprintln!(
+            "{n} large presses, stage medians (ms): flow {:.2}, segment {:.2}, nhhd {:.2}, \
+             crop + calibration + tracking {:.2}, total {:.2}",
+            median(|s| s.flow_ms),
+            median(|s| s.segment_ms),
+            median(|s| s.hhd_ms),
+            median(|s| s.total_ms - s.flow_ms - s.segment_ms - s.hhd_ms),
+            median(|s| s.total_ms),
+        );
+    }
+    g.finish();
 }
 
-/// A sensor with `preset` and a flow threshold of `magnitude` px on `crop`,
+/// The low kernels with a flow threshold of `magnitude` px and a sum of 600.
+fn threshold(magnitude: f32) -> Thresholds {
+    Thresholds {
+        magnitude,
+        sum: 600.0,
+        ..Thresholds::LOW
+    }
+}
+
+/// A sensor with `preset` and `thresholds` on `crop`,
 /// its reference set and `pressed` processed once at t = 0.02 s (the press
 /// must be seen).
 fn ready(
     preset: DisPreset,
-    magnitude: f32,
+    thresholds: Thresholds,
     crop: Roi,
     reference: &Array2<f32>,
     pressed: &Array2<f32>,
@@ -154,11 +242,7 @@ fn ready(
     config.crop = Some(crop);
     config.extractor = ExtractorConfig::default()
         .with_flow(DisParams::preset(preset))
-        .with_thresholds(Thresholds {
-            magnitude,
-            sum: 600.0,
-            ..Thresholds::LOW
-        });
+        .with_thresholds(thresholds);
     let mut sensor = TactileSensor::new(config, calibration(crop)).expect("sensor");
     sensor.set_reference(reference).expect("reference");
     let n = sensor.process(pressed, 0.02).expect("process").len();

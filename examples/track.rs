@@ -5,6 +5,7 @@
 //!     [--force-crop] [--channel green|luma] [--thresholds low|mid|high] [--preset fast|accurate|...]
 //!     [--magnitude PX] [--sum SUM] [--erode PX] [--dilate PX] [--split on|off]
 //!     [--filter on|off] [--rereference on|off] [--hold N] [--out contacts.jsonl|-] [--debug DIR] [--quiet]
+//!     [--timings]
 //! ```
 //!
 //! With no arguments it runs on this crate's `fixtures/press` with
@@ -45,6 +46,12 @@
 //! divergent field, potential, image) of every frame as `DIR/<frame>.png`.
 //! A closed stdout (`track | head`) ends the run quietly.
 //!
+//! `--timings` ends the run with the time per stage (reading the PNG,
+//! crop, flow, segmentation, nHHD, calibration, tracking, the whole
+//! `process` call and the frame with reading): median, 90th percentile and
+//! largest over the processed frames, and the slowest frame's stages and
+//! patches (`StageTimings`, docs/results.md#latency-budget).
+//!
 //! Errors: a missing calibration or sequence stops the run before anything is
 //! written. An unreadable frame, or one that cannot be processed (another size
 //! than the reference, NaN), is named on stderr and skipped: the run goes on,
@@ -65,6 +72,7 @@ use cli_support::pipeline::{
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::fit::preset_name;
 use optical_tactile::capture::{FrameSource, SequenceSource};
+use optical_tactile::sensor::StageTimings;
 use optical_tactile::track::FilterConfig;
 
 /// The sequence run with no argument: this crate's fixture.
@@ -104,6 +112,82 @@ struct Cli {
     /// No per-frame table.
     #[arg(long, short)]
     quiet: bool,
+    /// At the end, the time per stage over the processed frames (median,
+    /// 90th percentile, largest) and the slowest frame's stages.
+    #[arg(long)]
+    timings: bool,
+}
+
+/// One processed frame's times, ms, and its patches.
+struct FrameTimes {
+    name: String,
+    read_ms: f64,
+    stages: StageTimings,
+    process_ms: f64,
+    /// Patches and the largest one's cells on the analysis grid.
+    patches: usize,
+    largest: (usize, usize),
+}
+
+impl FrameTimes {
+    /// The columns of the table: name and time, ms.
+    fn columns(&self) -> [(&'static str, f64); 9] {
+        let s = &self.stages;
+        [
+            ("read", self.read_ms),
+            ("crop", s.crop_ms),
+            ("flow", s.flow_ms),
+            ("segment", s.segment_ms),
+            ("nhhd", s.hhd_ms),
+            ("calibrate", s.contacts_ms),
+            ("track", s.tracking_ms),
+            ("process", self.process_ms),
+            ("frame", self.read_ms + self.process_ms),
+        ]
+    }
+}
+
+/// The `q`-quantile (nearest rank) of `v`, which it sorts.
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// The `--timings` table: per stage, median / p90 / max; then the slowest
+/// frame (by the whole frame, reading included).
+fn timings_table(times: &[FrameTimes], report: &mut Sink) -> Result<(), Failure> {
+    if times.is_empty() {
+        return Ok(());
+    }
+    let names = times[0].columns().map(|(n, _)| n);
+    let mut line = format!("{:<10}", "ms");
+    for n in names {
+        line += &format!(" {n:>9}");
+    }
+    writeln!(report, "{line}")?;
+    for (label, q) in [("median", 0.5), ("p90", 0.9), ("max", 1.0)] {
+        let mut line = format!("{label:<10}");
+        for k in 0..names.len() {
+            let mut v: Vec<f64> = times.iter().map(|t| t.columns()[k].1).collect();
+            line += &format!(" {:>9.2}", quantile(&mut v, q));
+        }
+        writeln!(report, "{line}")?;
+    }
+    let worst = times
+        .iter()
+        .max_by(|a, b| a.columns()[8].1.total_cmp(&b.columns()[8].1))
+        .expect("not empty");
+    let mut line = format!("{:<10}", "slowest");
+    for (_, v) in worst.columns() {
+        line += &format!(" {v:>9.2}");
+    }
+    writeln!(report, "{line}")?;
+    writeln!(
+        report,
+        "slowest frame: {}, {} patches, the largest {}x{} cells on the analysis grid",
+        worst.name, worst.patches, worst.largest.1, worst.largest.0
+    )?;
+    Ok(())
 }
 
 /// Runs the sensor as `a` asks; `Ok(false)` if some frame was skipped.
@@ -160,6 +244,7 @@ fn run(a: &Cli) -> Result<bool, Failure> {
     let mut have_reference = false;
     let (mut processed, mut busy_ms) = (0usize, 0.0f64);
     let wall = Instant::now();
+    let mut times: Vec<FrameTimes> = Vec::new();
     if !a.quiet {
         let header = if a.pipeline.raw {
             patch_header()
@@ -168,7 +253,12 @@ fn run(a: &Cli) -> Result<bool, Failure> {
         };
         writeln!(report, "{header}")?;
     }
-    while let Some(frame) = seq.next_frame() {
+    loop {
+        let t_read = Instant::now();
+        let Some(frame) = seq.next_frame() else {
+            break;
+        };
+        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
         let frame = match frame {
             Ok(f) => f,
             Err(e) => {
@@ -206,6 +296,21 @@ fn run(a: &Cli) -> Result<bool, Failure> {
         };
         let latency_ms = t.elapsed().as_secs_f64() * 1e3;
         processed += 1;
+        if a.timings {
+            let patches = sensor.extractor().patches();
+            times.push(FrameTimes {
+                name: frame.name.clone(),
+                read_ms,
+                stages: sensor.timings(),
+                process_ms: latency_ms,
+                patches: patches.len(),
+                largest: patches
+                    .iter()
+                    .map(|p| (p.bbox.height, p.bbox.width))
+                    .max_by_key(|&(h, w)| h * w)
+                    .unwrap_or((0, 0)),
+            });
+        }
         busy_ms += latency_ms;
         let empty = match &found {
             Found::Contacts(c) => c.is_empty(),
@@ -280,6 +385,7 @@ fn run(a: &Cli) -> Result<bool, Failure> {
     } else {
         writeln!(report, "no frame processed ({skipped} skipped)")?;
     }
+    timings_table(&times, &mut report)?;
     Ok(skipped == 0)
 }
 

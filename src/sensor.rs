@@ -49,7 +49,7 @@ use crate::exposure::{ExposureCompensation, ExposureCompensator};
 use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
-use crate::hhd::{Decomposition, NaturalHhd};
+use crate::hhd::{DivergentPart, NaturalHhd};
 use crate::segment::morphology::Mask;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
@@ -151,27 +151,37 @@ impl ExtractorConfig {
     }
 }
 
-/// One patch's working set: its planner, decomposition and result.
+/// One patch's working set: its planner, the divergent part of its nHHD
+/// (all the raw quantities read) and its result.
 #[derive(Debug, Default)]
 struct Slot {
     hhd: NaturalHhd,
-    dec: Option<Decomposition>,
+    part: DivergentPart,
     raw: Option<Result<RawContact>>,
 }
 
-/// Time spent in each stage of the last frame, ms.
+/// Time spent in each stage of the last frame, ms: wall-clock time read
+/// from [`Instant`] at each stage's ends (a few tens of nanoseconds per
+/// frame), kept by [`ContactExtractor::timings`] and
+/// [`TactileSensor::timings`]. The stages run one after the other, so
+/// `crop + flow + segment + hhd + contacts + tracking` is `total` up to the
+/// time between them.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StageTimings {
     /// Crop and copy.
     pub crop_ms: f64,
-    /// Optical flow.
+    /// Exposure compensation, optical flow, and its averaging down to the
+    /// analysis grid.
     pub flow_ms: f64,
     /// Segmentation.
     pub segment_ms: f64,
-    /// nHHD and raw quantities of every patch (in parallel).
+    /// nHHD and raw quantities of every patch (patches in parallel).
     pub hhd_ms: f64,
-    /// Calibration, tracking and re-referencing.
+    /// Calibration: contact columns, force profiles, location and force maps.
     pub contacts_ms: f64,
+    /// Tracking, the re-referencing check, and taking a new reference when
+    /// it says so.
+    pub tracking_ms: f64,
     /// The whole call.
     pub total_ms: f64,
 }
@@ -290,17 +300,16 @@ impl AnalysisGrid {
     }
 }
 
-/// `out = flow * gain`, resized to `flow`'s size if needed.
+/// `out = flow * gain`, resized to `flow`'s size if needed; the two
+/// components in parallel.
 fn scale_into(flow: &FlowField, gain: f32, out: &mut FlowField) {
     if out.size() != flow.size() {
         *out = FlowField::zeros(flow.width(), flow.height());
     }
-    ndarray::Zip::from(&mut out.u)
-        .and(&flow.u)
-        .for_each(|o, &x| *o = x * gain);
-    ndarray::Zip::from(&mut out.v)
-        .and(&flow.v)
-        .for_each(|o, &x| *o = x * gain);
+    let scale = |o: &mut Array2<f32>, x: &Array2<f32>| {
+        ndarray::Zip::from(o).and(x).for_each(|o, &x| *o = x * gain)
+    };
+    rayon::join(|| scale(&mut out.u, &flow.u), || scale(&mut out.v, &flow.v));
 }
 
 /// Averages `flow` over `factor x factor` blocks into `out`, in the pixel
@@ -322,7 +331,8 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
     }
     let norm = 1.0 / (factor * factor * factor) as f32;
     let sw = flow.width();
-    for (src, dst) in [(&flow.u, &mut out.u), (&flow.v, &mut out.v)] {
+    // The two components in parallel.
+    let pool = |src: &Array2<f32>, dst: &mut Array2<f32>| {
         // Plain row slices let the inner loops run without per-element
         // index arithmetic (a standard-layout copy only if `flow` is not).
         let src = src.as_standard_layout();
@@ -332,15 +342,25 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
         for (r, drow) in dst.chunks_exact_mut(w).enumerate() {
             drow.fill(0.0);
             for srow in src[r * factor * sw..(r + 1) * factor * sw].chunks_exact(sw) {
-                for (o, block) in drow.iter_mut().zip(srow.chunks_exact(factor)) {
-                    *o += block.iter().sum::<f32>();
+                if factor == 2 {
+                    // The `fine` flow's case, written out: the same sums
+                    // as the general loop, which the compiler does not
+                    // vectorize.
+                    for (o, b) in drow.iter_mut().zip(srow.chunks_exact(2)) {
+                        *o += b[0] + b[1];
+                    }
+                } else {
+                    for (o, block) in drow.iter_mut().zip(srow.chunks_exact(factor)) {
+                        *o += block.iter().sum::<f32>();
+                    }
                 }
             }
             for o in drow.iter_mut() {
                 *o *= norm;
             }
         }
-    }
+    };
+    rayon::join(|| pool(&flow.u, &mut out.u), || pool(&flow.v, &mut out.v));
     Ok(())
 }
 
@@ -443,7 +463,8 @@ impl ContactExtractor {
     /// The raw quantities of every contact patch of `frame` (cropped, same
     /// size as the reference), strongest first.
     pub fn extract(&mut self, frame: &ArrayRef2<f32>) -> Result<&[RawContact]> {
-        let t = Instant::now();
+        let t0 = Instant::now();
+        let t = t0;
         if self.dis.size() == (0, 0) {
             return Err(Error::NoReference);
         }
@@ -483,6 +504,7 @@ impl ContactExtractor {
         }
         self.raws.sort_by(|a, b| b.strength.total_cmp(&a.strength));
         self.timings.hhd_ms = ms(t);
+        self.timings.total_ms = ms(t0);
         Ok(&self.raws)
     }
 
@@ -523,12 +545,14 @@ impl ContactExtractor {
         &self.patches
     }
 
-    /// The decomposition of the `k`-th patch of the last frame (same order as
-    /// [`patches`](Self::patches)).
-    pub fn decomposition(&self, k: usize) -> Option<&Decomposition> {
-        (k < self.patches.len())
-            .then(|| self.slots[k].dec.as_ref())
-            .flatten()
+    /// The divergent part of the nHHD of the `k`-th patch of the last frame
+    /// (same order as [`patches`](Self::patches)): the divergence, its
+    /// potential `D` and `d = grad D`, all the raw quantities read. The
+    /// rotational and harmonic parts are not computed;
+    /// [`NaturalHhd::decompose`] gives them for a patch's flow
+    /// ([`ContactPatch::view`] of [`flow`](Self::flow)).
+    pub fn divergent_part(&self, k: usize) -> Option<&DivergentPart> {
+        (k < self.patches.len()).then(|| &self.slots[k].part)
     }
 
     /// The segmenter (its mask and contour boxes, for display).
@@ -543,7 +567,8 @@ impl ContactExtractor {
         self.exposure.last()
     }
 
-    /// Stage timings of the last frame (crop and contacts left at 0 here).
+    /// Stage timings of the last frame (crop, contacts and tracking left at
+    /// 0 here; `total` is flow, segmentation and nHHD).
     pub fn timings(&self) -> &StageTimings {
         &self.timings
     }
@@ -559,16 +584,14 @@ fn measure(
 ) -> Result<RawContact> {
     let b = patch.bbox;
     let (u, v) = patch.view(flow)?;
-    let dec = slot
-        .dec
-        .get_or_insert_with(|| Decomposition::zeros(b.height, b.width));
-    slot.hhd.decompose_into(u, v, s, s, dec)?;
+    let part = &mut slot.part;
+    slot.hhd.divergent_into(u, v, s, s, part)?;
     let fields = PatchFields {
         u,
         v,
-        potential_d: dec.potential_d.view(),
-        d_u: dec.d.u.view(),
-        d_v: dec.d.v.view(),
+        potential_d: part.potential_d.view(),
+        d_u: part.d.u.view(),
+        d_v: part.d.v.view(),
     };
     let mut raw = raw_quantities(
         &fields,
@@ -987,6 +1010,8 @@ impl TactileSensor {
                 self.non_finite += 1;
             }
         }
+        let contacts_ms = ms(t);
+        let t = Instant::now();
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);
         let live = self.tracker.update(&self.detections, dt).len();
@@ -1002,7 +1027,8 @@ impl TactileSensor {
         }
         let mut timings = *self.extractor.timings();
         timings.crop_ms = crop_ms;
-        timings.contacts_ms = ms(t);
+        timings.contacts_ms = contacts_ms;
+        timings.tracking_ms = ms(t);
         timings.total_ms = ms(t0);
         self.timings = timings;
         Ok(self.contacts())
@@ -1046,7 +1072,7 @@ impl TactileSensor {
         self.references
     }
 
-    /// The extractor (flow, patches, decompositions of the last frame).
+    /// The extractor (flow, patches, divergent parts of the last frame).
     pub fn extractor(&self) -> &ContactExtractor {
         &self.extractor
     }
@@ -1104,6 +1130,35 @@ mod tests {
                 .zip(want.u.iter().chain(want.v.iter()))
             {
                 assert!((a - b).abs() < 1e-6, "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn pooling_by_two_is_bit_identical_to_the_general_block_sums() {
+        let (w, h) = (37, 12);
+        let mut flow = FlowField::zeros(w, h);
+        for r in 0..h {
+            for c in 0..w {
+                // Signed zeros, tiny and large values among them.
+                let x = ((r * 31 + c * 17) % 23) as f32 * 0.37 - 4.0;
+                flow.u[[r, c]] = if (r + c) % 7 == 0 { -0.0 } else { x * 1e-3 };
+                flow.v[[r, c]] = if (r * c) % 5 == 0 { -0.0 } else { x * 1e4 };
+            }
+        }
+        let mut out = FlowField::zeros(0, 0);
+        pool_into(&flow, 2, &mut out).unwrap();
+        let norm = 1.0 / 8.0f32;
+        for (src, got) in [(&flow.u, &out.u), (&flow.v, &out.v)] {
+            for r in 0..h / 2 {
+                for c in 0..w / 2 {
+                    let mut o = 0.0f32;
+                    for i in 0..2 {
+                        let block = [src[[2 * r + i, 2 * c]], src[[2 * r + i, 2 * c + 1]]];
+                        o += block.iter().sum::<f32>();
+                    }
+                    assert_eq!((o * norm).to_bits(), got[[r, c]].to_bits(), "({r}, {c})");
+                }
             }
         }
     }

@@ -388,7 +388,7 @@ fn panel(
 
     // 2. and 3. Per patch: |d| and D.
     for (k, patch) in ex.patches().iter().enumerate() {
-        let Some(dec) = ex.decomposition(k) else {
+        let Some(dec) = ex.divergent_part(k) else {
             continue;
         };
         let b = patch.bbox;

@@ -6,7 +6,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use ndarray::{Array2, s};
-use optical_tactile::hhd::{Decomposition, NaturalHhd};
+use optical_tactile::hhd::{Decomposition, DivergentPart, NaturalHhd};
 
 struct Counting;
 
@@ -48,9 +48,10 @@ thread_local! {
 /// The tag of the test that is counting now (0: none).
 static COUNTING: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
 
-/// Tags of the two tests.
+/// Tags of the tests.
 const PLANNED: u8 = 1;
 const SPLIT: u8 = 2;
+const DIVERGENT: u8 = 3;
 
 fn count_this_thread(tag: u8) {
     COUNTED.with(|c| c.set(tag));
@@ -124,4 +125,32 @@ fn a_torus_split_over_two_threads_does_not_allocate_either() {
     );
     COUNTING.store(0, Ordering::SeqCst);
     assert_eq!(after - before, 0, "allocations in split decompositions");
+}
+
+#[test]
+fn planned_divergent_parts_do_not_allocate_whatever_the_sizes() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    count_this_thread(DIVERGENT);
+    COUNTING.store(DIVERGENT, Ordering::SeqCst);
+    let big_u = Array2::from_shape_fn((80, 120), |(i, j)| ((i * 7 + j * 3) % 11) as f32 * 0.1);
+    let big_v = Array2::from_shape_fn((80, 120), |(i, j)| ((i * 5 + j * 2) % 13) as f32 * 0.1);
+    // Two patch sizes through one part, as a slot of the extractor sees
+    // them from frame to frame: its storage is reshaped, not reallocated.
+    let windows = [s![3..63, 10..110], s![20..79;2, 0..120;3]];
+    let mut hhd = NaturalHhd::new();
+    let mut part = DivergentPart::default();
+    for w in &windows {
+        let (u, v) = (big_u.slice(*w), big_v.slice(*w));
+        hhd.divergent_into(u, v, 2.0, 2.0, &mut part).unwrap();
+    }
+    let before = ALLOCS.load(Ordering::SeqCst);
+    for _ in 0..3 {
+        for w in &windows {
+            let (u, v) = (big_u.slice(*w), big_v.slice(*w));
+            hhd.divergent_into(u, v, 2.0, 2.0, &mut part).unwrap();
+        }
+    }
+    let after = ALLOCS.load(Ordering::SeqCst);
+    COUNTING.store(0, Ordering::SeqCst);
+    assert_eq!(after - before, 0, "allocations in planned divergent parts");
 }

@@ -348,8 +348,8 @@ fn locate_keeps_the_raw_contact_column_at_the_rod_under_shear() {
 /// The dark coating past the skin's markers holds only the camera's noise:
 /// however that noise changes, the extractor reports no contact there; a
 /// segmentation of the same flow that looks everywhere finds patches (so the
-/// check is not vacuous), which the extractor sets apart as unseen. On a dot grid (a sparse texture) the whole image
-/// stays observable.
+/// check is not vacuous), which the extractor sets apart as unseen. On a dot
+/// grid (a sparse texture) the whole image stays observable.
 #[test]
 fn the_dark_border_past_the_skin_is_not_read_as_motion() {
     use optical_tactile::FlowField;
@@ -416,4 +416,90 @@ fn the_dark_border_past_the_skin_is_not_read_as_motion() {
     ex.set_reference(&sim.render_indexed(0, &[], false).unwrap().frame)
         .unwrap();
     assert!(ex.segmenter().observable().is_none());
+}
+
+/// The extractor's raw quantities come from the divergent part of the nHHD
+/// alone (`NaturalHhd::divergent_into`, half the FFT work) and `|d|` as
+/// `sqrt(a^2 + b^2)`: its slow twin, the whole decomposition of every patch
+/// and `hypot`, gives the same contact points, displacements and `d_PF` to
+/// 1e-12 (relative), on the bundled press with the calibration's settings
+/// (`fine` flow, 0.2 px threshold) and on a press spanning most of the strip.
+#[test]
+fn raw_quantities_equal_the_whole_decomposition_path() {
+    use optical_tactile::contact::{PatchFields, PatchGrid, raw_quantities};
+    use optical_tactile::hhd::NaturalHhd;
+    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+
+    let config = ExtractorConfig::default().with_thresholds(Thresholds {
+        magnitude: 0.2,
+        sum: 600.0,
+        ..Thresholds::LOW
+    });
+    let frames = frames();
+    let mut sim = SyntheticSensor::new(SimConfig::default(), 1).unwrap();
+    let (rest, _) = sim.render(&[]).unwrap();
+    let (heavy, _) = sim
+        .render(&[Press::rod(0.0, [0.8, 0.0, -2.9], 10.0)])
+        .unwrap();
+    let cases = [
+        (&frames[0].image, &frames[5].image),
+        (&frames[0].image, &frames[7].image),
+        (&rest, &heavy),
+    ];
+    let mut checked = 0;
+    for (reference, frame) in cases {
+        let mut ex = ContactExtractor::new(config.clone()).unwrap();
+        ex.set_reference(reference).unwrap();
+        ex.extract(frame).unwrap();
+        let (flow, scale) = ex.flow();
+        let s = scale as f64;
+        let mut hhd = NaturalHhd::new();
+        for patch in ex.patches() {
+            let (u, v) = patch.view(flow).unwrap();
+            let dec = hhd.decompose(u, v, s, s).unwrap();
+            let b = patch.bbox;
+            let grid = PatchGrid {
+                x0: b.x,
+                y0: b.y,
+                scale: s,
+            };
+            let fields = PatchFields {
+                u,
+                v,
+                potential_d: dec.potential_d.view(),
+                d_u: dec.d.u.view(),
+                d_v: dec.d.v.view(),
+            };
+            let mut want = raw_quantities(&fields, grid, true).unwrap();
+            want.dn = dec
+                .d
+                .u
+                .iter()
+                .zip(dec.d.v.iter())
+                .map(|(a, b)| a.hypot(*b))
+                .sum::<f64>()
+                * s
+                * s;
+            // The extractor's raw contact of this patch: the same box.
+            let got = ex
+                .raws()
+                .iter()
+                .find(|r| r.bbox.x == b.x * scale && r.bbox.w == b.width * scale)
+                .expect("a raw contact per patch");
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0);
+            for (what, a, b) in [
+                ("x_px", got.x_px, want.x_px),
+                ("y_px", got.y_px, want.y_px),
+                ("ds1", got.ds1, want.ds1),
+                ("ds2", got.ds2, want.ds2),
+                ("dn", got.dn, want.dn),
+                ("d_pf", got.d_pf, want.d_pf),
+            ] {
+                assert!(close(a, b), "{what}: {a} vs {b}");
+            }
+            checked += 1;
+        }
+    }
+    // Two rods in each press frame, one patch for the heavy press.
+    assert!(checked >= 5, "{checked} patches checked");
 }

@@ -461,7 +461,8 @@ impl Runner {
                 "flow": t.flow_ms,
                 "segment": t.segment_ms,
                 "hhd": t.hhd_ms,
-                "contacts": t.contacts_ms,
+                // The page's "contacts" column: calibration and tracking.
+                "contacts": t.contacts_ms + t.tracking_ms,
                 "process": process_ms,
                 "panel": panel_ms,
             },

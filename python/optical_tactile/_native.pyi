@@ -153,7 +153,8 @@ class Sensor:
     def last_process_ms(self) -> float:
         """The library's ``process()`` time of the last frame, ms."""
     def timings(self) -> dict[str, float]:
-        """Time per stage of the last frame, ms."""
+        """Time per stage of the last frame, ms: ``crop``, ``flow``, ``segment``,
+        ``hhd``, ``contacts`` (calibration), ``tracking``, ``total``."""
 
 class Sequence:
     """The PNG frames of a directory, in name order, as ``(name, t_s, image)``."""

@@ -543,7 +543,7 @@ impl Sensor {
     }
 
     /// Time spent in each stage of the last frame, ms (dict: crop, flow,
-    /// segment, hhd, contacts, total).
+    /// segment, hhd, contacts (calibration), tracking, total).
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let st = self.state.lock().unwrap_or_else(|e| e.into_inner());
         let t = match &st.pipeline {
@@ -556,6 +556,7 @@ impl Sensor {
         d.set_item("segment", t.segment_ms)?;
         d.set_item("hhd", t.hhd_ms)?;
         d.set_item("contacts", t.contacts_ms)?;
+        d.set_item("tracking", t.tracking_ms)?;
         d.set_item("total", t.total_ms)?;
         Ok(d)
     }

@@ -34,6 +34,7 @@
 use std::sync::Arc;
 
 use ndarray::{ArrayRef2, ArrayView2};
+use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
@@ -77,6 +78,62 @@ pub fn green(oy: usize, ox: usize, dx: f64, dy: f64) -> f64 {
     (y * y + x * x).ln() * (0.25 / std::f64::consts::PI)
 }
 
+/// [`green`] tabulated for offsets `(oy, ox)` below `(rows, cols)` at one
+/// spacing: planning a new torus then reads G instead of evaluating a
+/// logarithm per offset, which is most of a new spectrum's cost. Grows to
+/// the largest torus seen (for a 1600x200 strip on a 2 px grid, 101 x 801
+/// values).
+#[derive(Debug, Default)]
+pub(crate) struct GreenTable {
+    dx: f64,
+    dy: f64,
+    rows: usize,
+    cols: usize,
+    g: Vec<f64>,
+}
+
+impl GreenTable {
+    /// Whether the table holds every offset below `(rows, cols)` at `(dx, dy)`.
+    fn holds(&self, rows: usize, cols: usize, dx: f64, dy: f64) -> bool {
+        rows <= self.rows
+            && cols <= self.cols
+            && self.dx.to_bits() == dx.to_bits()
+            && self.dy.to_bits() == dy.to_bits()
+    }
+
+    /// Makes the table hold every offset below `(rows, cols)` at `(dx, dy)`:
+    /// grown (to at least the size it had, at the same spacing) or made
+    /// anew for another spacing.
+    pub(crate) fn ensure(&mut self, rows: usize, cols: usize, dx: f64, dy: f64) {
+        if self.holds(rows, cols, dx, dy) {
+            return;
+        }
+        let same = self.dx.to_bits() == dx.to_bits() && self.dy.to_bits() == dy.to_bits();
+        let (rows, cols) = if same {
+            (rows.max(self.rows), cols.max(self.cols))
+        } else {
+            (rows, cols)
+        };
+        self.g.clear();
+        self.g.resize(rows * cols, 0.0);
+        let fill = |(oy, row): (usize, &mut [f64])| {
+            for (ox, v) in row.iter_mut().enumerate() {
+                *v = green(oy, ox, dx, dy);
+            }
+        };
+        if rows * cols >= PARALLEL_MIN_CELLS / 4 {
+            self.g.par_chunks_mut(cols).enumerate().for_each(fill);
+        } else {
+            self.g.chunks_mut(cols).enumerate().for_each(fill);
+        }
+        (self.dx, self.dy, self.rows, self.cols) = (dx, dy, rows, cols);
+    }
+
+    fn get(&self, oy: usize, ox: usize) -> f64 {
+        self.g[oy * self.cols + ox]
+    }
+}
+
 /// Working buffers shared by all [`GreenConvolver`]s of one planner: they grow
 /// to the largest size seen and are then reused, so a convolution allocates
 /// nothing once its size has been met.
@@ -87,6 +144,9 @@ pub struct FftWorkspace {
     scratch: Vec<Complex64>,
     /// The second half's scratch when a pass is split over two threads.
     scratch2: Vec<Complex64>,
+    /// Half spectra (`px / 2 + 1` bins) of the rows of a real input
+    /// ([`GreenConvolver::potential`]).
+    half: Vec<Complex64>,
 }
 
 impl FftWorkspace {
@@ -111,6 +171,22 @@ impl FftWorkspace {
         if self.scratch2.len() < conv.scratch_len {
             self.scratch2.resize(conv.scratch_len, Complex64::default());
         }
+    }
+
+    /// Makes sure every buffer can hold what [`GreenConvolver::potential`]
+    /// needs for `ny` rows of a real input.
+    fn reserve_real(&mut self, conv: &GreenConvolver, ny: usize) {
+        let qx = conv.px / 2 + 1;
+        let grow = |v: &mut Vec<Complex64>, n: usize| {
+            if v.len() < n {
+                v.resize(n, Complex64::default());
+            }
+        };
+        grow(&mut self.rows, ny.div_ceil(2) * conv.px);
+        grow(&mut self.half, 2 * ny.div_ceil(2) * qx);
+        grow(&mut self.cols, qx * conv.py);
+        grow(&mut self.scratch, conv.scratch_len);
+        grow(&mut self.scratch2, conv.scratch_len);
     }
 }
 
@@ -162,6 +238,19 @@ impl GreenConvolver {
         dx: f64,
         dy: f64,
     ) -> Result<Self> {
+        Self::with_table(planner, None, ny, nx, dx, dy)
+    }
+
+    /// [`new`](Self::new), reading G from `table` when it holds the offsets
+    /// and spacing needed (the same values, without their logarithms).
+    pub(crate) fn with_table(
+        planner: &mut FftPlanner<f64>,
+        table: Option<&GreenTable>,
+        ny: usize,
+        nx: usize,
+        dx: f64,
+        dy: f64,
+    ) -> Result<Self> {
         check_grid(ny, nx, dx, dy)?;
         let (py, px) = Self::torus_for(ny, nx);
         let fwd_x = planner.plan_fft_forward(px);
@@ -185,7 +274,9 @@ impl GreenConvolver {
             scratch_len,
             green_hat: Vec::new(),
         };
-        conv.green_hat = conv.green_spectrum();
+        let (qy, qx) = (py / 2 + 1, px / 2 + 1);
+        let table = table.filter(|t| t.holds(qy, qx, dx, dy));
+        conv.green_hat = conv.green_spectrum(table);
         Ok(conv)
     }
 
@@ -220,67 +311,74 @@ impl GreenConvolver {
     ///
     /// About a quarter of the full transform's work, which matters because a
     /// new patch size means a new spectrum.
-    fn green_spectrum(&self) -> Vec<f64> {
+    fn green_spectrum(&self, table: Option<&GreenTable>) -> Vec<f64> {
+        let g = |oy: usize, ox: usize| match table {
+            Some(t) => t.get(oy, ox),
+            None => green(oy, ox, self.dx, self.dy),
+        };
         let (py, px) = (self.py, self.px);
         let (qy, qx) = (py / 2 + 1, px / 2 + 1);
-        // Torus index k holds offset min(k, p - k): every offset a grid of
-        // up to max_shape can produce is then exact, and G stays even.
-        let mut scratch = vec![Complex64::default(); self.scratch_len];
-        // Stage 1: rows oy = 0..qy, a pair per FFT; bins kx < qx kept,
-        // column-major ([kx * qy + oy]) so that stage 2 reads them in order.
-        let mut rows = vec![0.0; qx * qy];
-        let mut buf = vec![Complex64::default(); px];
-        let (mut ga, mut gb) = (vec![0.0; qx], vec![0.0; qx]);
-        for oy in (0..qy).step_by(2) {
-            let pair = oy + 1 < qy;
-            for ox in 0..qx {
-                ga[ox] = green(oy, ox, self.dx, self.dy);
-                gb[ox] = if pair {
-                    green(oy + 1, ox, self.dx, self.dy)
-                } else {
-                    0.0
-                };
+        // A large torus (a new size of a large patch) shares the work with
+        // rayon's pool: every 1-D transform is still done whole by one
+        // thread, so the spectrum is the same to the bit.
+        let par = py * px >= PARALLEL_MIN_CELLS;
+        let work = || {
+            (
+                vec![Complex64::default(); self.scratch_len],
+                vec![Complex64::default(); px.max(py)],
+            )
+        };
+        // Stage 1: rows oy = 0..qy, a pair per FFT, bins kx < qx kept:
+        // rows[oy * qx + kx]. Torus index k holds offset min(k, p - k):
+        // every offset a grid of up to max_shape can produce is then
+        // exact, and G stays even.
+        let mut rows = vec![0.0; qy.next_multiple_of(2) * qx];
+        let stage1 = |(scratch, buf): &mut (Vec<Complex64>, Vec<Complex64>),
+                      (pair, out): (usize, &mut [f64])| {
+            let oy = 2 * pair;
+            let buf = &mut buf[..px];
+            let has_b = oy + 1 < qy;
+            for (ox, z) in buf[..qx].iter_mut().enumerate() {
+                let b = if has_b { g(oy + 1, ox) } else { 0.0 };
+                *z = Complex64::new(g(oy, ox), b);
             }
-            for (kx, z) in buf.iter_mut().enumerate() {
-                let ox = kx.min(px - kx);
-                *z = Complex64::new(ga[ox], gb[ox]);
+            for kx in qx..px {
+                buf[kx] = buf[px - kx];
             }
-            self.fwd_x.process_with_scratch(&mut buf, &mut scratch);
-            for (col, z) in rows.chunks_exact_mut(qy).zip(&buf[..qx]) {
-                col[oy] = z.re;
-                if pair {
-                    col[oy + 1] = z.im;
-                }
+            self.fwd_x.process_with_scratch(buf, scratch);
+            let (a, b) = out.split_at_mut(qx);
+            for ((a, b), z) in a.iter_mut().zip(b).zip(&buf[..qx]) {
+                *a = z.re;
+                *b = z.im;
             }
-        }
+        };
+        chunk_halves(&mut rows, 2 * qx, par, work, stage1);
         // Stage 2: columns kx = 0..qx over the whole torus height (row ky
         // holds offset min(ky, py - ky)), a pair per FFT.
         let scale = self.dx * self.dy / (py * px) as f64;
-        let mut hat = vec![0.0; qx * py];
-        let mut buf = vec![Complex64::default(); py];
-        for kx in (0..qx).step_by(2) {
-            let pair = kx + 1 < qx;
-            let a = &rows[kx * qy..][..qy];
-            let b = if pair {
-                &rows[(kx + 1) * qy..][..qy]
-            } else {
-                a
-            };
+        let mut hat = vec![0.0; qx.next_multiple_of(2) * py];
+        let rows = &rows;
+        let stage2 = |(scratch, buf): &mut (Vec<Complex64>, Vec<Complex64>),
+                      (pair, out): (usize, &mut [f64])| {
+            let kx = 2 * pair;
+            let buf = &mut buf[..py];
+            let has_b = kx + 1 < qx;
             for (ky, z) in buf.iter_mut().enumerate() {
                 let oy = ky.min(py - ky);
-                *z = Complex64::new(a[oy], if pair { b[oy] } else { 0.0 });
+                let b = if has_b { rows[oy * qx + kx + 1] } else { 0.0 };
+                *z = Complex64::new(rows[oy * qx + kx], b);
             }
-            self.fwd_y.process_with_scratch(&mut buf, &mut scratch);
+            self.fwd_y.process_with_scratch(buf, scratch);
             // The spectra are real up to rounding: the parts that should
             // vanish are dropped on purpose.
-            let (a, b) = hat[kx * py..].split_at_mut(py);
-            for (ky, z) in buf.iter().enumerate() {
-                a[ky] = z.re * scale;
-                if pair {
-                    b[ky] = z.im * scale;
-                }
+            let (a, b) = out.split_at_mut(py);
+            for ((a, b), z) in a.iter_mut().zip(b).zip(buf.iter()) {
+                *a = z.re * scale;
+                *b = z.im * scale;
             }
-        }
+        };
+        chunk_halves(&mut hat, 2 * py, par, work, stage2);
+        hat.truncate(qx * py);
         hat
     }
 
@@ -348,6 +446,138 @@ impl GreenConvolver {
         Ok(())
     }
 
+    /// The potential `D = dx dy sum_i div(i) G(m - i)` of one real field
+    /// alone, written into `d_out` (both arrays of one shape, at most
+    /// [`max_shape`](Self::max_shape)): what [`potentials`](Self::potentials)
+    /// computes as its real part, for about half the work.
+    ///
+    /// Two real rows travel in one complex FFT (`a + i b`), whose spectrum
+    /// splits into the two rows' half spectra by Hermitian symmetry; only
+    /// the `px / 2 + 1` columns of non-negative frequencies are transformed
+    /// (the others mirror them); two rows come back from one inverse FFT the
+    /// same way. The result equals `potentials`' real part up to rounding
+    /// (the tests check both against the direct sum).
+    ///
+    /// On a torus of at least [`PARALLEL_MIN_CELLS`] cells the FFT passes
+    /// run in two halves on rayon's pool (bit-identical to one thread).
+    ///
+    /// Inputs are not checked for NaN here: one NaN makes every output NaN.
+    /// Errors if the shapes differ or exceed `max_shape`.
+    pub fn potential(
+        &self,
+        ws: &mut FftWorkspace,
+        div: ArrayView2<'_, f64>,
+        d_out: &mut ArrayRef2<f64>,
+    ) -> Result<()> {
+        let (ny, nx) = div.dim();
+        let (my, mx) = self.max_shape();
+        if ny == 0 || nx == 0 || ny > my || nx > mx {
+            return Err(Error::shape(
+                format!("grid for a Green's convolver of at most {mx}x{my}"),
+                (mx, my),
+                (nx, ny),
+            ));
+        }
+        if d_out.dim() != (ny, nx) {
+            let dim = d_out.dim();
+            return Err(Error::shape("D output", (nx, ny), (dim.1, dim.0)));
+        }
+        ws.reserve_real(self, ny);
+        let px = self.px;
+        let pairs = ny.div_ceil(2);
+        let rows = &mut ws.rows[..pairs * px];
+        for (p, row) in rows.chunks_exact_mut(px).enumerate() {
+            let a = div.row(2 * p);
+            if 2 * p + 1 < ny {
+                let b = div.row(2 * p + 1);
+                for ((z, &a), &b) in row.iter_mut().zip(&a).zip(&b) {
+                    *z = Complex64::new(a, b);
+                }
+            } else {
+                for (z, &a) in row.iter_mut().zip(&a) {
+                    *z = Complex64::new(a, 0.0);
+                }
+            }
+            row[nx..].fill(Complex64::default());
+        }
+        let par = self.py * self.px >= PARALLEL_MIN_CELLS;
+        self.convolve_real(ws, ny, par);
+        let rows = &ws.rows[..pairs * px];
+        for (p, row) in rows.chunks_exact(px).enumerate() {
+            for (d, z) in d_out.row_mut(2 * p).iter_mut().zip(row) {
+                *d = z.re;
+            }
+            if 2 * p + 1 < ny {
+                for (d, z) in d_out.row_mut(2 * p + 1).iter_mut().zip(row) {
+                    *d = z.im;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// In place on `ws.rows[..ny.div_ceil(2) * px]`: pairs of real rows
+    /// packed as `a + i b` (zero-padded to `px`) in, the pairs' potentials
+    /// packed the same way out (valid in the first `nx` columns). See
+    /// [`potential`](Self::potential); `par` as in
+    /// [`convolve_rows`](Self::convolve_rows).
+    fn convolve_real(&self, ws: &mut FftWorkspace, ny: usize, par: bool) {
+        let (py, px) = (self.py, self.px);
+        let qx = px / 2 + 1;
+        let pairs = ny.div_ceil(2);
+        let FftWorkspace {
+            rows,
+            cols,
+            scratch,
+            scratch2,
+            half,
+        } = ws;
+        let s1 = &mut scratch[..self.scratch_len];
+        let s2 = &mut scratch2[..self.scratch_len];
+        let rows = &mut rows[..pairs * px];
+        let half = &mut half[..2 * pairs * qx];
+        let cols = &mut cols[..qx * py];
+        // Pairs 0..cut on one thread, the rest on the other.
+        let cut = if par { pairs / 2 } else { 0 };
+        // Rows: forward FFT of each pair, split into the two half spectra.
+        // (An odd last row has no partner: its pair's second spectrum is
+        // zero and stays unused.)
+        pair_halves(rows, half, cut, px, qx, s1, s2, |z, h, _, s| {
+            self.fwd_x.process_with_scratch(z, s);
+            for (zp, hp) in z.chunks_exact(px).zip(h.chunks_exact_mut(2 * qx)) {
+                let (ha, hb) = hp.split_at_mut(qx);
+                split_pair(zp, ha);
+                unsplit_second(zp, hb);
+            }
+        });
+        // Columns kx = 0..qx: forward, product, inverse while in cache.
+        let col_cut = if par { qx / 2 * py } else { 0 };
+        let data = &*half;
+        halves(cols, col_cut, s1, s2, |part, start, s| {
+            let first = start / py;
+            transpose(data, part, ny, qx, first, py);
+            for (k, col) in part.chunks_exact_mut(py).enumerate() {
+                let g = &self.green_hat[(first + k) * py..][..py];
+                col[ny..].fill(Complex64::default());
+                self.fwd_y.process_with_scratch(col, s);
+                for (c, &g) in col.iter_mut().zip(g) {
+                    *c *= g;
+                }
+                self.inv_y.process_with_scratch(col, s);
+            }
+        });
+        // Rows back: the two half spectra of a pair joined, one inverse FFT.
+        let spectra = &*cols;
+        transpose_back(spectra, &mut half[..ny * qx], 0, qx, py);
+        pair_halves(rows, half, cut, px, qx, s1, s2, |z, h, _, s| {
+            for (zp, hp) in z.chunks_exact_mut(px).zip(h.chunks_exact(2 * qx)) {
+                let (ha, hb) = hp.split_at(qx);
+                join_pair(ha, hb, zp);
+            }
+            self.inv_x.process_with_scratch(z, s);
+        });
+    }
+
     /// In place on `ws.rows[..ny * px]`: rows of `div + i curl` (zero-padded
     /// to `px`) in, rows of `D + i R` out (valid in the first `nx` columns).
     ///
@@ -362,6 +592,7 @@ impl GreenConvolver {
             cols,
             scratch,
             scratch2,
+            ..
         } = ws;
         let s1 = &mut scratch[..self.scratch_len];
         let s2 = &mut scratch2[..self.scratch_len];
@@ -421,6 +652,106 @@ fn halves(
     }
     let (a, b) = data.split_at_mut(cut);
     rayon::join(|| f(a, 0, s1), || f(b, cut, s2));
+}
+
+/// Runs `f(state, (k, chunk))` on every `len`-long chunk `k` of `data`
+/// (the last one possibly shorter), with a `state` from `init`: with `par`,
+/// the first half of the chunks on one thread and the rest on another
+/// (`rayon::join`), each with its own state.
+fn chunk_halves<S>(
+    data: &mut [f64],
+    len: usize,
+    par: bool,
+    init: impl Fn() -> S + Sync,
+    f: impl Fn(&mut S, (usize, &mut [f64])) + Sync,
+) {
+    let run = |part: &mut [f64], first: usize| {
+        let mut state = init();
+        for (k, chunk) in part.chunks_mut(len).enumerate() {
+            f(&mut state, (first + k, chunk));
+        }
+    };
+    let n = data.len().div_ceil(len);
+    if !par || n < 2 {
+        run(data, 0);
+        return;
+    }
+    let (a, b) = data.split_at_mut(n / 2 * len);
+    rayon::join(|| run(a, 0), || run(b, n / 2));
+}
+
+/// [`halves`] for the row passes of [`GreenConvolver::potential`]: `rows`
+/// holds pairs of rows (`px` each), `half` the two half spectra (`qx` bins
+/// each) of every pair; pairs `..cut` and `cut..` go to the two threads,
+/// each with its pairs' half spectra. `f(pairs, half_spectra, first, scratch)`
+/// gets the index of its first pair.
+fn pair_halves(
+    rows: &mut [Complex64],
+    half: &mut [Complex64],
+    cut: usize,
+    px: usize,
+    qx: usize,
+    s1: &mut [Complex64],
+    s2: &mut [Complex64],
+    f: impl Fn(&mut [Complex64], &mut [Complex64], usize, &mut [Complex64]) + Sync,
+) {
+    let pairs = rows.len() / px;
+    if cut == 0 || cut >= pairs {
+        f(rows, half, 0, s1);
+        return;
+    }
+    let (ra, rb) = rows.split_at_mut(cut * px);
+    let (ha, hb) = half.split_at_mut(2 * cut * qx);
+    rayon::join(|| f(ra, ha, 0, s1), || f(rb, hb, cut, s2));
+}
+
+/// The half spectrum (`h.len()` bins) of the real part `a` of a signal
+/// `z = a + i b` from `z`'s spectrum: `A[k] = (Z[k] + conj Z[-k]) / 2`.
+/// Bin 0 (and bin `p / 2` for an even length `p`) is real exactly.
+fn split_pair(z: &[Complex64], h: &mut [Complex64]) {
+    let p = z.len();
+    for (k, out) in h.iter_mut().enumerate() {
+        let (a, b) = (z[k], z[(p - k) % p].conj());
+        *out = (a + b) * 0.5;
+    }
+    real_ends(h, p);
+}
+
+/// The half spectrum of the imaginary part `b` of `z = a + i b` from `z`'s
+/// spectrum: `B[k] = (Z[k] - conj Z[-k]) / (2 i)`.
+fn unsplit_second(z: &[Complex64], h: &mut [Complex64]) {
+    let p = z.len();
+    for (k, out) in h.iter_mut().enumerate() {
+        let d = z[k] - z[(p - k) % p].conj();
+        // d / (2 i) = (d.im - i d.re) / 2
+        *out = Complex64::new(d.im * 0.5, -d.re * 0.5);
+    }
+    real_ends(h, p);
+}
+
+/// The spectrum of a real signal is real at bin 0 and, for an even length
+/// `p`, at bin `p / 2`: drops what rounding left there.
+fn real_ends(h: &mut [Complex64], p: usize) {
+    h[0].im = 0.0;
+    if p % 2 == 0 {
+        h[p / 2].im = 0.0;
+    }
+}
+
+/// The spectrum `Z = A + i B` of `a + i b` from the half spectra of the two
+/// real signals, both extended by Hermitian symmetry (`A[-k] = conj A[k]`).
+fn join_pair(a: &[Complex64], b: &[Complex64], z: &mut [Complex64]) {
+    let p = z.len();
+    let q = a.len();
+    for (k, out) in z.iter_mut().enumerate() {
+        let (ak, bk) = if k < q {
+            (a[k], b[k])
+        } else {
+            (a[p - k].conj(), b[p - k].conj())
+        };
+        // ak + i bk
+        *out = Complex64::new(ak.re - bk.im, ak.im + bk.re);
+    }
 }
 
 /// Columns `first..` of the row-major `nrows x cols` array `src` into
@@ -586,6 +917,8 @@ mod tests {
             (5, 8, 1.0, 3.0),
             (13, 28, 2.0, 2.0),
             (40, 33, 0.3, 1.1),
+            // Past PARALLEL_MIN_CELLS: the spectrum is shared with the pool.
+            (130, 260, 2.0, 2.0),
         ] {
             let conv = GreenConvolver::new(&mut planner, ny, nx, dx, dy).unwrap();
             let (py, px) = conv.padded_shape();
@@ -601,6 +934,70 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn split_real_passes_are_bit_identical_to_one_thread() {
+        let mut planner = FftPlanner::new();
+        // Odd and even row counts: an odd number of pairs, and a lone row.
+        for (ny, nx) in [(9, 23), (8, 16), (7, 5)] {
+            let conv = GreenConvolver::new(&mut planner, ny, nx, 1.0, 2.0).unwrap();
+            let px = conv.padded_shape().1;
+            let pairs = ny.div_ceil(2);
+            let input: Vec<Complex64> = (0..pairs * px)
+                .map(|i| {
+                    let (p, c) = (i / px, i % px);
+                    let im = if 2 * p + 1 < ny {
+                        ((p + c * 5) % 7) as f64
+                    } else {
+                        0.0
+                    };
+                    if c < nx {
+                        Complex64::new(((p * 7 + c * 3) % 11) as f64, im)
+                    } else {
+                        Complex64::default()
+                    }
+                })
+                .collect();
+            let mut out = Vec::new();
+            for par in [false, true] {
+                let mut ws = FftWorkspace::new();
+                ws.reserve_real(&conv, ny);
+                ws.rows[..pairs * px].copy_from_slice(&input);
+                conv.convolve_real(&mut ws, ny, par);
+                out.push(ws.rows[..pairs * px].to_vec());
+            }
+            assert_eq!(out[0], out[1], "{ny}x{nx}");
+            assert_ne!(out[0], input);
+        }
+    }
+
+    #[test]
+    fn a_tabulated_green_gives_the_same_spectrum_to_the_bit() {
+        let mut planner = FftPlanner::new();
+        let mut table = GreenTable::default();
+        // The table grows with the tori, and is made anew for a spacing.
+        for (ny, nx, dx, dy) in [
+            (5, 8, 1.0, 3.0),
+            (40, 33, 1.0, 3.0),
+            (13, 28, 1.0, 3.0),
+            (13, 28, 2.0, 2.0),
+            (130, 260, 2.0, 2.0),
+        ] {
+            let (py, px) = GreenConvolver::torus_for(ny, nx);
+            table.ensure(py / 2 + 1, px / 2 + 1, dx, dy);
+            let want = GreenConvolver::new(&mut planner, ny, nx, dx, dy).unwrap();
+            let got =
+                GreenConvolver::with_table(&mut planner, Some(&table), ny, nx, dx, dy).unwrap();
+            assert_eq!(got.green_hat, want.green_hat, "{ny}x{nx}");
+        }
+        // The largest torus, 270 x 540 for 130 x 260.
+        assert_eq!((table.rows, table.cols), (136, 271));
+        // A table that does not hold the offsets is not read.
+        let small = GreenTable::default();
+        let got = GreenConvolver::with_table(&mut planner, Some(&small), 9, 9, 1.0, 1.0).unwrap();
+        let want = GreenConvolver::new(&mut planner, 9, 9, 1.0, 1.0).unwrap();
+        assert_eq!(got.green_hat, want.green_hat);
     }
 
     #[test]

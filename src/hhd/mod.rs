@@ -49,6 +49,8 @@ mod tests_reference;
 
 pub use fft::{FftWorkspace, GreenConvolver, PARALLEL_MIN_CELLS};
 
+use fft::GreenTable;
+
 use std::sync::Arc;
 
 use ndarray::{Array2, ArrayRef2, ArrayView2};
@@ -170,6 +172,79 @@ impl Decomposition {
     }
 }
 
+/// The divergent half of a natural HHD: the divergence, its potential `D`
+/// and the curl-free part `d = grad D`, every array of shape `(ny, nx)`.
+/// What the contact pipeline reads (the contact point and `d_PF` from `D`,
+/// the normal displacement from `|d|`); [`NaturalHhd::divergent_into`]
+/// computes it for about half the work of a whole [`Decomposition`], whose
+/// `div`, `potential_d` and `d` it equals up to rounding.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DivergentPart {
+    /// Grid spacing along columns (x) the part was computed with.
+    pub dx: f64,
+    /// Grid spacing along rows (y).
+    pub dy: f64,
+    /// Divergence `du/dx + dv/dy` of the input.
+    pub div: Array2<f64>,
+    /// The divergence potential `D`: `d = grad D`; its minimum marks a press.
+    pub potential_d: Array2<f64>,
+    /// Curl-free part `d = grad D`.
+    pub d: Field2,
+}
+
+impl Default for DivergentPart {
+    fn default() -> Self {
+        Self::zeros(0, 0)
+    }
+}
+
+impl DivergentPart {
+    /// An all-zero part of `ny` rows and `nx` columns (spacings 1), to be
+    /// filled by [`NaturalHhd::divergent_into`].
+    pub fn zeros(ny: usize, nx: usize) -> Self {
+        DivergentPart {
+            dx: 1.0,
+            dy: 1.0,
+            div: Array2::zeros((ny, nx)),
+            potential_d: Array2::zeros((ny, nx)),
+            d: Field2::zeros(ny, nx),
+        }
+    }
+
+    /// `(ny, nx)`: rows and columns.
+    pub fn shape(&self) -> (usize, usize) {
+        self.potential_d.dim()
+    }
+
+    /// Reshapes every array to `(ny, nx)`, reusing its storage: patch
+    /// sizes change from frame to frame, and fresh zeroed arrays each time
+    /// cost more than the arithmetic on small patches.
+    fn reshape(&mut self, ny: usize, nx: usize) {
+        for a in [
+            &mut self.div,
+            &mut self.potential_d,
+            &mut self.d.u,
+            &mut self.d.v,
+        ] {
+            reshape_reusing(a, ny, nx);
+        }
+    }
+}
+
+/// `a` as a `(ny, nx)` standard-layout array on the same storage (grown
+/// when too small); its values are left unspecified.
+fn reshape_reusing(a: &mut Array2<f64>, ny: usize, nx: usize) {
+    if a.dim() == (ny, nx) && a.is_standard_layout() {
+        return;
+    }
+    let (mut v, offset) = std::mem::take(a).into_raw_vec_and_offset();
+    if offset.unwrap_or(0) != 0 {
+        v = Vec::new();
+    }
+    v.resize(ny * nx, 0.0);
+    *a = Array2::from_shape_vec((ny, nx), v).expect("ny * nx values");
+}
+
 fn ensure_shape(a: &mut Array2<f64>, ny: usize, nx: usize) {
     if a.dim() != (ny, nx) || !a.is_standard_layout() {
         *a = Array2::zeros((ny, nx));
@@ -198,6 +273,8 @@ pub struct NaturalHhd {
     cache: Vec<Arc<GreenConvolver>>,
     capacity: usize,
     workspace: FftWorkspace,
+    /// G at the offsets of the largest torus planned so far.
+    table: GreenTable,
 }
 
 impl Default for NaturalHhd {
@@ -234,6 +311,7 @@ impl NaturalHhd {
             cache: Vec::with_capacity(capacity),
             capacity,
             workspace: FftWorkspace::new(),
+            table: GreenTable::default(),
         })
     }
 
@@ -269,7 +347,16 @@ impl NaturalHhd {
                 c
             }
             None => {
-                let c = Arc::new(GreenConvolver::new(&mut self.planner, ny, nx, dx, dy)?);
+                let (py, px) = torus;
+                self.table.ensure(py / 2 + 1, px / 2 + 1, dx, dy);
+                let c = Arc::new(GreenConvolver::with_table(
+                    &mut self.planner,
+                    Some(&self.table),
+                    ny,
+                    nx,
+                    dx,
+                    dy,
+                )?);
                 if self.cache.len() == self.capacity {
                     self.cache.remove(0);
                 }
@@ -327,6 +414,85 @@ impl NaturalHhd {
         )?;
         finish(out)
     }
+
+    /// The divergent part alone of the decomposition of `(u, v)`: the
+    /// divergence, its potential `D` and `d = grad D` (see
+    /// [`DivergentPart`]), for about half the work of
+    /// [`decompose_into`](Self::decompose_into), whose `div`, `potential_d`
+    /// and `d` it equals up to rounding. `out`'s storage is reused whatever
+    /// its shape; with a planned size, nothing is allocated once `out` has
+    /// held a grid as large.
+    ///
+    /// Errors as [`decompose`](Self::decompose); on error `out` is left in
+    /// an unspecified (but valid) state.
+    pub fn divergent_into<T: HhdScalar>(
+        &mut self,
+        u: ArrayView2<'_, T>,
+        v: ArrayView2<'_, T>,
+        dx: f64,
+        dy: f64,
+        out: &mut DivergentPart,
+    ) -> Result<()> {
+        let (ny, nx) = u.dim();
+        if v.dim() != (ny, nx) {
+            return Err(Error::shape(
+                "HHD input v (against u)",
+                (nx, ny),
+                (v.ncols(), v.nrows()),
+            ));
+        }
+        fft::check_grid(ny, nx, dx, dy)?;
+        out.reshape(ny, nx);
+        out.dx = dx;
+        out.dy = dy;
+        // d and potential_d are free until the potential exists: the input
+        // goes there as f64, then du/dx and dv/dy into d.
+        for (what, src, dst) in [
+            ("HHD input u", u, &mut out.d.u),
+            ("HHD input v", v, &mut out.potential_d),
+        ] {
+            for ((row, col), &x) in src.indexed_iter() {
+                let x: f64 = x.into();
+                if !x.is_finite() {
+                    return Err(Error::NonFinite {
+                        what: what.into(),
+                        row,
+                        col,
+                    });
+                }
+                dst[[row, col]] = x;
+            }
+        }
+        gradient_x(&out.d.u, nx, dx, &mut out.div);
+        gradient_y(&out.potential_d, ny, nx, dy, &mut out.d.v);
+        // numpy order: div = dudx + dvdy.
+        ndarray::Zip::from(&mut out.div)
+            .and(&out.d.v)
+            .for_each(|div, &dvdy| *div += dvdy);
+        let conv = self.prepare(ny, nx, dx, dy)?;
+        conv.potential(&mut self.workspace, out.div.view(), &mut out.potential_d)?;
+        gradient(&out.potential_d, dx, dy, &mut out.d.u, &mut out.d.v)
+    }
+}
+
+/// `d f / dx` along rows of the standard-layout `f` (`nx` columns) into
+/// `out`, with [`gradient`]'s stencils.
+fn gradient_x(f: &Array2<f64>, nx: usize, dx: f64, out: &mut Array2<f64>) {
+    let (f, out) = (
+        f.as_slice().expect("standard layout"),
+        out.as_slice_mut().expect("standard layout"),
+    );
+    gradient_x_slices(f, nx, dx, out);
+}
+
+/// `d f / dy` across the rows of the standard-layout `f` (`ny x nx`) into
+/// `out`, with [`gradient`]'s stencils.
+fn gradient_y(f: &Array2<f64>, ny: usize, nx: usize, dy: f64, out: &mut Array2<f64>) {
+    let (f, out) = (
+        f.as_slice().expect("standard layout"),
+        out.as_slice_mut().expect("standard layout"),
+    );
+    gradient_y_slices(f, ny, nx, dy, out);
 }
 
 /// Validates the input, copies it as f64 into `out.h` (kept there until
@@ -455,6 +621,12 @@ fn gradient_slices(
     gx: &mut [f64],
     gy: &mut [f64],
 ) {
+    gradient_x_slices(f, nx, dx, gx);
+    gradient_y_slices(f, ny, nx, dy, gy);
+}
+
+/// The `df/dx` half of [`gradient_slices`].
+fn gradient_x_slices(f: &[f64], nx: usize, dx: f64, gx: &mut [f64]) {
     let (ix, hx) = (1.0 / dx, 1.0 / (2.0 * dx));
     for (fr, out) in f.chunks_exact(nx).zip(gx.chunks_exact_mut(nx)) {
         if nx == 1 {
@@ -467,6 +639,10 @@ fn gradient_slices(
         }
         out[nx - 1] = (fr[nx - 1] - fr[nx - 2]) * ix;
     }
+}
+
+/// The `df/dy` half of [`gradient_slices`].
+fn gradient_y_slices(f: &[f64], ny: usize, nx: usize, dy: f64, gy: &mut [f64]) {
     if ny == 1 {
         gy.fill(0.0);
         return;

@@ -1,7 +1,7 @@
 //! Properties of the natural HHD on analytic and random fields, the FFT path
 //! against the direct-sum oracle, and bad input.
 
-use super::{Decomposition, NaturalHhd, direct, gradient};
+use super::{Decomposition, DivergentPart, NaturalHhd, direct, gradient};
 use crate::Error;
 use ndarray::{Array2, ArrayView2, s};
 use proptest::prelude::*;
@@ -493,4 +493,112 @@ fn planner_and_results_are_send() {
     .join()
     .unwrap();
     assert_eq!(got, want);
+}
+
+/// Largest difference between a divergent part and a whole decomposition's
+/// divergence, `D` and `d`, each relative to the magnitude of its kind.
+fn part_rel_diff(part: &DivergentPart, whole: &Decomposition, field_scale: f64) -> f64 {
+    let pot = max_abs(&whole.potential_d).max(f64::MIN_POSITIVE);
+    let der = max_abs(&whole.div).max(f64::MIN_POSITIVE);
+    let f = field_scale.max(f64::MIN_POSITIVE);
+    assert_eq!((part.dx, part.dy), (whole.dx, whole.dy));
+    [
+        max_diff(&part.div, &whole.div) / der,
+        max_diff(&part.potential_d, &whole.potential_d) / pot,
+        max_diff(&part.d.u, &whole.d.u) / f,
+        max_diff(&part.d.v, &whole.d.v) / f,
+    ]
+    .into_iter()
+    .fold(0.0, f64::max)
+}
+
+proptest! {
+    #![proptest_config(config(60))]
+
+    /// The divergent part alone (two real rows per complex FFT, half the
+    /// columns) equals the direct sum's divergence, `D` and `d`, on every
+    /// shape down to 1x1 (odd and even row counts, odd and even tori),
+    /// with unequal spacings; and the whole FFT decomposition's, to rounding.
+    #[test]
+    fn divergent_part_equals_direct_sum(
+        ny in 1usize..=13, nx in 1usize..=13,
+        dx in 0.2f64..4.0, dy in 0.2f64..4.0, seed in any::<u64>(),
+    ) {
+        let (u, v) = random_field(ny, nx, seed);
+        let mut hhd = NaturalHhd::new();
+        let mut part = DivergentPart::default();
+        hhd.divergent_into(u.view(), v.view(), dx, dy, &mut part).unwrap();
+        let scale = field_scale(u.view(), v.view());
+        let slow = direct::decompose(u.view(), v.view(), dx, dy).unwrap();
+        let e = part_rel_diff(&part, &slow, scale);
+        prop_assert!(e < 1e-10, "against the direct sum: {e:e}");
+        let whole = hhd.decompose(u.view(), v.view(), dx, dy).unwrap();
+        let e = part_rel_diff(&part, &whole, scale);
+        prop_assert!(e < 1e-12, "against the whole decomposition: {e:e}");
+    }
+}
+
+#[test]
+fn divergent_part_of_large_and_split_grids_matches_direct_sum() {
+    // 41x57: odd rows; 60x300 and 61x301: tori past PARALLEL_MIN_CELLS, so
+    // every pass runs in two halves (an even and an odd number of pairs).
+    for (ny, nx, dx, dy, seed) in [
+        (41, 57, 0.3, 1.7, 7),
+        (60, 300, 2.0, 2.0, 11),
+        (61, 301, 2.0, 2.0, 12),
+    ] {
+        let (u, v) = random_field(ny, nx, seed);
+        let mut hhd = NaturalHhd::new();
+        let mut part = DivergentPart::zeros(2, 3);
+        hhd.divergent_into(u.view(), v.view(), dx, dy, &mut part)
+            .unwrap();
+        let slow = direct::decompose(u.view(), v.view(), dx, dy).unwrap();
+        let e = part_rel_diff(&part, &slow, field_scale(u.view(), v.view()));
+        assert!(e < 1e-10, "{ny}x{nx}: {e:e}");
+    }
+}
+
+#[test]
+fn divergent_part_reuses_its_storage_and_takes_strided_views() {
+    let (big_u, big_v) = random_field(60, 90, 3);
+    let su = big_u.slice(s![5..45;2, 10..80;3]);
+    let sv = big_v.slice(s![5..45;2, 10..80;3]);
+    let (ou, ov) = (su.to_owned(), sv.to_owned());
+    let mut hhd = NaturalHhd::with_cache_capacity(2).unwrap();
+    let mut want = DivergentPart::default();
+    hhd.divergent_into(ou.view(), ov.view(), 1.0, 2.0, &mut want)
+        .unwrap();
+    // A larger grid, then a smaller one, then this one again, in one part:
+    // the same numbers whatever the part held before.
+    let mut out = DivergentPart::zeros(1, 1);
+    let (a, b) = random_field(37, 41, 4);
+    hhd.divergent_into(a.view(), b.view(), 1.0, 1.0, &mut out)
+        .unwrap();
+    let (c, d) = random_field(3, 5, 5);
+    hhd.divergent_into(c.view(), d.view(), 3.0, 1.0, &mut out)
+        .unwrap();
+    hhd.divergent_into(su, sv, 1.0, 2.0, &mut out).unwrap();
+    assert_eq!(out, want);
+    assert_eq!(out.shape(), (20, 24));
+    // Bad input: the same typed errors as a whole decomposition.
+    let z = Array2::<f32>::zeros((4, 5));
+    let mut n = z.clone();
+    n[[1, 2]] = f32::INFINITY;
+    assert!(matches!(
+        hhd.divergent_into(z.view(), n.view(), 1.0, 1.0, &mut out),
+        Err(Error::NonFinite { row: 1, col: 2, .. })
+    ));
+    assert!(matches!(
+        hhd.divergent_into(z.view(), z.slice(s![..3, ..]), 1.0, 1.0, &mut out),
+        Err(Error::ShapeMismatch { .. })
+    ));
+    assert!(
+        hhd.divergent_into(z.view(), z.view(), 0.0, 1.0, &mut out)
+            .is_err()
+    );
+    let e = Array2::<f32>::zeros((0, 5));
+    assert!(matches!(
+        hhd.divergent_into(e.view(), e.view(), 1.0, 1.0, &mut out),
+        Err(Error::TooSmall { .. })
+    ));
 }
