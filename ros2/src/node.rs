@@ -275,6 +275,21 @@ impl Opened {
         }
     }
 
+    /// The stamp of the frame just read: the camera's capture time on the
+    /// system clock when the driver gives one, else now.
+    fn stamp(&self) -> Time {
+        let now = SystemTime::now();
+        match self {
+            Opened::Sequence(_) => Time::from_system(now),
+            #[cfg(feature = "v4l")]
+            Opened::Camera(c) => Time::from_system(capture_on_system_clock(
+                c.last_capture_time(),
+                monotonic_now(),
+                now,
+            )),
+        }
+    }
+
     fn next(&mut self) -> Option<optical_tactile::Result<Frame>> {
         match self {
             Opened::Sequence(s) => s.next_frame(),
@@ -512,7 +527,7 @@ fn capture_loop(
                 read += 1;
                 Event::Frame(Captured {
                     frame,
-                    stamp: Time::from_system(SystemTime::now()),
+                    stamp: source.stamp(),
                 })
             }
             Err(e) => match &mut source {
@@ -564,6 +579,35 @@ fn capture_loop(
         }
     }
     let _ = (dropped_since_log, reopens_left, channel);
+}
+
+/// The system-clock time of a capture at `capture` on the monotonic clock,
+/// read at `mono_now` and `now`: `now` less the frame's age. `now` itself
+/// without a capture time, or when the age is negative or above a second
+/// (a driver whose stamps are not what they claim).
+pub fn capture_on_system_clock(
+    capture: Option<Duration>,
+    mono_now: Option<Duration>,
+    now: SystemTime,
+) -> SystemTime {
+    match (capture, mono_now) {
+        (Some(c), Some(m)) => match m.checked_sub(c) {
+            Some(age) if age <= Duration::from_secs(1) => now.checked_sub(age).unwrap_or(now),
+            _ => now,
+        },
+        _ => now,
+    }
+}
+
+/// The monotonic clock (`CLOCK_MONOTONIC`), the clock of V4L2 time stamps.
+#[cfg(feature = "v4l")]
+fn monotonic_now() -> Option<Duration> {
+    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).ok()?;
+    let (sec, nsec) = (
+        u64::try_from(t.tv_sec()).ok()?,
+        u32::try_from(t.tv_nsec()).ok()?,
+    );
+    Some(Duration::new(sec, nsec))
 }
 
 #[cfg(feature = "v4l")]
@@ -667,4 +711,33 @@ pub fn process_frames(
         return Err("no readable frame: no reference".into());
     }
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn capture_times_move_to_the_system_clock_by_the_frame_age() {
+        let now = SystemTime::UNIX_EPOCH + Duration::from_secs(1_000_000);
+        let at = |c: u64, m: u64| {
+            capture_on_system_clock(
+                Some(Duration::from_millis(c)),
+                Some(Duration::from_millis(m)),
+                now,
+            )
+        };
+        assert_eq!(at(5_000, 5_020), now - Duration::from_millis(20));
+        // From the future, or older than a second: the receive time.
+        assert_eq!(at(5_030, 5_020), now);
+        assert_eq!(at(1_000, 5_020), now);
+        assert_eq!(
+            capture_on_system_clock(None, Some(Duration::ZERO), now),
+            now
+        );
+        assert_eq!(
+            capture_on_system_clock(Some(Duration::ZERO), None, now),
+            now
+        );
+    }
 }
