@@ -504,7 +504,6 @@ fn capture_loop(
     let mut next_at = Instant::now();
     let mut read = 0u64;
     let mut last_drop_log: Option<Instant> = None;
-    let mut dropped_since_log = 0u64;
     // Counted down by the camera's reopen attempts (feature `v4l`).
     #[allow(unused_mut)]
     let mut reopens_left = match spec {
@@ -530,28 +529,33 @@ fn capture_loop(
                     stamp: source.stamp(),
                 })
             }
-            Err(e) => match &mut source {
+            Err(e) => match source {
                 Opened::Sequence(_) => Event::Unreadable(e.to_string()),
                 #[cfg(feature = "v4l")]
                 Opened::Camera(_) => {
                     eprintln!("camera error: {e}");
+                    // Closed before it is opened again.
+                    drop(source);
                     match reopen(spec, channel, &mut reopens_left, stop) {
                         Some(s) => {
                             source = s;
                             continue;
                         }
-                        None => Event::Fatal(format!("the camera stopped delivering frames: {e}")),
+                        None => {
+                            let _ = tx.send(Event::Fatal(format!(
+                                "the camera stopped delivering frames: {e}"
+                            )));
+                            return;
+                        }
                     }
                 }
             },
         };
-        let fatal = matches!(event, Event::Fatal(_));
-        if drops && !fatal {
+        if drops {
             match tx.try_send(event) {
                 Ok(()) => {}
                 Err(TrySendError::Full(Event::Frame(c))) => {
                     dropped.fetch_add(1, Ordering::Relaxed);
-                    dropped_since_log += 1;
                     let due = last_drop_log.is_none_or(|t| t.elapsed() >= Duration::from_secs(1));
                     if !quiet && due {
                         eprintln!(
@@ -560,7 +564,6 @@ fn capture_loop(
                             dropped.load(Ordering::Relaxed)
                         );
                         last_drop_log = Some(Instant::now());
-                        dropped_since_log = 0;
                     }
                 }
                 Err(TrySendError::Full(other)) => {
@@ -574,11 +577,9 @@ fn capture_loop(
         } else if tx.send(event).is_err() {
             return;
         }
-        if fatal {
-            return;
-        }
     }
-    let _ = (dropped_since_log, reopens_left, channel);
+    #[cfg(not(feature = "v4l"))]
+    let _ = (reopens_left, channel);
 }
 
 /// The system-clock time of a capture at `capture` on the monotonic clock,
