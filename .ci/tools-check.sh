@@ -4,8 +4,11 @@
 # with its default inputs from another directory and prints contacts; a
 # closed pipe (track | head -3) ends track quietly with status 0; text
 # streams go to stdout with `-`, binary outputs refuse it; track --timings
-# prints its stage table; the tune server
-# starts, prints its address and stops with --run-for.
+# prints its stage table; the tune server starts, prints its address and
+# stops with --run-for; the ROS 2 node (optical_tactile_node) answers
+# --help, refuses a bad flag or ROS argument (status 2) and a missing
+# calibration or camera (one error line, status 1) before it starts any
+# network traffic.
 #
 #   .ci/tools-check.sh                # builds the release examples first
 #   .ci/tools-check.sh --no-build     # uses the release examples already built
@@ -23,7 +26,7 @@ for arg in "$@"; do
     --debug) profile=debug ;;
     --no-build) build=0 ;;
     -h | --help)
-      sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'
+      sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'
       exit 0
       ;;
     *)
@@ -36,8 +39,10 @@ done
 if [[ $build == 1 ]]; then
   if [[ $profile == release ]]; then
     cargo build --release --examples -p optical-tactile
+    cargo build --release -p optical-tactile-ros2
   else
     cargo build --examples -p optical-tactile
+    cargo build -p optical-tactile-ros2
   fi
 fi
 
@@ -241,6 +246,51 @@ if [[ -x $multi ]] && check_status "multi_contact --png -" 2 "$multi" fixtures/p
     pass "multi_contact --png - is refused"
   else
     fail "multi_contact --png -: unclear message" "$(cat "$work/err")"
+  fi
+fi
+
+# The ROS 2 node: only runs that end before its participant starts (no
+# network traffic here).
+ros_node="$target_dir/$profile/optical_tactile_node"
+if [[ ! -x $ros_node ]]; then
+  fail "optical_tactile_node: no binary at $ros_node"
+else
+  if check_status "optical_tactile_node --help" 0 "$ros_node" --help; then
+    if grep -q "Usage" "$work/out" && grep -q -- "--frame-id" "$work/out"; then
+      pass "optical_tactile_node --help"
+    else
+      fail "optical_tactile_node --help: no usage text on stdout" "$(cat "$work/out")"
+    fi
+  fi
+  if check_status "optical_tactile_node --no-such-flag" 2 "$ros_node" --no-such-flag; then
+    if grep -q -- "--no-such-flag" "$work/err" && ! grep -q "panicked" "$work/err"; then
+      pass "optical_tactile_node --no-such-flag"
+    else
+      fail "optical_tactile_node --no-such-flag: the error does not name the flag" "$(cat "$work/err")"
+    fi
+  fi
+  if check_status "optical_tactile_node --ros-args --params-file" 2 "$ros_node" --ros-args --params-file p.yaml; then
+    if grep -q -- "--params-file" "$work/err"; then
+      pass "optical_tactile_node refuses an unsupported ROS argument"
+    else
+      fail "optical_tactile_node --ros-args: unclear message" "$(cat "$work/err")"
+    fi
+  fi
+  if check_status "optical_tactile_node with a missing calibration" 1 \
+    "$ros_node" --sequence fixtures/press --calibration "$work/none.json"; then
+    if [[ $(grep -c '^error: ' "$work/err") == 1 ]] && grep -q "none.json" "$work/err" &&
+      ! grep -q "panicked" "$work/err"; then
+      pass "optical_tactile_node with a missing calibration: one error line, status 1"
+    else
+      fail "optical_tactile_node with a missing calibration: not one error line" "$(cat "$work/err")"
+    fi
+  fi
+  if check_status "optical_tactile_node --device (missing)" 1 "$ros_node" --device "$work/no-camera"; then
+    if [[ $(grep -c '^error: ' "$work/err") == 1 ]] && grep -q "no-camera" "$work/err"; then
+      pass "optical_tactile_node with a missing camera: one error line, status 1"
+    else
+      fail "optical_tactile_node --device: not one error line" "$(cat "$work/err")"
+    fi
   fi
 fi
 

@@ -74,7 +74,7 @@ fn run(a: &Cli) -> Result<(), Failure> {
     let crop = match &sensor {
         Pipeline::Calibrated(s) => s.crop().to_arg(),
         Pipeline::Raw(r) => r
-            .crop
+            .crop()
             .map_or_else(|| "whole frame".to_string(), |c| c.to_arg()),
     };
     eprintln!("camera {w}x{h}, crop {crop}");

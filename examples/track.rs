@@ -226,12 +226,12 @@ fn run(a: &Cli) -> Result<bool, Failure> {
             );
         }
         Pipeline::Raw(r) => {
-            let c = r.extractor.config();
+            let c = r.sensor.extractor().config();
             eprintln!(
                 "sequence {} ({} frames), raw (no calibration), crop {}, flow preset {}, thresholds |flow| > {} px sum > {}",
                 a.seq.display(),
                 seq.len(),
-                r.crop
+                r.crop()
                     .map_or_else(|| "whole frame".to_string(), |c| c.to_arg()),
                 preset_name(c),
                 c.thresholds.magnitude,

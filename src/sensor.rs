@@ -13,6 +13,8 @@
 //!   uses it directly.
 //! - [`TactileSensor`] adds the crop, the calibration (mm and N), tracking
 //!   (identity, hysteresis, smoothing) and safe re-referencing.
+//! - [`RawSensor`] adds the crop alone: patches in pixels, for a sensor
+//!   without a calibration.
 //!
 //! ```no_run
 //! use optical_tactile::calibration::Calibration;
@@ -53,6 +55,9 @@ use crate::hhd::{DivergentPart, NaturalHhd};
 use crate::segment::morphology::Mask;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
+
+mod raw;
+pub use raw::RawSensor;
 
 /// How the extractor cuts and measures patches.
 #[derive(Debug, Clone, PartialEq)]

@@ -6,14 +6,14 @@ use std::path::PathBuf;
 
 use ndarray::Array2;
 use optical_tactile::calibration::Calibration;
-use optical_tactile::contact::{Contact, ContactPointMethod, RawContact};
+use optical_tactile::contact::{Contact, RawContact};
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::{Channel, Roi};
 use optical_tactile::io::FrameRecord;
 use optical_tactile::segment::{MAX_KERNEL_PX, SplitRule, ThresholdPreset, Thresholds};
 use optical_tactile::sensor::{
-    ContactExtractor, ExtractorConfig, SensorConfig, StageTimings, TactileSensor,
+    ContactExtractor, ExtractorConfig, RawSensor, SensorConfig, StageTimings, TactileSensor,
 };
 use optical_tactile::viz;
 
@@ -209,14 +209,12 @@ pub fn patch_header() -> String {
     )
 }
 
-/// Without a calibration: the extractor on the crop (the whole frame unless
-/// one is given), with the library's default flow and thresholds unless given.
+/// Without a calibration: the library's [`RawSensor`] on the crop (the
+/// whole frame unless one is given), with the library's default flow and
+/// thresholds unless given.
 pub struct Raw {
     /// The raw pipeline.
-    pub extractor: ContactExtractor,
-    /// The crop, `None` for the whole frame.
-    pub crop: Option<Roi>,
-    cropped: Array2<f32>,
+    pub sensor: RawSensor,
 }
 
 impl Raw {
@@ -227,6 +225,17 @@ impl Raw {
         thresholds: Option<ThresholdPreset>,
         exposure: ExposureCompensation,
     ) -> Result<Raw, String> {
+        let config = Self::config(preset, thresholds, exposure);
+        Ok(Raw {
+            sensor: RawSensor::new(config, crop).map_err(|e| e.to_string())?,
+        })
+    }
+
+    fn config(
+        preset: Option<DisPreset>,
+        thresholds: Option<ThresholdPreset>,
+        exposure: ExposureCompensation,
+    ) -> ExtractorConfig {
         let mut config = ExtractorConfig::default().with_exposure(exposure);
         if let Some(p) = preset {
             config = config.with_flow(DisParams::preset(p));
@@ -234,28 +243,21 @@ impl Raw {
         if let Some(t) = thresholds {
             config = config.with_thresholds(t);
         }
-        Ok(Raw {
-            extractor: ContactExtractor::new(config).map_err(|e| e.to_string())?,
-            crop,
-            cropped: Array2::zeros((0, 0)),
-        })
+        config
     }
 
     /// The extractor rebuilt with the single-value threshold flags and
     /// `--split` of `args` applied.
     fn with_overrides(mut self, args: &PipelineArgs) -> Result<Raw, String> {
-        let mut config = self.extractor.config().clone();
+        let mut config = self.sensor.extractor().config().clone();
         args.override_extractor(&mut config);
-        self.extractor = ContactExtractor::new(config).map_err(|e| e.to_string())?;
+        self.sensor = RawSensor::new(config, self.sensor.crop()).map_err(|e| e.to_string())?;
         Ok(self)
     }
 
-    fn crop(&mut self, frame: &Array2<f32>) -> optical_tactile::Result<()> {
-        let crop = self
-            .crop
-            .unwrap_or_else(|| Roi::full(frame.ncols(), frame.nrows()));
-        self.cropped = crop.crop(frame)?.to_owned();
-        Ok(())
+    /// The crop, `None` for the whole frame.
+    pub fn crop(&self) -> Option<Roi> {
+        self.sensor.crop()
     }
 }
 
@@ -308,10 +310,7 @@ impl Pipeline {
     pub fn set_reference(&mut self, frame: &Array2<f32>) -> optical_tactile::Result<()> {
         match self {
             Pipeline::Calibrated(s) => s.set_reference(frame),
-            Pipeline::Raw(r) => {
-                r.crop(frame)?;
-                r.extractor.set_reference(&r.cropped)
-            }
+            Pipeline::Raw(r) => r.sensor.set_reference(frame),
         }
     }
 
@@ -319,13 +318,7 @@ impl Pipeline {
     pub fn process(&mut self, frame: &Array2<f32>, t_s: f64) -> optical_tactile::Result<Found> {
         match self {
             Pipeline::Calibrated(s) => Ok(Found::Contacts(s.process(frame, t_s)?.to_vec())),
-            Pipeline::Raw(r) => {
-                r.crop(frame)?;
-                r.extractor.extract(&r.cropped)?;
-                // The contact column as a calibration measures it by default.
-                let raws = r.extractor.locate(ContactPointMethod::DEFAULT)?;
-                Ok(Found::Patches(raws.to_vec()))
-            }
+            Pipeline::Raw(r) => Ok(Found::Patches(r.sensor.process(frame)?.to_vec())),
         }
     }
 
@@ -333,7 +326,7 @@ impl Pipeline {
     pub fn debug_panel(&self) -> viz::Canvas {
         match self {
             Pipeline::Calibrated(s) => viz::debug_panel(s),
-            Pipeline::Raw(r) => viz::raw_debug_panel(&r.extractor, &r.cropped),
+            Pipeline::Raw(r) => r.sensor.debug_panel(),
         }
     }
 
@@ -341,7 +334,7 @@ impl Pipeline {
     pub fn extractor(&self) -> &ContactExtractor {
         match self {
             Pipeline::Calibrated(s) => s.extractor(),
-            Pipeline::Raw(r) => &r.extractor,
+            Pipeline::Raw(r) => r.sensor.extractor(),
         }
     }
 
@@ -349,7 +342,7 @@ impl Pipeline {
     pub fn timings(&self) -> StageTimings {
         match self {
             Pipeline::Calibrated(s) => *s.timings(),
-            Pipeline::Raw(r) => *r.extractor.timings(),
+            Pipeline::Raw(r) => *r.sensor.extractor().timings(),
         }
     }
 

@@ -56,6 +56,7 @@ pub struct Camera {
     index: usize,
     start: Instant,
     failed: bool,
+    capture_time: Option<Duration>,
 }
 
 fn cap(what: &str, e: impl std::fmt::Display) -> Error {
@@ -96,12 +97,22 @@ impl Camera {
             index: 0,
             start: Instant::now(),
             failed: false,
+            capture_time: None,
         })
     }
 
     /// The size the camera actually delivers (it may differ from the request).
     pub fn size(&self) -> (usize, usize) {
         (self.width, self.height)
+    }
+
+    /// When the last frame was captured, by the driver's time stamp on the
+    /// system's monotonic clock (`CLOCK_MONOTONIC`, time since boot), if the
+    /// driver gives one; `None` before the first frame or when the driver's
+    /// time stamps are of another clock or missing. A frame's `t_s` is
+    /// instead the time it was received, from the opening of the camera.
+    pub fn last_capture_time(&self) -> Option<Duration> {
+        self.capture_time
     }
 }
 
@@ -110,13 +121,14 @@ impl FrameSource for Camera {
         if self.failed {
             return Some(Err(cap(&self.config.device, "camera stopped earlier")));
         }
-        let (buf, _meta) = match self.stream.next() {
+        let (buf, meta) = match self.stream.next() {
             Ok(x) => x,
             Err(e) => {
                 self.failed = true;
                 return Some(Err(cap(&self.config.device, e)));
             }
         };
+        self.capture_time = monotonic_time(meta);
         let stride = self.stride.max(2 * self.width);
         let image = gray_from_u8(
             buf,
@@ -135,4 +147,16 @@ impl FrameSource for Camera {
             t_s: self.start.elapsed().as_secs_f64(),
         }))
     }
+}
+
+/// The buffer's capture time when the driver stamps it on the monotonic clock.
+fn monotonic_time(meta: &::v4l::buffer::Metadata) -> Option<Duration> {
+    use ::v4l::buffer::Flags;
+    let clock = meta.flags & Flags::TIMESTAMP_MASK;
+    let (sec, usec) = (meta.timestamp.sec, meta.timestamp.usec);
+    let valid = clock == Flags::TIMESTAMP_MONOTONIC
+        && sec >= 0
+        && (0..1_000_000).contains(&usec)
+        && (sec, usec) != (0, 0);
+    valid.then(|| Duration::new(sec as u64, 1000 * usec as u32))
 }
