@@ -433,36 +433,14 @@ impl NaturalHhd {
         dy: f64,
         out: &mut DivergentPart,
     ) -> Result<()> {
-        let (ny, nx) = u.dim();
-        if v.dim() != (ny, nx) {
-            return Err(Error::shape(
-                "HHD input v (against u)",
-                (nx, ny),
-                (v.ncols(), v.nrows()),
-            ));
-        }
-        fft::check_grid(ny, nx, dx, dy)?;
+        let (ny, nx) = check_input(&u, &v, dx, dy)?;
         out.reshape(ny, nx);
         out.dx = dx;
         out.dy = dy;
         // d and potential_d are free until the potential exists: the input
         // goes there as f64, then du/dx and dv/dy into d.
-        for (what, src, dst) in [
-            ("HHD input u", u, &mut out.d.u),
-            ("HHD input v", v, &mut out.potential_d),
-        ] {
-            for ((row, col), &x) in src.indexed_iter() {
-                let x: f64 = x.into();
-                if !x.is_finite() {
-                    return Err(Error::NonFinite {
-                        what: what.into(),
-                        row,
-                        col,
-                    });
-                }
-                dst[[row, col]] = x;
-            }
-        }
+        copy_finite("HHD input u", u, &mut out.d.u)?;
+        copy_finite("HHD input v", v, &mut out.potential_d)?;
         gradient_x(&out.d.u, nx, dx, &mut out.div);
         gradient_y(&out.potential_d, ny, nx, dy, &mut out.d.v);
         // numpy order: div = dudx + dvdy.
@@ -495,15 +473,13 @@ fn gradient_y(f: &Array2<f64>, ny: usize, nx: usize, dy: f64, out: &mut Array2<f
     gradient_y_slices(f, ny, nx, dy, out);
 }
 
-/// Validates the input, copies it as f64 into `out.h` (kept there until
-/// [`finish`] turns it into the harmonic part) and computes div and curl.
-/// Returns `(ny, nx)`.
-pub(crate) fn load_input<T: HhdScalar>(
-    u: ArrayView2<'_, T>,
-    v: ArrayView2<'_, T>,
+/// `(ny, nx)` of the input: errors if `u` and `v` differ in shape or the
+/// grid (size, spacings) is not one the solvers take.
+fn check_input<T>(
+    u: &ArrayView2<'_, T>,
+    v: &ArrayView2<'_, T>,
     dx: f64,
     dy: f64,
-    out: &mut Decomposition,
 ) -> Result<(usize, usize)> {
     let (ny, nx) = u.dim();
     if v.dim() != (ny, nx) {
@@ -514,25 +490,46 @@ pub(crate) fn load_input<T: HhdScalar>(
         ));
     }
     fft::check_grid(ny, nx, dx, dy)?;
+    Ok((ny, nx))
+}
+
+/// `src` as f64 into `dst` (same shape); errors at the first non-finite
+/// value, naming it `what`.
+fn copy_finite<T: HhdScalar>(
+    what: &str,
+    src: ArrayView2<'_, T>,
+    dst: &mut Array2<f64>,
+) -> Result<()> {
+    for ((row, col), &x) in src.indexed_iter() {
+        let x: f64 = x.into();
+        if !x.is_finite() {
+            return Err(Error::NonFinite {
+                what: what.into(),
+                row,
+                col,
+            });
+        }
+        dst[[row, col]] = x;
+    }
+    Ok(())
+}
+
+/// Validates the input, copies it as f64 into `out.h` (kept there until
+/// [`finish`] turns it into the harmonic part) and computes div and curl.
+/// Returns `(ny, nx)`.
+pub(crate) fn load_input<T: HhdScalar>(
+    u: ArrayView2<'_, T>,
+    v: ArrayView2<'_, T>,
+    dx: f64,
+    dy: f64,
+    out: &mut Decomposition,
+) -> Result<(usize, usize)> {
+    let (ny, nx) = check_input(&u, &v, dx, dy)?;
     out.ensure_shape(ny, nx);
     out.dx = dx;
     out.dy = dy;
-    for (what, src, dst) in [
-        ("HHD input u", u, &mut out.h.u),
-        ("HHD input v", v, &mut out.h.v),
-    ] {
-        for ((row, col), &x) in src.indexed_iter() {
-            let x: f64 = x.into();
-            if !x.is_finite() {
-                return Err(Error::NonFinite {
-                    what: what.into(),
-                    row,
-                    col,
-                });
-            }
-            dst[[row, col]] = x;
-        }
-    }
+    copy_finite("HHD input u", u, &mut out.h.u)?;
+    copy_finite("HHD input v", v, &mut out.h.v)?;
     // d and r are free until the potentials exist: use them for du, dv.
     gradient(&out.h.u, dx, dy, &mut out.d.u, &mut out.d.v)?;
     gradient(&out.h.v, dx, dy, &mut out.r.u, &mut out.r.v)?;
