@@ -513,7 +513,7 @@ pub const DEFAULT_CONTACT_WINDOW_PX: u32 = 400;
 
 /// Runs the pipeline on every test of `rows` (images relative to `dir`),
 /// cropping each image to `crop` if given, and measures each contact's
-/// column by `contact_point` ([`ContactLocator`]).
+/// column by `contact_point` ([`ContactExtractor::locate`]).
 /// `progress(done, total)` is called
 /// from worker threads as tests finish. The first test that cannot be read
 /// or processed stops the run with an error ([`Error::Context`]) that names
