@@ -613,8 +613,11 @@ impl Calibration {
     /// Measures the contact columns the way this calibration was fitted
     /// ([`Calibration::contact_point_method`], with
     /// [`crate::contact::ContactLocator`]) on the frame's flow along x (`u`,
-    /// on a grid of `scale` full-resolution pixels per cell). A sensor calls
-    /// this on its patches before [`Calibration::contact`]. Allocates; see
+    /// on a grid of `scale` full-resolution pixels per cell), for a list of
+    /// raw contacts of the caller's own. The sensor measures through
+    /// [`ContactExtractor::locate`](crate::sensor::ContactExtractor::locate)
+    /// with [`Calibration::contact_point_method`] instead, which also counts
+    /// the frame's unseen patches as neighbours. Allocates; see
     /// [`Calibration::refine_contacts_with`] for a reusable locator.
     pub fn refine_contacts(
         &self,
@@ -641,8 +644,8 @@ impl Calibration {
     /// [`RawContact::local_force`] from the frame's flow (`u`, `v` on a grid
     /// of `scale` full-resolution pixels per cell), all contacts at once;
     /// without one, does nothing. Each contact is matched at
-    /// [`Calibration::match_column`]. A sensor calls this after
-    /// [`Calibration::refine_contacts_with`].
+    /// [`Calibration::match_column`]. A sensor calls this once the contact
+    /// columns are measured the calibration's way.
     pub fn match_forces_with(
         &self,
         matcher: &mut ForceMatcher,
