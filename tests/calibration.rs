@@ -206,7 +206,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
 fn location_and_force_evaluate_the_maps() {
     let samples = protocol_samples(0.1, 2);
     let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
-    let g = SensorGeometry::default();
+    let g = optical_tactile::geometry::CurvedStrip::default();
     for s in samples.iter().step_by(97) {
         let [x, y, z] = cal.location(s.x2d, s.y2d).unwrap();
         assert_eq!(x, cal.g1().evaluate(&[s.x2d, 0.0]).unwrap());

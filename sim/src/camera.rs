@@ -46,14 +46,17 @@ impl Skin {
         Ok(())
     }
 
-    /// Arc radius, mm.
+    /// Radius of curvature along the length, mm: the strip's arc radius,
+    /// infinite for a flat surface.
     pub fn radius_mm(&self) -> f64 {
-        self.geometry.radius_mm
+        self.geometry
+            .as_curved_strip()
+            .map_or(f64::INFINITY, |g| g.radius_mm)
     }
 
     /// Width across, mm.
     pub fn width_mm(&self) -> f64 {
-        self.geometry.width_mm
+        self.geometry.width_mm()
     }
 
     /// Half the arc length of the sensing area, mm.

@@ -317,10 +317,11 @@ impl SimConfig {
         let (w, h) = (320usize, 240usize);
         SimConfig {
             skin: Skin {
-                geometry: optical_tactile::geometry::SensorGeometry {
+                geometry: optical_tactile::geometry::CurvedStrip {
                     width_mm: 23.9,
-                    ..d.skin.geometry
-                },
+                    ..Default::default()
+                }
+                .into(),
                 length_mm: 31.9,
             },
             camera: CameraModel {
