@@ -2,8 +2,9 @@
 //!
 //! ```text
 //! cargo run --release --example calibrate -- DATASET_DIR [--thresholds low|mid|high|all]
-//!     [--thresholds-custom MAGNITUDE,SUM] [--contact-point slope[:SIGMA]|centroid[:HALF]|argmin]
-//!     [--shear-order N]
+//!     [--thresholds-custom MAGNITUDE,SUM]
+//!     [--contact-point slope[:SIGMA]|slope2d[:SIGMA]|centroid[:HALF]|argmin]
+//!     [--geometry strip|flat:LENGTHxWIDTH] [--shear-order N]
 //!     [--preset fast|accurate|...] [--crop x,y,w,h] [--predictions FILE] --out calibration.json
 //! ```
 //!
@@ -18,9 +19,15 @@
 //! one (the paper's flight setting) and the others are written beside it as
 //! `NAME.low.json` and `NAME.mid.json`. `--thresholds-custom M,S` fits with
 //! flow magnitude `M` px and patch sum `S` (full-resolution units) and the
-//! `low` kernels, labelled `custom`. `--contact-point` chooses how a contact's
-//! column is measured: `slope` (default, the steepest rise of the along-arc
-//! profile smoothed by a Gaussian of SIGMA px, default 8), `centroid` (the
+//! `low` kernels, labelled `custom`. `--geometry` is the sensor's surface: the
+//! dataset's `geometry.json` when it has one, else the paper's curved strip
+//! (`strip`); `flat:24x18` is a flat gel 24 mm along x (image columns) by
+//! 18 mm along y. On a flat sensor contacts are located in 2-D: both location
+//! maps take `(x2d, y2d)`, `y2d` enters the force maps and the contact point
+//! defaults to `slope2d`. `--contact-point` chooses how a contact's
+//! column is measured: `slope` (default on the strip, the steepest rise of the along-arc
+//! profile smoothed by a Gaussian of SIGMA px, default 8), `slope2d` (the same
+//! along both image axes, the default on a flat sensor), `centroid` (the
 //! energy centroid in a window of half-width HALF px, default 400) or
 //! `argmin` (argmin of D, the paper's); `--contact-window PX` is the older
 //! spelling of `centroid:PX` (0 = argmin). `--shear-order N` the largest order of the shear ratio in `g1`
@@ -52,13 +59,13 @@ use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::fit::{FitOptions, GuardOptions};
 use optical_tactile::calibration::fit::{
-    extract_dataset, fit_dataset, load_cell_spread, read_dataset,
+    extract_dataset, fit_dataset, load_cell_spread, read_dataset, read_dataset_geometry,
 };
 use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
-use optical_tactile::geometry::SensorGeometry;
+use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
@@ -85,12 +92,19 @@ struct Cli {
     /// --thresholds).
     #[arg(long, value_name = "MAGNITUDE,SUM", value_parser = parse_custom)]
     thresholds_custom: Option<(f32, f32)>,
-    /// How a contact's column is measured: the steepest rise of the profile
-    /// smoothed by a Gaussian of SIGMA px, the energy centroid in a window of
-    /// half-width HALF px (default 400), or argmin of D (the paper's).
-    #[arg(long, value_name = "slope[:SIGMA]|centroid[:HALF]|argmin", default_value = "slope:8",
+    /// How a contact's point is measured: the steepest rise of the profile
+    /// smoothed by a Gaussian of SIGMA px (along x, or along both axes with
+    /// slope2d), the energy centroid in a window of half-width HALF px
+    /// (default 400), or argmin of D (the paper's) [default: slope:8 on the
+    /// strip, slope2d:8 on a flat sensor].
+    #[arg(long, value_name = "slope[:SIGMA]|slope2d[:SIGMA]|centroid[:HALF]|argmin",
           value_parser = parse_contact_point, overrides_with = "contact_window")]
-    contact_point: ContactPointMethod,
+    contact_point: Option<ContactPointMethod>,
+    /// The sensor's surface: the paper's curved strip, or a flat gel
+    /// LENGTH mm along x by WIDTH mm along y [default: the dataset's
+    /// geometry.json, else strip].
+    #[arg(long, value_name = "strip|flat:LENGTHxWIDTH", value_parser = parse_geometry)]
+    geometry: Option<SensorGeometry>,
     /// The older spelling of --contact-point centroid:PX (0: argmin).
     #[arg(long, value_name = "PX", overrides_with = "contact_point")]
     contact_window: Option<u32>,
@@ -151,7 +165,8 @@ struct Args {
     out: TextOut,
     presets: Vec<&'static str>,
     custom: Option<(f32, f32)>,
-    contact_point: ContactPointMethod,
+    contact_point: Option<ContactPointMethod>,
+    geometry: Option<SensorGeometry>,
     shear_order: u32,
     force_order: u32,
     dpf_order: u32,
@@ -186,18 +201,40 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
         "slope" => ContactPointMethod::SlopePeak {
             sigma_px: num(8.0)?,
         },
+        "slope2d" => ContactPointMethod::SlopePeak2d {
+            sigma_px: num(8.0)?,
+        },
         "centroid" => ContactPointMethod::EnergyCentroid {
             half_window_px: num(400.0)?,
         },
         "argmin" if !given => ContactPointMethod::PotentialMinimum,
         _ => {
             return Err(format!(
-                "expected slope[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
+                "expected slope[:SIGMA], slope2d[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
             ));
         }
     };
     method.validate().map_err(|e| e.to_string())?;
     Ok(method)
+}
+
+/// `strip` or `flat:LENGTHxWIDTH` (mm).
+fn parse_geometry(v: &str) -> Result<SensorGeometry, String> {
+    let bad = || format!("expected strip or flat:LENGTHxWIDTH (mm, e.g. flat:24x18), got `{v}`");
+    let g = match v.split_once(':') {
+        None if v == "strip" => SensorGeometry::default(),
+        Some(("flat", dims)) => {
+            let (l, w) = dims.split_once('x').ok_or_else(bad)?;
+            let num = |x: &str| x.trim().parse::<f64>().map_err(|_| bad());
+            SensorGeometry::Flat(FlatSurface {
+                length_mm: num(l)?,
+                width_mm: num(w)?,
+            })
+        }
+        _ => return Err(bad()),
+    };
+    g.validate().map_err(|e| e.to_string())?;
+    Ok(g)
 }
 
 /// `MAGNITUDE,SUM`: a positive flow magnitude and a patch sum >= 0.
@@ -230,10 +267,10 @@ impl Cli {
             return Err("--out and --predictions cannot both go to stdout (-)".into());
         }
         let contact_point = match self.contact_window {
-            Some(0) => ContactPointMethod::PotentialMinimum,
-            Some(w) => ContactPointMethod::EnergyCentroid {
+            Some(0) => Some(ContactPointMethod::PotentialMinimum),
+            Some(w) => Some(ContactPointMethod::EnergyCentroid {
                 half_window_px: f64::from(w),
-            },
+            }),
             None => self.contact_point,
         };
         Ok(Args {
@@ -242,6 +279,7 @@ impl Cli {
             presets,
             custom: self.thresholds_custom,
             contact_point,
+            geometry: self.geometry,
             shear_order: self.shear_order,
             force_order: self.force_order,
             dpf_order: self.dpf_order,
@@ -290,6 +328,18 @@ fn run(args: Args) -> Result<(), Failure> {
         args.out.is_stdout() || args.predictions.as_ref().is_some_and(TextOut::is_stdout);
     let mut out = Sink::report(data_on_stdout);
     let rows = read_dataset(&args.dir).map_err(err)?;
+    let geometry = match args.geometry {
+        Some(g) => g,
+        None => read_dataset_geometry(&args.dir)
+            .map_err(err)?
+            .unwrap_or_default(),
+    };
+    let two_d = geometry.locates_in_2d();
+    let contact_point = args.contact_point.unwrap_or(if two_d {
+        ContactPointMethod::SlopePeak2d { sigma_px: 8.0 }
+    } else {
+        ContactPointMethod::DEFAULT
+    });
     // The crop the pixel coordinates refer to: given, or the whole image.
     let crop = match args.crop {
         Some(c) => c,
@@ -300,10 +350,11 @@ fn run(args: Args) -> Result<(), Failure> {
     };
     let threads = rayon::current_num_threads();
     eprintln!(
-        "{} tests in {}, {} threads",
+        "{} tests in {}, {} threads, {} geometry",
         rows.len(),
         args.dir.display(),
-        threads
+        threads,
+        geometry.kind()
     );
     let mut table_i = Vec::new();
     let mut table_ii = Vec::new();
@@ -323,7 +374,7 @@ fn run(args: Args) -> Result<(), Failure> {
             &args.dir,
             &rows,
             &config,
-            args.contact_point,
+            contact_point,
             args.crop,
             &progress,
         );
@@ -335,18 +386,13 @@ fn run(args: Args) -> Result<(), Failure> {
             d_pf_max_order: args.dpf_order,
             shear_max_order: args.shear_force_order,
             guard: args.guard,
-            force_use_y2d: args.force_y2d,
+            // A flat sensor's contacts land anywhere in y: the force maps
+            // need y2d as much as x2d.
+            force_use_y2d: args.force_y2d || two_d,
             ..FitOptions::default()
         };
-        let fit = fit_dataset(
-            &ex,
-            &config,
-            args.contact_point,
-            crop,
-            SensorGeometry::default(),
-            &options,
-        )
-        .map_err(err)?;
+        let fit =
+            fit_dataset(&ex, &config, contact_point, crop, geometry, &options).map_err(err)?;
         eprintln!(
             "[{preset}] fitted in {:.1} s; misses train/val/test: {}/{}/{}",
             t0.elapsed().as_secs_f64(),

@@ -438,9 +438,13 @@ impl ContactExtractor {
         // does: the contacts come out as they would with them.
         let n = self.raws.len();
         self.raws.append(&mut self.unseen);
-        let refined = self
-            .locator
-            .refine(method, &mut self.raws, flow.u.view(), scale as f64);
+        let refined = self.locator.refine(
+            method,
+            &mut self.raws,
+            flow.u.view(),
+            flow.v.view(),
+            scale as f64,
+        );
         self.unseen.extend(self.raws.drain(n..));
         refined?;
         Ok(&self.raws)

@@ -114,7 +114,7 @@ fn parameters_beyond_their_bounds_are_refused() {
         assert!(m.validate().is_err(), "{m:?}");
         let u = ndarray::Array2::<f32>::zeros((10, 40));
         let mut raws = [optical_tactile::contact::RawContact::default()];
-        let e = ContactLocator::new().refine(m, &mut raws, u.view(), 4.0);
+        let e = ContactLocator::new().refine(m, &mut raws, u.view(), u.view(), 4.0);
         assert!(matches!(e, Err(Error::InvalidParameter { .. })), "{e:?}");
     }
     assert!(

@@ -1149,3 +1149,80 @@ fn the_exposure_compensation_travels_with_the_calibration() {
     std::fs::write(&unknown, text.replace(key, "\"exposure\": \"sometimes\"")).unwrap();
     assert!(Calibration::load(&unknown).is_err());
 }
+
+/// A flat 24 x 18 mm sensor filmed through a lens with barrel distortion: on
+/// a 5 x 4 grid of points (the middle row's inner points validate, the
+/// other interior points test) both location maps come out of
+/// `(x2d, y2d)`, `z` is 0 and the file keeps the geometry.
+#[test]
+fn a_flat_sensor_maps_both_coordinates_from_the_2d_contact_point() {
+    use optical_tactile::geometry::FlatSurface;
+    let geometry = SensorGeometry::Flat(FlatSurface {
+        length_mm: 24.0,
+        width_mm: 18.0,
+    });
+    // The camera: 13 px/mm about the image centre (160, 120) with a
+    // radial term that mixes the axes.
+    let camera = |x: f64, y: f64| {
+        let k = 1.0 - 4e-4 * (x * x + y * y);
+        (160.0 + 13.0 * x * k, 120.0 + 13.0 * y * k)
+    };
+    let mut rng = Rng::new(5);
+    let mut samples = Vec::new();
+    for (pi, (ix, iy)) in (0..5).flat_map(|i| (0..4).map(move |j| (i, j))).enumerate() {
+        let (x_mm, y_mm) = (-9.0 + 4.5 * ix as f64, -6.75 + 4.5 * iy as f64);
+        let interior = (1..4).contains(&ix) && (1..3).contains(&iy);
+        for rep in 0..12 {
+            let split = match (interior, rep % 2) {
+                (false, _) => Split::Train,
+                (true, 0) if iy == 1 => Split::Val,
+                (true, _) if iy == 1 => Split::Train,
+                (true, 0) => Split::Val,
+                (true, _) => Split::Test,
+            };
+            // Contacts scatter around the point as a real indenter's do.
+            let (x, y) = (x_mm + 0.4 * rng.normal(), y_mm + 0.4 * rng.normal());
+            let (x2d, y2d) = camera(x, y);
+            let fz = -0.5 - 0.2 * rep as f64;
+            samples.push(Sample {
+                split,
+                point: pi as u32 + 1,
+                x2d: x2d + 0.05 * rng.normal(),
+                y2d: y2d + 0.05 * rng.normal(),
+                dx: 0.0,
+                dy: 0.0,
+                dz: 100.0 * fz + rng.normal(),
+                d_pf: 1.0 - fz,
+                shear: 0.0,
+                x_mm: x,
+                y_mm: y,
+                fx: 0.0,
+                fy: 0.0,
+                fz,
+            });
+        }
+    }
+    let setup = SensorSetup {
+        geometry,
+        ..setup()
+    };
+    let cal = fit::fit(&samples, &setup, &small_options()).unwrap();
+    assert_eq!(cal.g1().variables(), ["x2d", "y2d"]);
+    assert_eq!(cal.g2().variables(), ["x2d", "y2d"]);
+    let test = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
+    assert!(test.n > 0);
+    // The 0.05 px of pixel noise is 4 um: the maps are nearly exact.
+    assert!(test.x_mm < 0.02 && test.y_mm < 0.02, "{test:?}");
+    let (x2d, y2d) = camera(3.0, -5.0);
+    let [x, y, z] = cal.location(x2d, y2d).unwrap();
+    assert!((x - 3.0).abs() < 0.02 && (y + 5.0).abs() < 0.02, "{x} {y}");
+    assert_eq!(z, 0.0);
+    // Saved and read back, geometry and maps are the same.
+    let back = Calibration::from_json_str(&cal.to_json_string()).unwrap();
+    assert_eq!(back.setup, cal.setup);
+    assert_eq!((back.g1(), back.g2()), (cal.g1(), cal.g2()));
+    assert!(cal.to_json_string().contains("\"kind\": \"flat\""));
+    // The strip's calibration takes y from y2d alone, as before.
+    let strip = fit::fit(&protocol_samples(0.1, 2), &self::setup(), &small_options()).unwrap();
+    assert_eq!(strip.g2().variables(), ["y2d"]);
+}

@@ -54,6 +54,7 @@ fn contacts(
             ContactPointMethod::DEFAULT,
             &mut raws,
             flow.u.view(),
+            flow.v.view(),
             scale as f64,
         )
         .unwrap();

@@ -2,8 +2,9 @@
 //! Lines against `truth.jsonl`).
 //!
 //! Frames are paired by their `frame` name. Within a frame, predicted and true
-//! contacts are matched one to one by distance along the chord (`x_mm`),
-//! closest pairs first, within a gate; a true contact left unmatched is a
+//! contacts are matched one to one by their distance in the sensor's x-y
+//! plane (`x_mm`, `y_mm`; on the strip, whose contacts all have `y_mm` 0,
+//! the distance along the chord), closest pairs first, within a gate; a true contact left unmatched is a
 //! **miss**, a predicted one a **false contact**. Errors are averaged over the
 //! matched pairs.
 //!
@@ -57,8 +58,8 @@ pub struct Evaluation {
     pub p95_latency_ms: Option<f64>,
 }
 
-/// Matches contacts one to one by |x| distance within `gate_mm`, closest first.
-/// Returns the index pairs `(predicted, true)`.
+/// Matches contacts one to one by their distance in the x-y plane within
+/// `gate_mm`, closest first. Returns the index pairs `(predicted, true)`.
 pub fn match_contacts(
     pred: &[ContactRecord],
     truth: &[ContactRecord],
@@ -67,7 +68,7 @@ pub fn match_contacts(
     let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
     for (i, p) in pred.iter().enumerate() {
         for (j, t) in truth.iter().enumerate() {
-            let d = (p.x_mm - t.x_mm).abs();
+            let d = (p.x_mm - t.x_mm).hypot(p.y_mm - t.y_mm);
             if d <= gate_mm {
                 pairs.push((d, i, j));
             }

@@ -663,6 +663,7 @@ pub fn pair_told_apart(
         ContactPointMethod::DEFAULT,
         &mut raws,
         flow.u.view(),
+        flow.v.view(),
         s as f64,
     )?;
     let mut xs = [raws[0].x_px, raws[1].x_px];

@@ -20,8 +20,8 @@ use serde::{Deserialize, Serialize};
 use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
 use super::report::{self, DetectionLimit, PointTable, evaluate};
 use super::{
-    Calibration, CalibrationReport, FORCE_VARIABLES, ForceGuard, PipelineSettings, Sample,
-    SensorSetup, in_memory,
+    Calibration, CalibrationReport, FORCE_VARIABLES, ForceGuard, LOCATION_2D_VARIABLES,
+    PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
     ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
@@ -292,9 +292,11 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         ));
     }
     // Column arrays per split: g1 input, g2 input, force inputs, and targets.
+    // On a sensor that locates in 2-D, both location maps take (x2d, y2d).
+    let two_d = setup.geometry.locates_in_2d();
     struct Cols {
-        x2d_shear: Array2<f64>,
-        y2d: Array2<f64>,
+        g1_in: Array2<f64>,
+        g2_in: Array2<f64>,
         force: Array2<f64>,
         x_mm: Array1<f64>,
         y_mm: Array1<f64>,
@@ -302,11 +304,18 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     }
     let cols = |set: &[&Sample]| {
         let n = set.len();
+        let x2d_y2d = || Array2::from_shape_fn((n, 2), |(i, j)| [set[i].x2d, set[i].y2d][j]);
         Cols {
-            x2d_shear: Array2::from_shape_fn((n, 2), |(i, j)| {
-                if j == 0 { set[i].x2d } else { set[i].shear }
-            }),
-            y2d: Array2::from_shape_fn((n, 1), |(i, _)| set[i].y2d),
+            g1_in: if two_d {
+                x2d_y2d()
+            } else {
+                Array2::from_shape_fn((n, 2), |(i, j)| [set[i].x2d, set[i].shear][j])
+            },
+            g2_in: if two_d {
+                x2d_y2d()
+            } else {
+                Array2::from_shape_fn((n, 1), |(i, _)| set[i].y2d)
+            },
             force: Array2::from_shape_fn((n, 6), |(i, j)| set[i].force_inputs()[j]),
             x_mm: set.iter().map(|s| s.x_mm).collect(),
             y_mm: set.iter().map(|s| s.y_mm).collect(),
@@ -322,33 +331,46 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let ls = &options.least_squares;
     let named = |what: &'static str| move |e: Error| prefix_error(what, e);
 
-    let loc_spec = |name: &str| {
-        PolySpec::new(
-            vec![VarGroup::new(name, &[name], options.location_max_order)],
+    let (g1_spec, g2_spec) = if two_d {
+        // One group: every monomial of x2d and y2d up to the order, as a
+        // lens's distortion mixes the two.
+        let spec = PolySpec::new(
+            vec![VarGroup::new(
+                "location",
+                &LOCATION_2D_VARIABLES,
+                options.location_max_order,
+            )],
             CrossTerms::MaxOfGroups,
-        )
+        )?;
+        (spec.clone(), spec)
+    } else {
+        // g1 always has the shear input (order 0 = unused, then the paper's map).
+        let g1 = PolySpec::new(
+            vec![
+                VarGroup::new("x2d", &["x2d"], options.location_max_order),
+                VarGroup::new("shear", &["shear"], options.location_shear_order),
+            ],
+            options.location_cross,
+        )?;
+        let g2 = PolySpec::new(
+            vec![VarGroup::new("y2d", &["y2d"], options.location_max_order)],
+            CrossTerms::MaxOfGroups,
+        )?;
+        (g1, g2)
     };
-    // g1 always has the shear input (order 0 = unused, then the paper's map).
-    let g1_spec = PolySpec::new(
-        vec![
-            VarGroup::new("x2d", &["x2d"], options.location_max_order),
-            VarGroup::new("shear", &["shear"], options.location_shear_order),
-        ],
-        options.location_cross,
-    )?;
     let (g1, r1) = poly::search_orders(
         &g1_spec,
-        FitData::new(tr.x2d_shear.view(), tr.x_mm.view()),
-        FitData::new(va.x2d_shear.view(), va.x_mm.view()),
-        has_test.then(|| FitData::new(te.x2d_shear.view(), te.x_mm.view())),
+        FitData::new(tr.g1_in.view(), tr.x_mm.view()),
+        FitData::new(va.g1_in.view(), va.x_mm.view()),
+        has_test.then(|| FitData::new(te.g1_in.view(), te.x_mm.view())),
         ls,
     )
     .map_err(named("g1"))?;
     let (g2, r2) = poly::search_orders(
-        &loc_spec("y2d")?,
-        FitData::new(tr.y2d.view(), tr.y_mm.view()),
-        FitData::new(va.y2d.view(), va.y_mm.view()),
-        has_test.then(|| FitData::new(te.y2d.view(), te.y_mm.view())),
+        &g2_spec,
+        FitData::new(tr.g2_in.view(), tr.y_mm.view()),
+        FitData::new(va.g2_in.view(), va.y_mm.view()),
+        has_test.then(|| FitData::new(te.g2_in.view(), te.y_mm.view())),
         ls,
     )
     .map_err(named("g2"))?;
@@ -481,6 +503,32 @@ pub struct Extraction {
     pub profiles: [Vec<f64>; 2],
     /// The flow grid's scale (full-resolution pixels per cell).
     pub scale: f64,
+}
+
+/// Largest `geometry.json` read: 64 KiB (a geometry is a few fields).
+pub const MAX_GEOMETRY_BYTES: u64 = 64 << 10;
+
+/// The name of the file beside `tests.csv` that describes the sensor's
+/// surface (docs/formats.md).
+pub const GEOMETRY_FILE: &str = "geometry.json";
+
+/// Reads a dataset's `geometry.json` ([`SensorGeometry`] as JSON), `None`
+/// when the dataset has none (the sensor is then whatever the caller says,
+/// by default the curved strip). Errors ([`Error::Format`] naming the file)
+/// on a file larger than [`MAX_GEOMETRY_BYTES`], not JSON, of an unknown
+/// kind or with a dimension out of range; a path that exists but is not a
+/// regular file is [`Error::Io`].
+pub fn read_dataset_geometry(dir: impl AsRef<Path>) -> Result<Option<SensorGeometry>> {
+    let path = dir.as_ref().join(GEOMETRY_FILE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let bytes = io::read_capped(&path, MAX_GEOMETRY_BYTES)?;
+    let g: SensorGeometry = serde_json::from_slice(&bytes)
+        .map_err(|e| Error::format(&path, Some(e.line()), e.to_string()))?;
+    g.validate()
+        .map_err(|e| Error::format(&path, None, e.to_string()))?;
+    Ok(Some(g))
 }
 
 /// Reads a dataset's `tests.csv` (errors name the file and line).

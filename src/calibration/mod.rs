@@ -3,7 +3,8 @@
 //! A [`Calibration`] holds the five polynomials of the paper (docs/pipeline.md, steps 8-9):
 //!
 //! - `g1: x2d -> x3D` and `g2: y2d -> y3D` (mm), with `z3D = sqrt(R^2 - x3D^2) - d`
-//!   from the [`SensorGeometry`];
+//!   from the [`SensorGeometry`]; on a flat sensor, which locates contacts in
+//!   2-D, `g1, g2: (x2d, y2d) -> x3D, y3D` and `z3D = 0`;
 //! - `gx, gy, gz: (dx, dy, dz, x2d, y2d, d_pf) -> Fx, Fy, Fz` (N),
 //!
 //! plus the geometry, the crop and the segmentation thresholds it was fitted
@@ -86,8 +87,12 @@ pub const FORMAT_VERSION: u32 = 1;
 pub const G1_VARIABLES: [&str; 2] = ["x2d", "shear"];
 /// Variables of a `g1` without the shear input (older files).
 pub const G1_VARIABLES_LEGACY: [&str; 1] = ["x2d"];
-/// Variables of `g2`.
+/// Variables of `g2` on a sensor that locates along x only (the curved strip).
 pub const G2_VARIABLES: [&str; 1] = ["y2d"];
+/// Variables of both `g1` and `g2` on a sensor that locates contacts in 2-D
+/// ([`SensorGeometry::locates_in_2d`]): each surface coordinate from the
+/// contact point's column and row, which a lens bends into each other.
+pub const LOCATION_2D_VARIABLES: [&str; 2] = ["x2d", "y2d"];
 /// Variables of the force maps `gx, gy, gz`, in evaluation order.
 pub const FORCE_VARIABLES: [&str; 6] = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
 
@@ -439,6 +444,44 @@ fn check_vars(name: &str, p: &Polynomial, expected: &[&str]) -> std::result::Res
     Ok(())
 }
 
+/// Checks a polynomial's variables against the lists its role allows.
+fn check_one_of(
+    name: &str,
+    p: &Polynomial,
+    allowed: &[&[&str]],
+) -> std::result::Result<(), String> {
+    if allowed.iter().any(|a| check_vars(name, p, a).is_ok()) {
+        return Ok(());
+    }
+    let lists: Vec<String> = allowed
+        .iter()
+        .map(|a| format!("[{}]", a.join(", ")))
+        .collect();
+    Err(format!(
+        "polynomial `{name}` has variables [{}], expected one of {}",
+        p.variables().join(", "),
+        lists.join(", ")
+    ))
+}
+
+/// A location map at a contact: its variables (`x2d`, `y2d`, `shear`, as
+/// [`Calibration::check`] allows) take the contact's values.
+fn evaluate_location(p: &Polynomial, x2d: f64, y2d: f64, shear: f64) -> Result<f64> {
+    let pick = |name: &str| match name {
+        "x2d" => x2d,
+        "y2d" => y2d,
+        _ => shear,
+    };
+    match p.variables() {
+        [a] => p.evaluate(&[pick(a)]),
+        [a, b] => p.evaluate(&[pick(a), pick(b)]),
+        other => Err(Error::param(
+            "location map",
+            format!("has {} variables, expected 1 or 2", other.len()),
+        )),
+    }
+}
+
 impl Calibration {
     /// A calibration from its parts. Errors ([`Error::Calibration`]) if a
     /// polynomial does not have the variables its role requires (see
@@ -467,12 +510,12 @@ impl Calibration {
     }
 
     fn check(&self) -> std::result::Result<(), String> {
-        if self.g1.n_variables() == 1 {
-            check_vars("g1", &self.g1, &G1_VARIABLES_LEGACY)?;
-        } else {
-            check_vars("g1", &self.g1, &G1_VARIABLES)?;
-        }
-        check_vars("g2", &self.g2, &G2_VARIABLES)?;
+        check_one_of(
+            "g1",
+            &self.g1,
+            &[&G1_VARIABLES, &G1_VARIABLES_LEGACY, &LOCATION_2D_VARIABLES],
+        )?;
+        check_one_of("g2", &self.g2, &[&G2_VARIABLES, &LOCATION_2D_VARIABLES])?;
         check_vars("gx", &self.gx, &FORCE_VARIABLES)?;
         check_vars("gy", &self.gy, &FORCE_VARIABLES)?;
         check_vars("gz", &self.gz, &FORCE_VARIABLES)?;
@@ -523,23 +566,22 @@ impl Calibration {
     }
 
     /// Contact location `[x, y, z]` in mm from the contact point in pixels,
-    /// for a contact without shear: `x = g1(x2d, 0)`, `y = g2(y2d)`,
-    /// `z = sqrt(R^2 - x^2) - d`. See [`Calibration::location_sheared`].
+    /// for a contact without shear: `x = g1(x2d, 0)`, `y = g2(y2d)` (or
+    /// `g1(x2d, y2d)` and `g2(x2d, y2d)` on a sensor that locates in 2-D),
+    /// `z` the surface's height at `x` (`sqrt(R^2 - x^2) - d` on the strip,
+    /// 0 on a flat sensor). See [`Calibration::location_sheared`].
     pub fn location(&self, x2d: f64, y2d: f64) -> Result<[f64; 3]> {
         self.location_sheared(x2d, y2d, 0.0)
     }
 
     /// Contact location `[x, y, z]` in mm from the contact point in pixels
     /// and the contact's shear-to-normal ratio ([`RawContact::shear_ratio`]):
-    /// `x = g1(x2d, shear)` (a legacy `g1` ignores `shear`).
+    /// `x = g1(x2d, shear)` (a legacy `g1`, and the 2-D maps `g1(x2d, y2d)`,
+    /// ignore `shear`).
     pub fn location_sheared(&self, x2d: f64, y2d: f64, shear: f64) -> Result<[f64; 3]> {
-        let x = if self.g1.n_variables() == 1 {
-            self.g1.evaluate(&[x2d])?
-        } else {
-            self.g1.evaluate(&[x2d, shear])?
-        };
-        let y = self.g2.evaluate(&[y2d])?;
-        Ok([x, y, self.setup.geometry.z_at(x)])
+        let x = evaluate_location(&self.g1, x2d, y2d, shear)?;
+        let y = evaluate_location(&self.g2, x2d, y2d, shear)?;
+        Ok(self.setup.geometry.point_at(x, y))
     }
 
     /// Force `[Fx, Fy, Fz]` in N from the raw displacements rotated into the
@@ -610,10 +652,10 @@ impl Calibration {
             })
     }
 
-    /// Measures the contact columns the way this calibration was fitted
+    /// Measures the contact points the way this calibration was fitted
     /// ([`Calibration::contact_point_method`], with
-    /// [`crate::contact::ContactLocator`]) on the frame's flow along x (`u`,
-    /// on a grid of `scale` full-resolution pixels per cell), for a list of
+    /// [`crate::contact::ContactLocator`]) on the frame's flow (`u` along x,
+    /// `v` along y, on a grid of `scale` full-resolution pixels per cell), for a list of
     /// raw contacts of the caller's own. The sensor measures through
     /// [`ContactExtractor::locate`](crate::sensor::ContactExtractor::locate)
     /// with [`Calibration::contact_point_method`] instead, which also counts
@@ -623,9 +665,10 @@ impl Calibration {
         &self,
         raws: &mut [RawContact],
         u: ndarray::ArrayView2<'_, f32>,
+        v: ndarray::ArrayView2<'_, f32>,
         scale: f64,
     ) -> Result<()> {
-        self.refine_contacts_with(&mut ContactLocator::new(), raws, u, scale)
+        self.refine_contacts_with(&mut ContactLocator::new(), raws, u, v, scale)
     }
 
     /// [`Calibration::refine_contacts`] with the caller's locator, whose
@@ -635,9 +678,10 @@ impl Calibration {
         locator: &mut ContactLocator,
         raws: &mut [RawContact],
         u: ndarray::ArrayView2<'_, f32>,
+        v: ndarray::ArrayView2<'_, f32>,
         scale: f64,
     ) -> Result<()> {
-        locator.refine(self.contact_point_method(), raws, u, scale)
+        locator.refine(self.contact_point_method(), raws, u, v, scale)
     }
 
     /// With a profile model, sets each contact's

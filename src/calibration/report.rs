@@ -192,7 +192,7 @@ pub struct ThresholdRow {
 }
 
 /// The paper's Table I in markdown: one column per threshold preset; rows
-/// `F_min`, MAE of x (mm), Fx, Fy, Fz (N).
+/// `F_min`, MAE of x (mm), of y (mm) when not all zero, Fx, Fy, Fz (N).
 pub fn table_i_markdown(rows: &[ThresholdRow]) -> String {
     let mut s = table_header(rows.iter().map(|r| r.preset.as_str()));
     let _ = write!(s, "| F_min [N] |");
@@ -205,7 +205,8 @@ pub fn table_i_markdown(rows: &[ThresholdRow]) -> String {
 }
 
 /// The paper's Table II in markdown: columns Total and one per measuring
-/// point; rows MAE of x (mm), Fx, Fy, Fz (N), and the sample count.
+/// point; rows MAE of x (mm), of y (mm) when not all zero, Fx, Fy, Fz (N),
+/// and the sample count.
 pub fn table_ii_markdown(t: &PointTable) -> String {
     let mut cols: Vec<(String, QuantityMae)> = vec![("Total".into(), t.total)];
     cols.extend(t.per_point.iter().map(|(p, m)| (format!("Point {p}"), *m)));
@@ -234,16 +235,23 @@ fn table_header<'a>(columns: impl Iterator<Item = &'a str>) -> String {
 }
 
 /// The MAE rows of x (mm), Fx, Fy, Fz (N) shared by Tables I and II, one
-/// column per item of `columns`.
+/// column per item of `columns`; with a row of y (mm) after x's when some
+/// column's y error is not zero (a sensor that locates contacts in 2-D; on
+/// the strip the rods' y is 0 and so is its map's).
 fn mae_rows<'a>(s: &mut String, columns: impl Iterator<Item = &'a QuantityMae> + Clone) {
     type Get = fn(&QuantityMae) -> f64;
-    let lines: [(&str, Get, usize); 4] = [
+    let with_y = columns.clone().any(|m| m.y_mm != 0.0);
+    let lines: [(&str, Get, usize); 5] = [
         ("MAE x3D [mm]", |m| m.x_mm, 2),
+        ("MAE y3D [mm]", |m| m.y_mm, 2),
         ("MAE Fx [N]", |m| m.fx, 4),
         ("MAE Fy [N]", |m| m.fy, 4),
         ("MAE Fz [N]", |m| m.fz, 4),
     ];
     for (name, get, prec) in lines {
+        if name.starts_with("MAE y3D") && !with_y {
+            continue;
+        }
         let _ = write!(s, "| {name} |");
         for m in columns.clone() {
             let _ = write!(s, " {:.*} |", prec, get(m));
