@@ -335,11 +335,9 @@ fn run(args: Args) -> Result<(), Failure> {
             .unwrap_or_default(),
     };
     let two_d = geometry.locates_in_2d();
-    let contact_point = args.contact_point.unwrap_or(if two_d {
-        ContactPointMethod::SlopePeak2d { sigma_px: 8.0 }
-    } else {
-        ContactPointMethod::DEFAULT
-    });
+    let contact_point = args
+        .contact_point
+        .unwrap_or(ContactPointMethod::for_geometry(&geometry));
     // The crop the pixel coordinates refer to: given, or the whole image.
     let crop = match args.crop {
         Some(c) => c,
@@ -386,10 +384,8 @@ fn run(args: Args) -> Result<(), Failure> {
             d_pf_max_order: args.dpf_order,
             shear_max_order: args.shear_force_order,
             guard: args.guard,
-            // A flat sensor's contacts land anywhere in y: the force maps
-            // need y2d as much as x2d.
             force_use_y2d: args.force_y2d || two_d,
-            ..FitOptions::default()
+            ..FitOptions::for_geometry(&geometry)
         };
         let fit =
             fit_dataset(&ex, &config, contact_point, crop, geometry, &options).map_err(err)?;

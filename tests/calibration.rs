@@ -430,7 +430,7 @@ fn new_checks_the_variables() {
     .unwrap_err();
     assert!(
         e.to_string()
-            .contains("`g1` has variables [x], expected [x2d]"),
+            .contains("`g1` has variables [x], expected one of [x2d, shear], [x2d], [x2d, y2d]"),
         "{e}"
     );
 }

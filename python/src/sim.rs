@@ -3,10 +3,11 @@
 use std::path::PathBuf;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
-use optical_tactile::calibration::fit::{FitOptions, extract_dataset, fit_dataset, read_dataset};
+use optical_tactile::calibration::fit::{
+    FitOptions, extract_dataset, fit_dataset, read_dataset, read_dataset_geometry,
+};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::frame::Roi;
-use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::read_gray;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::ExtractorConfig;
@@ -344,7 +345,9 @@ impl SyntheticSensor {
 /// fits the location and force maps with the library's order search.
 /// `thresholds`: a preset name or a dict; `preset`: the flow preset
 /// (default: the library's); `crop`: `(x, y, w, h)` of the frames (default:
-/// the whole frame). The result's `test_mae` has the test split's errors.
+/// the whole frame). The sensor's geometry is the dataset's `geometry.json`
+/// (a flat sensor's: contacts located in 2-D), else the curved strip. The
+/// result's `test_mae` has the test split's errors.
 #[pyfunction]
 #[pyo3(signature = (dataset_dir, *, thresholds=None, preset=None, crop=None))]
 pub fn calibrate(
@@ -376,20 +379,19 @@ pub fn calibrate(
                 Roi::full(img.ncols(), img.nrows())
             }
         };
-        let point = ContactPointMethod::DEFAULT;
+        // The dataset's geometry.json says which sensor it is (the curved
+        // strip without one), and that chooses the contact point and the
+        // force maps' inputs as `calibrate` does.
+        let geometry = read_dataset_geometry(&dataset_dir)?.unwrap_or_default();
+        let point = ContactPointMethod::for_geometry(&geometry);
         let ex = extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?;
         let fit = fit_dataset(
             &ex,
             &config,
             point,
             full,
-            SensorGeometry::default(),
-            // As the `calibrate` example: y2d stays out of the force maps
-            // (the characterization's rods span the width).
-            &FitOptions {
-                force_use_y2d: false,
-                ..FitOptions::default()
-            },
+            geometry,
+            &FitOptions::for_geometry(&geometry),
         )?;
         Ok(fit.calibration)
     })?;

@@ -101,6 +101,29 @@ pub struct FitOptions {
     pub least_squares: poly::LeastSquares,
 }
 
+impl FitOptions {
+    /// The options `calibrate` fits a sensor of `geometry` with: the
+    /// defaults, with `y2d` in the force maps only where contacts are
+    /// located in 2-D (on the strip every characterization rod spans the
+    /// width, so `y2d` only carries noise; on a flat sensor contacts land
+    /// anywhere in `y`), and there without the profile model.
+    pub fn for_geometry(geometry: &SensorGeometry) -> Self {
+        let two_d = geometry.locates_in_2d();
+        FitOptions {
+            force_use_y2d: two_d,
+            // The profile model's kernels run along the strip's arc and sum
+            // the flow over its height; a 2-D sensor's forces come from the
+            // patch sums.
+            profile: if two_d {
+                None
+            } else {
+                FitOptions::default().profile
+            },
+            ..FitOptions::default()
+        }
+    }
+}
+
 impl Default for FitOptions {
     fn default() -> Self {
         FitOptions {
