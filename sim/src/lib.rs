@@ -45,7 +45,8 @@ mod sensor;
 
 pub use camera::{CameraModel, Skin};
 pub use config::{
-    DotGrid, ExposureChanges, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
+    DotGrid, ExposureChanges, FINGERTIP_GRID, FINGERTIP_LENGTH_MM, FINGERTIP_WIDTH_MM,
+    MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
 };
 pub use elastic::Material;
-pub use sensor::{Press, SyntheticSensor};
+pub use sensor::{Press, SyntheticSensor, Tip};

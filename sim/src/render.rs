@@ -212,6 +212,11 @@ impl Frame<'_> {
         let cfg = self.cfg;
         let n = &cfg.noise;
         let (bx0, bx1, by0, by1) = self.skin_box;
+        // Behind a distorting lens the skin's outline is curved: a pixel is
+        // on the skin when its undistorted position is in the (undistorted)
+        // box.
+        let cam = &cfg.camera;
+        let distorted = cam.radial != 0.0;
         let (ox, oy) = if cfg.full_frame {
             (0.0, 0.0)
         } else {
@@ -227,7 +232,14 @@ impl Frame<'_> {
             let in_y = yf >= by0 && yf <= by1;
             for x in 0..w {
                 let xf = x as f32;
-                let inside = in_y && xf >= bx0 && xf <= bx1;
+                let inside = if distorted {
+                    let (xu, yu) =
+                        cam.undistort(f64::from(xf - self.origin.0), f64::from(yf - self.origin.1));
+                    let (xu, yu) = (xu as f32 + self.origin.0, yu as f32 + self.origin.1);
+                    yu >= by0 && yu <= by1 && xu >= bx0 && xu <= bx1
+                } else {
+                    in_y && xf >= bx0 && xf <= bx1
+                };
                 let bg = if inside { n.background } else { n.outside };
                 let k = r * w + x;
                 // Overlapping dark dots cannot take away more light than
