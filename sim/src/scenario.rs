@@ -7,7 +7,10 @@
 //! contacts) and, unless disabled, the true dense motion of each frame as
 //! `flow/000000.flo`. `characterization` writes `tests.csv` and
 //! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test (and, with `flow`,
-//! `flow/tNNNN.flo`). With the full-frame option every scenario also writes
+//! `flow/tNNNN.flo`); on a flat sensor ([`SimConfig::fingertip`]) it runs the
+//! flat protocol ([`FLAT_TIPS`] on a grid of points) and also writes
+//! `geometry.json` (the [`SensorGeometry`](optical_tactile::geometry::SensorGeometry)
+//! as JSON) and `indenters.json`. With the full-frame option every scenario also writes
 //! `crop.json`, the strip's rectangle `{x, y, width, height}` in the frame.
 
 use std::path::{Path, PathBuf};
@@ -111,7 +114,11 @@ impl Default for Pair {
     }
 }
 
-/// The characterization protocol (docs/pipeline.md).
+/// The characterization protocol (docs/calibration.md): the strip's (13
+/// points on the centre line, rods) or, when the sensor's geometry is flat,
+/// the flat protocol (a 5 x 4 grid of points, [`flat_point_mm`]; the
+/// indenters [`FLAT_TIPS`]; the tilts [`FLAT_TILTS_DEG`]; the held-out
+/// points [`FLAT_HELD_OUT_POINTS`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Characterization {
     /// Only a random subset of this many tests (all when `None`).
