@@ -353,7 +353,7 @@ impl SimConfig {
     /// image's columns, y along its rows) filling most of a 320x240 image at
     /// 13 px/mm, seen through a short lens with a mild barrel distortion
     /// ([`CameraModel::radial`] -0.06: about 6 px at the middles of the
-    /// left and right edges, 12 px towards the corners), so that both the
+    /// left and right edges, 11 px at the corners), so that both the
     /// x and the y pixel-to-mm maps have to be calibrated. The gel is thin
     /// and stiff (2 mm of 1 MPa on a rigid window: 0.5-3 N presses of the
     /// flat protocol's indenters move the dots by about 1 to 15 px, less

@@ -123,7 +123,9 @@ impl Default for Pair {
 pub struct Characterization {
     /// Only a random subset of this many tests (all when `None`).
     pub subset: Option<usize>,
-    /// Repetitions per (point, indenter, tilt, force).
+    /// Repetitions per (point, indenter, tilt, force): 5 by default (the
+    /// strip's protocol); the flat protocol's default is
+    /// [`FLAT_REPEATS`] ([`Characterization::flat`]).
     pub repeats: u32,
     /// Load-cell noise, N (standard deviation per axis). The default, 3 mN,
     /// is the resolution class of a small 6-axis F/T sensor (an ATI Nano17
