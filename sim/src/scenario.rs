@@ -1076,7 +1076,19 @@ pub fn flat_point_mm(skin: &crate::Skin, mat: &crate::Material, point: u32) -> R
             ),
         ));
     }
-    let (x_max, y_max) = centre_range(skin, flat_inset_mm(mat), 0.0)?;
+    let inset = flat_inset_mm(mat);
+    let (x_max, y_max) = centre_range(skin, inset, 0.0).map_err(|_| {
+        Error::param(
+            "material",
+            format!(
+                "the flat protocol's points lie {inset:.2} mm inside the gel's edges (its \
+                 largest pressed area at 3 N plus {FLAT_MARGIN_MM} mm): no room on a \
+                 {:.1} x {:.1} mm gel; a stiffer or thinner gel presses smaller areas",
+                2.0 * skin.half_length(),
+                skin.width_mm()
+            ),
+        )
+    })?;
     let (col, row) = ((point - 1) % nx, (point - 1) / nx);
     let at = |k: u32, n: u32, max: f64| -max + 2.0 * max * k as f64 / (n - 1) as f64;
     Ok((at(col, nx, x_max), at(row, ny, y_max)))

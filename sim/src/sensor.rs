@@ -184,6 +184,8 @@ pub struct SyntheticSensor {
     config: SimConfig,
     seed: u64,
     markers: Markers,
+    /// Which pixels show the skin behind a distorting lens.
+    skin_mask: Option<Vec<bool>>,
     quad: QuadratureCache,
     next_index: u64,
 }
@@ -200,6 +202,7 @@ impl SyntheticSensor {
             config,
             seed,
             markers,
+            skin_mask: render::skin_mask(&config),
             quad: QuadratureCache::default(),
             next_index: 0,
         })
@@ -437,6 +440,7 @@ impl SyntheticSensor {
             &self.markers,
             &motion,
             grid.as_ref(),
+            self.skin_mask.as_deref(),
             stream,
             camera,
         ))
