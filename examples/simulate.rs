@@ -424,6 +424,32 @@ pub struct PressesArgs {
     /// edges, mm.
     #[arg(long, value_name = "M", default_value_t = TipPresses::default().margin_mm)]
     pub margin_mm: f64,
+    /// Fingertip sensor: sphere diameters, uniform in [LO, HI], mm.
+    #[arg(long, value_name = "LO,HI", value_parser = range_mm,
+          default_value_t = Numbers(pair(TipPresses::default().sphere_mm)))]
+    pub sphere_mm: Numbers,
+    /// Fingertip sensor: flat punch diameters, uniform in [LO, HI], mm.
+    #[arg(long, value_name = "LO,HI", value_parser = range_mm,
+          default_value_t = Numbers(pair(TipPresses::default().punch_mm)))]
+    pub punch_mm: Numbers,
+    /// Fingertip sensor: fingertip diameters, uniform in [LO, HI], mm.
+    #[arg(long, value_name = "LO,HI", value_parser = range_mm,
+          default_value_t = Numbers(pair(TipPresses::default().fingertip_mm)))]
+    pub fingertip_mm: Numbers,
+}
+
+/// `(lo, hi)` as a list.
+fn pair((lo, hi): (f64, f64)) -> Vec<f64> {
+    vec![lo, hi]
+}
+
+/// A range of diameters: LO,HI with 0 < LO <= HI.
+fn range_mm(s: &str) -> std::result::Result<Numbers, String> {
+    let v = cli_support::number_list(s)?;
+    if v.len() != 2 || v[0] <= 0.0 || v[0] > v[1] {
+        return Err("expected LO,HI with 0 < LO <= HI".into());
+    }
+    Ok(Numbers(v))
 }
 
 /// `shear`'s options.
@@ -593,7 +619,9 @@ impl Command {
                     max_tilt_deg: o.max_tilt_deg.unwrap_or(TipPresses::default().max_tilt_deg),
                     max_shear_ratio: o.max_shear_ratio,
                     margin_mm: o.margin_mm,
-                    ..TipPresses::default()
+                    sphere_mm: (o.sphere_mm.0[0], o.sphere_mm.0[1]),
+                    punch_mm: (o.punch_mm.0[0], o.punch_mm.0[1]),
+                    fingertip_mm: (o.fingertip_mm.0[0], o.fingertip_mm.0[1]),
                 }),
                 &common,
                 true,

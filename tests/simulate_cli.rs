@@ -7,7 +7,7 @@
 mod simulate;
 
 use clap::{CommandFactory, Parser};
-use optical_tactile_sim::scenario::{Common, Scenario};
+use optical_tactile_sim::scenario::{Common, Scenario, TipPresses};
 use simulate::{Cli, Job};
 
 fn parse(line: &str) -> Result<Job, clap::Error> {
@@ -104,9 +104,20 @@ fn the_fingertip_sensor_and_its_scenarios() {
         panic!("{sc:?}")
     };
     assert_eq!(
-        (o.presses, o.max_shear_ratio, o.max_tilt_deg),
-        (7, 0.5, 20.0)
+        o,
+        TipPresses {
+            presses: 7,
+            max_shear_ratio: 0.5,
+            ..TipPresses::default()
+        }
     );
+    let (sc, _) = run("presses --sensor fingertip --out d --punch-mm 3,12 --sphere-mm 4,4");
+    let Scenario::TipPresses(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.punch_mm, o.sphere_mm), ((3.0, 12.0), (4.0, 4.0)));
+    usage_error("presses --sensor fingertip --out d --punch-mm 12,3");
+    usage_error("presses --sensor fingertip --out d --fingertip-mm 15");
     let (sc, _) = run("presses --out d");
     assert!(matches!(sc, Scenario::Presses(ref o) if o.max_tilt_deg == 15.0));
 
