@@ -22,15 +22,18 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use cli_support::{Failure, Numbers, Sink, Stages};
 use ndarray::{Array2, s};
 use optical_tactile::Result;
 use optical_tactile::viz::{Canvas, Rgb, colormap};
 use optical_tactile_sim::scenario::{
     self, Characterization, Common, Mapping, Pair, Perches, Presses, Rest, Scenario, Shear, Single,
+    TipPresses,
 };
-use optical_tactile_sim::{DotGrid, ExposureChanges, Press, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{
+    DotGrid, ExposureChanges, FINGERTIP_GRID, MarkerLayout, Press, SimConfig, SyntheticSensor,
+};
 
 /// Where `fixtures` writes by default: this crate's fixtures folder.
 const FIXTURES_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures");
@@ -71,7 +74,8 @@ pub enum Command {
     },
     /// Independent presses at random places, forces, tilts and rods, each
     /// frame against frame 0 (accuracy between the protocol's points;
-    /// presses.json).
+    /// presses.json); with --sensor fingertip, spheres, flat punches and
+    /// sheared fingertips anywhere in x and y.
     Presses {
         /// Common options.
         #[command(flatten)]
@@ -90,7 +94,9 @@ pub enum Command {
         #[command(flatten)]
         options: ShearArgs,
     },
-    /// The characterization protocol (tests.csv + frames/), docs/calibration.md.
+    /// The characterization protocol (tests.csv + frames/), docs/calibration.md;
+    /// with --sensor fingertip, the flat sensor's protocol on a 5 x 4 grid
+    /// (also geometry.json and indenters.json).
     Characterization {
         /// Common options.
         #[command(flatten)]
@@ -129,8 +135,9 @@ pub enum Command {
         #[command(flatten)]
         options: RestArgs,
     },
-    /// The repository's fixtures (a two-contact press and a characterization
-    /// subset) and, with --docs, the README pictures.
+    /// The repository's fixtures (a two-contact press, a characterization
+    /// subset and presses on the flat fingertip sensor) and, with --docs,
+    /// the README pictures.
     Fixtures(FixturesArgs),
 }
 
@@ -154,19 +161,31 @@ pub struct CommonArgs {
     /// Frame rate for the time stamps.
     #[arg(long, value_name = "F", default_value_t = 50.0)]
     pub fps: f64,
+    /// The simulated sensor: `strip`, the paper's curved strip (1600x200
+    /// image, rods across it), or `fingertip`, a flat GelSight-Mini-like
+    /// sensor (24 x 18 mm gel, 320x240 image with lens distortion, a grid of
+    /// dark dots on a thin stiff gel, round tips pressing it).
+    #[arg(long, value_enum, value_name = "SENSOR", default_value_t = Sensor::Strip)]
+    pub sensor: Sensor,
+    /// With --sensor fingertip: random bright markers on a dark gel instead
+    /// of the dot grid (--coverage and --markers then apply).
+    #[arg(long, conflicts_with = "dot_grid")]
+    pub random_markers: bool,
     /// Render the full 1920x1080 camera frame with the strip inside it (crop
     /// printed, and written as crop.json) instead of the 1600x200 strip.
     #[arg(long)]
     pub full_frame: bool,
-    /// Gel Young's modulus, kPa.
-    #[arg(long, value_name = "E", default_value_t = SimConfig::default().material.youngs_kpa)]
-    pub youngs_kpa: f64,
-    /// Gel Poisson's ratio.
-    #[arg(long, value_name = "NU", default_value_t = SimConfig::default().material.poisson)]
-    pub poisson: f64,
-    /// Gel layer thickness over the rigid plate, mm.
-    #[arg(long, value_name = "T", default_value_t = SimConfig::default().material.layer_mm)]
-    pub layer_mm: f64,
+    /// Gel Young's modulus, kPa [default: the sensor's, 40 for the strip,
+    /// 1000 for the fingertip].
+    #[arg(long, value_name = "E")]
+    pub youngs_kpa: Option<f64>,
+    /// Gel Poisson's ratio [default: 0.47].
+    #[arg(long, value_name = "NU")]
+    pub poisson: Option<f64>,
+    /// Gel layer thickness over the rigid plate, mm [default: the sensor's,
+    /// 8 for the strip, 2 for the fingertip].
+    #[arg(long, value_name = "T")]
+    pub layer_mm: Option<f64>,
     /// Fraction of the image covered by markers.
     #[arg(long, value_name = "C", default_value_t = SimConfig::default().markers.coverage)]
     pub coverage: f64,
@@ -174,19 +193,22 @@ pub struct CommonArgs {
     #[arg(long, value_name = "N")]
     pub markers: Option<usize>,
     /// A GelSight-like sensor instead of the strip: a 320x240 image of a
-    /// regular grid of dark dots on a bright, lit gel (--coverage and
-    /// --markers do not apply).
-    #[arg(long)]
+    /// regular grid of dark dots on a bright, lit gel, on a short piece of
+    /// the curved strip pressed by rods across it (--coverage and --markers
+    /// do not apply; not with --sensor).
+    #[arg(long, conflicts_with = "sensor")]
     pub dot_grid: bool,
-    /// Dot grid: distance between dot centres, px.
-    #[arg(long, value_name = "P", default_value_t = DotGrid::default().pitch_px)]
-    pub pitch_px: f64,
-    /// Dot grid: dot diameter, px.
-    #[arg(long, value_name = "D", default_value_t = DotGrid::default().diameter_px)]
-    pub dot_px: f64,
-    /// Dot grid: each dot moved off the grid by up to this, px.
-    #[arg(long, value_name = "J", default_value_t = DotGrid::default().jitter_px)]
-    pub jitter_px: f64,
+    /// Dot grid: distance between dot centres, px [default: 30 with
+    /// --dot-grid, 22 for the fingertip].
+    #[arg(long, value_name = "P")]
+    pub pitch_px: Option<f64>,
+    /// Dot grid: dot diameter, px [default: 8 with --dot-grid, 7 for the
+    /// fingertip].
+    #[arg(long, value_name = "D")]
+    pub dot_px: Option<f64>,
+    /// Dot grid: each dot moved off the grid by up to this, px [default: 0].
+    #[arg(long, value_name = "J")]
+    pub jitter_px: Option<f64>,
     /// Read-noise standard deviation, grey levels.
     #[arg(long, value_name = "S", default_value_t = SimConfig::default().noise.read)]
     pub noise_read: f32,
@@ -210,7 +232,31 @@ pub struct CommonArgs {
     pub quiet: bool,
 }
 
+/// The simulated sensor of `--sensor`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Sensor {
+    /// The paper's curved strip (`SimConfig::default`).
+    Strip,
+    /// A flat fingertip sensor (`SimConfig::fingertip`).
+    Fingertip,
+}
+
 impl CommonArgs {
+    /// Whether the flat fingertip sensor is simulated.
+    pub fn is_fingertip(&self) -> bool {
+        self.sensor == Sensor::Fingertip
+    }
+
+    /// The dot grid of the flags over `base`.
+    fn grid(&self, base: DotGrid) -> DotGrid {
+        DotGrid {
+            pitch_px: self.pitch_px.unwrap_or(base.pitch_px),
+            diameter_px: self.dot_px.unwrap_or(base.diameter_px),
+            jitter_px: self.jitter_px.unwrap_or(base.jitter_px),
+            ..base
+        }
+    }
+
     /// The scenario's common options; `flow_default` when neither --flow
     /// nor --no-flow is given.
     pub fn common(&self, flow_default: bool) -> Common {
@@ -223,18 +269,26 @@ impl CommonArgs {
             self.flow || flow_default
         };
         if self.dot_grid {
-            c.config = SimConfig::dot_grid(DotGrid {
-                pitch_px: self.pitch_px,
-                diameter_px: self.dot_px,
-                jitter_px: self.jitter_px,
-                ..DotGrid::default()
-            });
+            c.config = SimConfig::dot_grid(self.grid(DotGrid::default()));
+        }
+        if self.is_fingertip() {
+            c.config = if self.random_markers {
+                SimConfig::fingertip_with(MarkerLayout::Random)
+            } else {
+                SimConfig::fingertip_with(MarkerLayout::Grid(self.grid(FINGERTIP_GRID)))
+            };
         }
         let cfg = &mut c.config;
         cfg.full_frame = self.full_frame;
-        cfg.material.youngs_kpa = self.youngs_kpa;
-        cfg.material.poisson = self.poisson;
-        cfg.material.layer_mm = self.layer_mm;
+        if let Some(e) = self.youngs_kpa {
+            cfg.material.youngs_kpa = e;
+        }
+        if let Some(nu) = self.poisson {
+            cfg.material.poisson = nu;
+        }
+        if let Some(t) = self.layer_mm {
+            cfg.material.layer_mm = t;
+        }
         cfg.markers.coverage = self.coverage;
         cfg.markers.count = self.markers;
         cfg.noise.read = self.noise_read;
@@ -355,12 +409,47 @@ pub struct PressesArgs {
     /// Largest force magnitude, N.
     #[arg(long, value_name = "F", default_value_t = Presses::default().force_max_n)]
     pub force_max_n: f64,
-    /// Pitch or yaw (even odds) uniform in [-T, T], deg.
-    #[arg(long, value_name = "T", default_value_t = Presses::default().max_tilt_deg)]
-    pub max_tilt_deg: f64,
-    /// Rod diameters drawn from, mm.
+    /// Pitch or yaw (even odds) uniform in [-T, T], deg [default: 15; 20
+    /// for the fingertip sensor's spheres and punches].
+    #[arg(long, value_name = "T")]
+    pub max_tilt_deg: Option<f64>,
+    /// Rod diameters drawn from, mm (the strip).
     #[arg(long, value_name = "D,D,...", default_value_t = Numbers(Presses::default().indenters_mm))]
     pub indenters_mm: Numbers,
+    /// Fingertip sensor: a fingertip's tangential force up to this fraction
+    /// of its normal force, in any direction.
+    #[arg(long, value_name = "R", default_value_t = TipPresses::default().max_shear_ratio)]
+    pub max_shear_ratio: f64,
+    /// Fingertip sensor: the pressed area stays this far inside the gel's
+    /// edges, mm.
+    #[arg(long, value_name = "M", default_value_t = TipPresses::default().margin_mm)]
+    pub margin_mm: f64,
+    /// Fingertip sensor: sphere diameters, uniform in [LO, HI], mm.
+    #[arg(long, value_name = "LO,HI", value_parser = range_mm,
+          default_value_t = Numbers(pair(TipPresses::default().sphere_mm)))]
+    pub sphere_mm: Numbers,
+    /// Fingertip sensor: flat punch diameters, uniform in [LO, HI], mm.
+    #[arg(long, value_name = "LO,HI", value_parser = range_mm,
+          default_value_t = Numbers(pair(TipPresses::default().punch_mm)))]
+    pub punch_mm: Numbers,
+    /// Fingertip sensor: fingertip diameters, uniform in [LO, HI], mm.
+    #[arg(long, value_name = "LO,HI", value_parser = range_mm,
+          default_value_t = Numbers(pair(TipPresses::default().fingertip_mm)))]
+    pub fingertip_mm: Numbers,
+}
+
+/// `(lo, hi)` as a list.
+fn pair((lo, hi): (f64, f64)) -> Vec<f64> {
+    vec![lo, hi]
+}
+
+/// A range of diameters: LO,HI with 0 < LO <= HI.
+fn range_mm(s: &str) -> std::result::Result<Numbers, String> {
+    let v = cli_support::number_list(s)?;
+    if v.len() != 2 || v[0] <= 0.0 || v[0] > v[1] {
+        return Err("expected LO,HI with 0 < LO <= HI".into());
+    }
+    Ok(Numbers(v))
 }
 
 /// `shear`'s options.
@@ -382,13 +471,14 @@ pub struct ShearArgs {
     /// Frames including the reference.
     #[arg(long, value_name = "N", default_value_t = Shear::default().frames)]
     pub frames: usize,
-    /// Rod diameter, mm (with --fingertip-y-mm, the tip's diameter: 15-20 mm
-    /// for a fingertip).
+    /// Rod diameter, mm (with --fingertip-y-mm or --sensor fingertip, the
+    /// round tip's diameter: 15-20 mm for a fingertip).
     #[arg(long, value_name = "D", default_value_t = Shear::default().indenter_mm)]
     pub indenter_mm: f64,
     /// A round tip (a fingertip) centred at (--x-mm, this) instead of a rod
-    /// across the skin, mm. On a flat fingertip sensor, give its thin gel too,
-    /// e.g. --dot-grid --youngs-kpa 600 --layer-mm 3.
+    /// across the skin, mm [default: a rod; 0 with --sensor fingertip]. With
+    /// --dot-grid, give a fingertip sensor's thin gel too, e.g. --youngs-kpa
+    /// 600 --layer-mm 3.
     #[arg(long, value_name = "Y", allow_negative_numbers = true)]
     pub fingertip_y_mm: Option<f64>,
 }
@@ -397,12 +487,13 @@ pub struct ShearArgs {
 #[derive(Args, Debug)]
 #[command(next_help_heading = "Scenario options")]
 pub struct CharacterizationArgs {
-    /// A random subset of N tests [default: all, 7200 with 5 repeats].
+    /// A random subset of N tests [default: all: 7200 with 5 repeats on the
+    /// strip, 4320 with 2 on the fingertip sensor].
     #[arg(long, value_name = "N")]
     pub subset: Option<usize>,
-    /// Repetitions.
-    #[arg(long, value_name = "R", default_value_t = Characterization::default().repeats)]
-    pub repeats: u32,
+    /// Repetitions [default: 5 on the strip, 2 on the fingertip sensor].
+    #[arg(long, value_name = "R")]
+    pub repeats: Option<u32>,
     /// Load-cell noise per axis, N.
     #[arg(long = "load-cell-noise", value_name = "F", default_value_t = Characterization::default().load_cell_noise_n)]
     pub load_cell_noise_n: f64,
@@ -520,13 +611,28 @@ impl Command {
                 &common,
                 true,
             ),
+            Command::Presses { common, options: o } if common.is_fingertip() => run(
+                Scenario::TipPresses(TipPresses {
+                    presses: o.presses,
+                    force_min_n: o.force_min_n,
+                    force_max_n: o.force_max_n,
+                    max_tilt_deg: o.max_tilt_deg.unwrap_or(TipPresses::default().max_tilt_deg),
+                    max_shear_ratio: o.max_shear_ratio,
+                    margin_mm: o.margin_mm,
+                    sphere_mm: (o.sphere_mm.0[0], o.sphere_mm.0[1]),
+                    punch_mm: (o.punch_mm.0[0], o.punch_mm.0[1]),
+                    fingertip_mm: (o.fingertip_mm.0[0], o.fingertip_mm.0[1]),
+                }),
+                &common,
+                true,
+            ),
             Command::Presses { common, options: o } => run(
                 Scenario::Presses(Presses {
                     presses: o.presses,
                     x_max_mm: o.x_max_mm,
                     force_min_n: o.force_min_n,
                     force_max_n: o.force_max_n,
-                    max_tilt_deg: o.max_tilt_deg,
+                    max_tilt_deg: o.max_tilt_deg.unwrap_or(Presses::default().max_tilt_deg),
                     indenters_mm: o.indenters_mm.0,
                 }),
                 &common,
@@ -539,7 +645,9 @@ impl Command {
                     shear_n: [o.shear_x_n, o.shear_y_n],
                     frames: o.frames,
                     indenter_mm: o.indenter_mm,
-                    fingertip_y_mm: o.fingertip_y_mm,
+                    // On the fingertip sensor a round tip, at the centre
+                    // unless placed.
+                    fingertip_y_mm: o.fingertip_y_mm.or(common.is_fingertip().then_some(0.0)),
                 }),
                 &common,
                 true,
@@ -547,7 +655,11 @@ impl Command {
             Command::Characterization { common, options: o } => run(
                 Scenario::Characterization(Characterization {
                     subset: o.subset,
-                    repeats: o.repeats,
+                    repeats: o.repeats.unwrap_or(if common.is_fingertip() {
+                        Characterization::flat().repeats
+                    } else {
+                        Characterization::default().repeats
+                    }),
                     load_cell_noise_n: o.load_cell_noise_n,
                 }),
                 &common,

@@ -7,7 +7,7 @@
 mod simulate;
 
 use clap::{CommandFactory, Parser};
-use optical_tactile_sim::scenario::{Common, Scenario};
+use optical_tactile_sim::scenario::{Common, Scenario, TipPresses};
 use simulate::{Cli, Job};
 
 fn parse(line: &str) -> Result<Job, clap::Error> {
@@ -80,6 +80,77 @@ fn options_reach_the_scenario() {
     let (sc, c) = run("pair --out d");
     assert_eq!(sc, Scenario::Pair(Default::default()));
     assert_eq!(c, Common::new("d"));
+}
+
+#[test]
+fn the_fingertip_sensor_and_its_scenarios() {
+    use optical_tactile::geometry::SensorGeometry;
+    use optical_tactile_sim::{MarkerLayout, SimConfig};
+
+    // The flat sensor's preset, its protocol's repetitions, presses of
+    // round tips, and a round tip for the shear.
+    let (sc, c) = run("characterization --sensor fingertip --out d");
+    assert_eq!(c.config, SimConfig::fingertip());
+    assert!(matches!(c.config.skin.geometry, SensorGeometry::Flat(_)));
+    assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 2));
+    assert!(!c.flow);
+    let (sc, _) = run("characterization --sensor fingertip --out d --repeats 3");
+    assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 3));
+    let (sc, _) = run("characterization --sensor strip --out d");
+    assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 5));
+
+    let (sc, _) = run("presses --sensor fingertip --out d --presses 7 --max-shear-ratio 0.5");
+    let Scenario::TipPresses(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!(
+        o,
+        TipPresses {
+            presses: 7,
+            max_shear_ratio: 0.5,
+            ..TipPresses::default()
+        }
+    );
+    let (sc, _) = run("presses --sensor fingertip --out d --punch-mm 3,12 --sphere-mm 4,4");
+    let Scenario::TipPresses(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.punch_mm, o.sphere_mm), ((3.0, 12.0), (4.0, 4.0)));
+    usage_error("presses --sensor fingertip --out d --punch-mm 12,3");
+    usage_error("presses --sensor fingertip --out d --fingertip-mm 15");
+    let (sc, _) = run("presses --out d");
+    assert!(matches!(sc, Scenario::Presses(ref o) if o.max_tilt_deg == 15.0));
+
+    let (sc, _) = run("shear --sensor fingertip --out d --indenter-mm 18");
+    let Scenario::Shear(o) = sc else {
+        panic!("{sc:?}")
+    };
+    assert_eq!((o.fingertip_y_mm, o.indenter_mm), (Some(0.0), 18.0));
+    let (sc, _) = run("shear --out d");
+    assert!(matches!(sc, Scenario::Shear(ref o) if o.fingertip_y_mm.is_none()));
+
+    // The material and marker options vary it.
+    let (_, c) = run(
+        "single --sensor fingertip --out d --youngs-kpa 300 --layer-mm 3 --pitch-px 25 --dot-px 6",
+    );
+    assert_eq!(
+        (c.config.material.youngs_kpa, c.config.material.layer_mm),
+        (300.0, 3.0)
+    );
+    let MarkerLayout::Grid(g) = c.config.markers.layout else {
+        panic!("{:?}", c.config.markers.layout)
+    };
+    assert_eq!((g.pitch_px, g.diameter_px), (25.0, 6.0));
+    let (_, c) = run("single --sensor fingertip --out d --random-markers --markers 900");
+    assert_eq!(c.config.markers.layout, MarkerLayout::Random);
+    assert_eq!(c.config.markers.count, Some(900));
+    // The dot-grid strip keeps its own defaults.
+    let (_, c) = run("shear --dot-grid --out d");
+    assert_eq!(c.config, SimConfig::dot_grid(Default::default()));
+
+    usage_error("single --out d --sensor round");
+    usage_error("single --out d --sensor fingertip --dot-grid");
+    usage_error("single --out d --dot-grid --random-markers");
 }
 
 #[test]

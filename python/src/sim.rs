@@ -70,6 +70,7 @@ fn scenario(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Fail
         Scenario::Single(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
         Scenario::Pair(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
         Scenario::Presses(s) => at_most("presses", s.presses, MAX_SIM_FRAMES)?,
+        Scenario::TipPresses(s) => at_most("presses", s.presses, MAX_SIM_FRAMES)?,
         Scenario::Shear(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
         Scenario::Characterization(s) => {
             at_most("subset", s.subset.unwrap_or(0), MAX_SIM_FRAMES)?;

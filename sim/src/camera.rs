@@ -5,7 +5,10 @@
 //! along the centre line measured from the symmetry axis, and `y` (mm) across the
 //! width. The camera maps `s` to image x through a mild cubic term (so that the
 //! pixel-to-mm map really has to be calibrated, as with the real fisheye camera)
-//! and `y` linearly to image y.
+//! and `y` linearly to image y, then, when [`CameraModel::radial`] is not
+//! zero, bends both through a radial lens distortion about the image centre
+//! (a flat fingertip sensor's short lens), so that both pixel-to-mm maps
+//! have to be calibrated.
 
 use optical_tactile::error::{Error, Result};
 use optical_tactile::geometry::SensorGeometry;
@@ -109,6 +112,14 @@ pub struct CameraModel {
     /// Cubic term `k` of `x_px = cx + p (s + k s^3 / h^2)`, `h` = half skin length;
     /// negative compresses the ends (barrel-like). Must lie in (-0.3, 0.3).
     pub cubic: f64,
+    /// Radial distortion `k` about the image centre, applied after the maps
+    /// along `s` and `y`: a point at distance `r` from the centre moves to
+    /// `r (1 + k r^2 / r0^2)`, `r0` the half diagonal of the strip image.
+    /// Negative is barrel distortion (the edges pulled in, lines bent
+    /// towards the centre). 0 (the strip's) leaves the maps separable and
+    /// exactly as without it; otherwise it must lie in (-0.3, 0.3) and keep
+    /// the map monotonic over the skin ([`CameraModel::validate`]).
+    pub radial: f64,
     /// Full camera frame size, px (1920x1080), used for vignetting and for the
     /// full-frame output option.
     pub frame_size: (usize, usize),
@@ -124,6 +135,7 @@ impl Default for CameraModel {
             px_per_mm_s: 5.0,
             px_per_mm_y: 4.75,
             cubic: -0.04,
+            radial: 0.0,
             frame_size: (1920, 1080),
             strip_origin: (160, 440),
         }
@@ -163,6 +175,12 @@ impl CameraModel {
                 ),
             ));
         }
+        if !(self.radial.is_finite() && self.radial.abs() < 0.3) {
+            return Err(Error::param(
+                "radial",
+                format!("must lie in (-0.3, 0.3), got {}", self.radial),
+            ));
+        }
         let (fw, fh) = self.frame_size;
         let (ox, oy) = self.strip_origin;
         if ox + self.strip_width > fw || oy + self.strip_height > fh {
@@ -176,10 +194,48 @@ impl CameraModel {
             });
         }
         let h = skin.half_length();
-        let x_end = self.s_to_px(skin, h);
-        let x_start = self.s_to_px(skin, -h);
-        let y_top = self.y_to_px(-0.5 * skin.width_mm());
-        let y_bot = self.y_to_px(0.5 * skin.width_mm());
+        let half_w = 0.5 * skin.width_mm();
+        if self.radial != 0.0 {
+            // The radial map is monotonic along every ray out to the
+            // farthest corner of the undistorted skin: d(r (1 + k r^2)) / dr
+            // = 1 + 3 k r^2 stays clearly positive.
+            let mut r_max: f64 = 0.0;
+            for (s, y) in [(-h, -half_w), (-h, half_w), (h, -half_w), (h, half_w)] {
+                let (dx, dy) = self.undistorted_offset(skin, s, y);
+                r_max = r_max.max(dx.hypot(dy) / self.radial_scale());
+            }
+            if 1.0 + 3.0 * self.radial * r_max * r_max < 0.25 {
+                return Err(Error::param(
+                    "radial",
+                    format!(
+                        "{} folds the image over itself near the skin's corners \
+                         (relative radius {r_max:.2})",
+                        self.radial
+                    ),
+                ));
+            }
+        }
+        // The skin's outline reaches farthest out at its corners or at the
+        // middles of its sides (along a side the radial factor changes
+        // monotonically).
+        let (mut x_start, mut x_end) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut y_top, mut y_bot) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (s, y) in [
+            (-h, -half_w),
+            (-h, 0.0),
+            (-h, half_w),
+            (0.0, -half_w),
+            (0.0, half_w),
+            (h, -half_w),
+            (h, 0.0),
+            (h, half_w),
+        ] {
+            let (x, yy) = self.skin_to_px(skin, s, y);
+            x_start = x_start.min(x);
+            x_end = x_end.max(x);
+            y_top = y_top.min(yy);
+            y_bot = y_bot.max(yy);
+        }
         if x_start < 0.0
             || x_end > self.strip_width as f64
             || y_top < 0.0
@@ -197,7 +253,9 @@ impl CameraModel {
         Ok(())
     }
 
-    /// Image x (strip pixels, pixel centres at integers) of arc length `s`.
+    /// Image x (strip pixels, pixel centres at integers) of arc length `s`,
+    /// before the radial distortion (the whole map when
+    /// [`CameraModel::radial`] is 0; [`CameraModel::skin_to_px`] applies both).
     #[inline]
     pub fn s_to_px(&self, skin: &Skin, s: f64) -> f64 {
         let h = skin.half_length();
@@ -205,13 +263,14 @@ impl CameraModel {
         c + self.px_per_mm_s * (s + self.cubic * s * s * s / (h * h))
     }
 
-    /// Image y (strip pixels) of the across coordinate `y`.
+    /// Image y (strip pixels) of the across coordinate `y`, before the
+    /// radial distortion.
     #[inline]
     pub fn y_to_px(&self, y: f64) -> f64 {
         0.5 * (self.strip_height as f64 - 1.0) + self.px_per_mm_y * y
     }
 
-    /// Arc length of image x (inverse of [`CameraModel::s_to_px`], by Newton steps;
+    /// Arc length of undistorted image x (inverse of [`CameraModel::s_to_px`], by Newton steps;
     /// the map is monotonic because `|cubic| < 0.3`).
     pub fn px_to_s(&self, skin: &Skin, x_px: f64) -> f64 {
         let h = skin.half_length();
@@ -230,10 +289,92 @@ impl CameraModel {
         s
     }
 
-    /// Across coordinate of image y.
+    /// Across coordinate of undistorted image y (inverse of
+    /// [`CameraModel::y_to_px`]).
     #[inline]
     pub fn px_to_y(&self, y_px: f64) -> f64 {
         (y_px - 0.5 * (self.strip_height as f64 - 1.0)) / self.px_per_mm_y
+    }
+
+    /// Image position `(x, y)` (strip pixels) of the skin point at arc
+    /// length `s` and across coordinate `y`: [`CameraModel::s_to_px`] and
+    /// [`CameraModel::y_to_px`], then the radial distortion. Exactly those
+    /// two maps when [`CameraModel::radial`] is 0.
+    #[inline]
+    pub fn skin_to_px(&self, skin: &Skin, s: f64, y: f64) -> (f64, f64) {
+        let (x_u, y_u) = (self.s_to_px(skin, s), self.y_to_px(y));
+        if self.radial == 0.0 {
+            return (x_u, y_u);
+        }
+        let (cx, cy) = self.centre();
+        let (dx, dy) = (x_u - cx, y_u - cy);
+        let f = self.radial_factor((dx * dx + dy * dy) / self.radial_scale().powi(2));
+        (cx + dx * f, cy + dy * f)
+    }
+
+    /// Skin coordinates `(s, y)` of image position `(x, y)` (strip pixels):
+    /// the inverse of [`CameraModel::skin_to_px`] (the radial distortion is
+    /// undone by Newton steps on the radius, then [`CameraModel::px_to_s`]
+    /// and [`CameraModel::px_to_y`]).
+    pub fn px_to_skin(&self, skin: &Skin, x_px: f64, y_px: f64) -> (f64, f64) {
+        let (x_u, y_u) = self.undistort(x_px, y_px);
+        (self.px_to_s(skin, x_u), self.px_to_y(y_u))
+    }
+
+    /// The undistorted image position of distorted image position
+    /// `(x, y)`: the inverse of the radial distortion alone.
+    pub fn undistort(&self, x_px: f64, y_px: f64) -> (f64, f64) {
+        if self.radial == 0.0 {
+            return (x_px, y_px);
+        }
+        let (cx, cy) = self.centre();
+        let r0 = self.radial_scale();
+        let (dx, dy) = ((x_px - cx) / r0, (y_px - cy) / r0);
+        let rd = dx.hypot(dy);
+        if rd == 0.0 {
+            return (x_px, y_px);
+        }
+        // Solve r (1 + k r^2) = rd for r.
+        let k = self.radial;
+        let mut r = rd;
+        for _ in 0..50 {
+            let f = r * (1.0 + k * r * r) - rd;
+            let df = 1.0 + 3.0 * k * r * r;
+            let step = f / df.max(1e-6);
+            r -= step;
+            if step.abs() < 1e-14 {
+                break;
+            }
+        }
+        let scale = r / rd;
+        (cx + dx * scale * r0, cy + dy * scale * r0)
+    }
+
+    /// The image centre the radial distortion is about, strip pixels.
+    #[inline]
+    fn centre(&self) -> (f64, f64) {
+        (
+            0.5 * (self.strip_width as f64 - 1.0),
+            0.5 * (self.strip_height as f64 - 1.0),
+        )
+    }
+
+    /// `r0`: the half diagonal of the strip image, px.
+    #[inline]
+    fn radial_scale(&self) -> f64 {
+        0.5 * (self.strip_width as f64).hypot(self.strip_height as f64)
+    }
+
+    /// `1 + k r^2` for the squared relative radius `r2`.
+    #[inline]
+    fn radial_factor(&self, r2: f64) -> f64 {
+        1.0 + self.radial * r2
+    }
+
+    /// Undistorted image offset from the centre of the skin point `(s, y)`.
+    fn undistorted_offset(&self, skin: &Skin, s: f64, y: f64) -> (f64, f64) {
+        let (cx, cy) = self.centre();
+        (self.s_to_px(skin, s) - cx, self.y_to_px(y) - cy)
     }
 
     /// The strip's rectangle in the full frame: `(x, y, width, height)`, the

@@ -330,6 +330,7 @@ impl SimConfig {
                 px_per_mm_s: px_per_mm,
                 px_per_mm_y: px_per_mm,
                 cubic: 0.0,
+                radial: 0.0,
                 frame_size: (w, h),
                 strip_origin: (0, 0),
             },
@@ -341,6 +342,90 @@ impl SimConfig {
             },
             noise: NoiseConfig {
                 background: 180.0,
+                ..d.noise
+            },
+            full_frame: false,
+        }
+    }
+
+    /// A flat fingertip sensor in the class of a GelSight Mini: a flat gel
+    /// of [`FINGERTIP_LENGTH_MM`] x [`FINGERTIP_WIDTH_MM`] (x along the
+    /// image's columns, y along its rows) filling most of a 320x240 image at
+    /// 13 px/mm, seen through a short lens with a mild barrel distortion
+    /// ([`CameraModel::radial`] -0.06: about 6 px at the middles of the
+    /// left and right edges, 11 px at the corners), so that both the
+    /// x and the y pixel-to-mm maps have to be calibrated. The gel is thin
+    /// and stiff (2 mm of 1 MPa on a rigid window: 0.5-3 N presses of the
+    /// flat protocol's indenters move the dots by about 1 to 15 px, less
+    /// than the dots' pitch; a softer gel moves a small sphere's dots by
+    /// tens of px at 3 N), with a
+    /// regular grid of dark dots ([`FINGERTIP_GRID`]: 7 px dots every 22 px,
+    /// 0.3 mm under the surface) on the gel lit to 180 grey levels,
+    /// vignetting and the default camera noise. The whole 320x240 image is
+    /// the sensor's frame (`full_frame` false).
+    ///
+    /// Round tips press it ([`Press::sphere`](crate::Press::sphere),
+    /// [`Press::punch`](crate::Press::punch),
+    /// [`Press::fingertip`](crate::Press::fingertip)); random markers instead
+    /// of the grid: [`SimConfig::fingertip_with`].
+    pub fn fingertip() -> SimConfig {
+        SimConfig::fingertip_with(MarkerLayout::Grid(FINGERTIP_GRID))
+    }
+
+    /// [`SimConfig::fingertip`] with another marker layout: a
+    /// [`MarkerLayout::Grid`] of dark dots on the lit gel, or
+    /// [`MarkerLayout::Random`] bright spots (3-4 px, 0.2-1 mm deep, the
+    /// default coverage) on a dark gel, as fluorescent beads would look.
+    pub fn fingertip_with(layout: MarkerLayout) -> SimConfig {
+        let d = SimConfig::default();
+        let px_per_mm = 13.0;
+        let (w, h) = (320usize, 240usize);
+        let (markers, background) = match layout {
+            MarkerLayout::Grid(_) => (
+                MarkerConfig {
+                    depth_mm: (0.3, 0.3),
+                    layout,
+                    ..d.markers
+                },
+                180.0,
+            ),
+            MarkerLayout::Random => (
+                MarkerConfig {
+                    fwhm_px: (3.0, 4.0),
+                    depth_mm: (0.2, 1.0),
+                    layout,
+                    ..d.markers
+                },
+                d.noise.background,
+            ),
+        };
+        SimConfig {
+            skin: Skin {
+                geometry: optical_tactile::geometry::FlatSurface {
+                    length_mm: FINGERTIP_LENGTH_MM,
+                    width_mm: FINGERTIP_WIDTH_MM,
+                }
+                .into(),
+                length_mm: FINGERTIP_LENGTH_MM,
+            },
+            camera: CameraModel {
+                strip_width: w,
+                strip_height: h,
+                px_per_mm_s: px_per_mm,
+                px_per_mm_y: px_per_mm,
+                cubic: 0.0,
+                radial: -0.06,
+                frame_size: (w, h),
+                strip_origin: (0, 0),
+            },
+            material: Material {
+                youngs_kpa: 1000.0,
+                poisson: d.material.poisson,
+                layer_mm: 2.0,
+            },
+            markers,
+            noise: NoiseConfig {
+                background,
                 ..d.noise
             },
             full_frame: false,
@@ -432,6 +517,20 @@ impl SimConfig {
         }
     }
 }
+
+/// Length (along x, image columns) of [`SimConfig::fingertip`]'s gel, mm.
+pub const FINGERTIP_LENGTH_MM: f64 = 24.0;
+/// Width (along y, image rows) of [`SimConfig::fingertip`]'s gel, mm.
+pub const FINGERTIP_WIDTH_MM: f64 = 18.0;
+/// The dot grid of [`SimConfig::fingertip`]: 7 px dots every 22 px (1.7 mm
+/// at 13 px/mm), a 1.5 px soft edge, 140 grey levels dark, no jitter.
+pub const FINGERTIP_GRID: DotGrid = DotGrid {
+    pitch_px: 22.0,
+    diameter_px: 7.0,
+    edge_px: 1.5,
+    jitter_px: 0.0,
+    darkness: 140.0,
+};
 
 /// Markers as structure of arrays (hot loops read one field at a time).
 #[derive(Debug, Clone, Default)]

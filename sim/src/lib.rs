@@ -11,6 +11,11 @@
 //! position (module `render`), with shot and read noise, vignetting and a per-frame
 //! brightness flicker. It also returns the true dense motion.
 //!
+//! [`SimConfig::default`] is the paper's curved strip pressed by rods;
+//! [`SimConfig::fingertip`] a flat fingertip sensor (a GelSight-Mini-like
+//! dot grid on a thin gel, behind a distorting lens) pressed by round tips
+//! ([`Tip`]: spheres, flat punches, fingertips) anywhere in `x` and `y`.
+//!
 //! [`scenario`] writes whole sequences (frames, `truth.jsonl`, `.flo` truth
 //! flow, `tests.csv`, `poses.csv`) in the formats of docs/formats.md; the `simulate`
 //! example is its command line.
@@ -45,7 +50,8 @@ mod sensor;
 
 pub use camera::{CameraModel, Skin};
 pub use config::{
-    DotGrid, ExposureChanges, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
+    DotGrid, ExposureChanges, FINGERTIP_GRID, FINGERTIP_LENGTH_MM, FINGERTIP_WIDTH_MM,
+    MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
 };
 pub use elastic::Material;
-pub use sensor::{Press, SyntheticSensor};
+pub use sensor::{Press, SyntheticSensor, Tip};

@@ -36,6 +36,8 @@ struct Frame<'a> {
     width: usize,
     origin: (f32, f32),
     skin_box: (f32, f32, f32, f32),
+    /// Which pixels show the skin, when its outline is curved ([`skin_mask`]).
+    mask: Option<&'a [bool]>,
     gain: f32,
     /// The camera's black level on top of the light (exposure changes).
     offset: f32,
@@ -43,32 +45,69 @@ struct Frame<'a> {
     blend_weight: f32,
 }
 
-pub(crate) fn render(
-    cfg: &SimConfig,
-    markers: &Markers,
-    motion: &[(f32, f32)],
-    grid: Option<&MotionGrid>,
-    stream: u64,
-    camera: (f32, f32),
-) -> Rendered {
-    let (width, height) = cfg.image_size();
-    let origin = if cfg.full_frame {
+/// The strip's origin in the rendered image, px.
+fn origin(cfg: &SimConfig) -> (f32, f32) {
+    if cfg.full_frame {
         (
             cfg.camera.strip_origin.0 as f32,
             cfg.camera.strip_origin.1 as f32,
         )
     } else {
         (0.0, 0.0)
-    };
+    }
+}
+
+/// The skin's box in the rendered image before the lens's radial
+/// distortion: `(x0, x1, y0, y1)`, px.
+fn skin_box(cfg: &SimConfig, origin: (f32, f32)) -> (f32, f32, f32, f32) {
     let cam = &cfg.camera;
     let skin = &cfg.skin;
     let h = skin.half_length();
-    let skin_box = (
+    (
         (cam.s_to_px(skin, -h) - 0.5) as f32 + origin.0,
         (cam.s_to_px(skin, h) + 0.5) as f32 + origin.0,
         (cam.y_to_px(-0.5 * skin.width_mm()) - 0.5) as f32 + origin.1,
         (cam.y_to_px(0.5 * skin.width_mm()) + 0.5) as f32 + origin.1,
-    );
+    )
+}
+
+/// Behind a distorting lens the skin's outline is curved: which pixels of
+/// the rendered image (row-major) show the skin, i.e. have their
+/// undistorted position in the undistorted box. `None` without distortion
+/// (the box decides). Made once per sensor.
+pub(crate) fn skin_mask(cfg: &SimConfig) -> Option<Vec<bool>> {
+    let cam = &cfg.camera;
+    if cam.radial == 0.0 {
+        return None;
+    }
+    let (width, height) = cfg.image_size();
+    let origin = origin(cfg);
+    let (bx0, bx1, by0, by1) = skin_box(cfg, origin);
+    let mut mask = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let yf = y as f32;
+        for x in 0..width {
+            let xf = x as f32;
+            let (xu, yu) = cam.undistort(f64::from(xf - origin.0), f64::from(yf - origin.1));
+            let (xu, yu) = (xu as f32 + origin.0, yu as f32 + origin.1);
+            mask.push(yu >= by0 && yu <= by1 && xu >= bx0 && xu <= bx1);
+        }
+    }
+    Some(mask)
+}
+
+pub(crate) fn render(
+    cfg: &SimConfig,
+    markers: &Markers,
+    motion: &[(f32, f32)],
+    grid: Option<&MotionGrid>,
+    mask: Option<&[bool]>,
+    stream: u64,
+    camera: (f32, f32),
+) -> Rendered {
+    let (width, height) = cfg.image_size();
+    let origin = origin(cfg);
+    let skin_box = skin_box(cfg, origin);
     // Bucket markers by the row bands their spots touch.
     let nbands = height.div_ceil(BAND_ROWS);
     let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); nbands];
@@ -101,6 +140,7 @@ pub(crate) fn render(
         width,
         origin,
         skin_box,
+        mask,
         gain,
         offset: camera.1,
         stream,
@@ -227,7 +267,10 @@ impl Frame<'_> {
             let in_y = yf >= by0 && yf <= by1;
             for x in 0..w {
                 let xf = x as f32;
-                let inside = in_y && xf >= bx0 && xf <= bx1;
+                let inside = match self.mask {
+                    Some(m) => m[y * w + x],
+                    None => in_y && xf >= bx0 && xf <= bx1,
+                };
                 let bg = if inside { n.background } else { n.outside };
                 let k = r * w + x;
                 // Overlapping dark dots cannot take away more light than

@@ -7,7 +7,10 @@
 //! contacts) and, unless disabled, the true dense motion of each frame as
 //! `flow/000000.flo`. `characterization` writes `tests.csv` and
 //! `frames/tNNNN.png` + `frames/tNNNN_ref.png` per test (and, with `flow`,
-//! `flow/tNNNN.flo`). With the full-frame option every scenario also writes
+//! `flow/tNNNN.flo`); on a flat sensor ([`SimConfig::fingertip`]) it runs the
+//! flat protocol ([`FLAT_TIPS`] on a grid of points) and also writes
+//! `geometry.json` (the [`SensorGeometry`](optical_tactile::geometry::SensorGeometry)
+//! as JSON) and `indenters.json`. With the full-frame option every scenario also writes
 //! `crop.json`, the strip's rectangle `{x, y, width, height}` in the frame.
 
 use std::path::{Path, PathBuf};
@@ -19,7 +22,7 @@ use serde::Serialize;
 
 use super::config::SimConfig;
 use super::rng::{SplitMix64, mix64};
-use super::sensor::{Press, SyntheticSensor};
+use super::sensor::{Press, SyntheticSensor, Tip};
 use optical_tactile::error::{Error, Result};
 use optical_tactile::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
 
@@ -111,12 +114,18 @@ impl Default for Pair {
     }
 }
 
-/// The characterization protocol (docs/pipeline.md).
+/// The characterization protocol (docs/calibration.md): the strip's (13
+/// points on the centre line, rods) or, when the sensor's geometry is flat,
+/// the flat protocol (a 5 x 4 grid of points, [`flat_point_mm`]; the
+/// indenters [`FLAT_TIPS`]; the tilts [`FLAT_TILTS_DEG`]; the held-out
+/// points [`FLAT_HELD_OUT_POINTS`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Characterization {
     /// Only a random subset of this many tests (all when `None`).
     pub subset: Option<usize>,
-    /// Repetitions per (point, indenter, tilt, force).
+    /// Repetitions per (point, indenter, tilt, force): 5 by default (the
+    /// strip's protocol); the flat protocol's default is
+    /// [`FLAT_REPEATS`] ([`Characterization::flat`]).
     pub repeats: u32,
     /// Load-cell noise, N (standard deviation per axis). The default, 3 mN,
     /// is the resolution class of a small 6-axis F/T sensor (an ATI Nano17
@@ -142,6 +151,17 @@ impl Default for Characterization {
             subset: None,
             repeats: 5,
             load_cell_noise_n: LOAD_CELL_NOISE_N,
+        }
+    }
+}
+
+impl Characterization {
+    /// The flat protocol's defaults: every test, [`FLAT_REPEATS`]
+    /// repetitions, the default load cell.
+    pub fn flat() -> Self {
+        Characterization {
+            repeats: FLAT_REPEATS,
+            ..Characterization::default()
         }
     }
 }
@@ -178,6 +198,59 @@ impl Default for Presses {
             force_max_n: 3.0,
             max_tilt_deg: 15.0,
             indenters_mm: vec![2.0, 5.0, 10.0],
+        }
+    }
+}
+
+/// Independent presses of round tips anywhere on a flat sensor (or on the
+/// strip), each frame against the one unloaded reference (frame 0): the
+/// flat counterpart of [`Presses`]. Each press draws its indenter's kind
+/// (sphere, flat punch or fingertip, even odds) and diameter (uniform in
+/// the kind's range), its force magnitude, and its direction: spheres and
+/// punches tilt about one axis (pitch or yaw, even odds) within
+/// `max_tilt_deg`, as the protocol's rig does; fingertips shear in any
+/// direction with a tangential force up to `max_shear_ratio` times the
+/// normal force. The centre lands uniformly where the pressed area (its
+/// radius under the drawn force, [`Tip::contact_radius_mm`]) stays
+/// `margin_mm` inside the gel's edges. Also writes `presses.json` (per
+/// loaded frame: the indenter, its contact diameter, the tilt or shear).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TipPresses {
+    /// Number of loaded frames (one press each).
+    pub presses: usize,
+    /// Smallest force magnitude, N.
+    pub force_min_n: f64,
+    /// Largest force magnitude, N.
+    pub force_max_n: f64,
+    /// Largest tilt of sphere and punch presses, degrees.
+    pub max_tilt_deg: f64,
+    /// Largest tangential force of a fingertip, as a fraction of its normal
+    /// force (0.8: a firm, rubbery grip).
+    pub max_shear_ratio: f64,
+    /// Distance kept between the pressed area and the gel's edges, mm.
+    pub margin_mm: f64,
+    /// Sphere diameters, mm: `(smallest, largest)`.
+    pub sphere_mm: (f64, f64),
+    /// Flat punch diameters, mm. (Not below 6 mm by default: a narrower
+    /// punch at 3 N presses the gel harder than its modulus, beyond the
+    /// linear thin-layer model, and moves the dots by tens of px.)
+    pub punch_mm: (f64, f64),
+    /// Fingertip diameters, mm.
+    pub fingertip_mm: (f64, f64),
+}
+
+impl Default for TipPresses {
+    fn default() -> Self {
+        TipPresses {
+            presses: 150,
+            force_min_n: 0.5,
+            force_max_n: 3.0,
+            max_tilt_deg: 20.0,
+            max_shear_ratio: 0.8,
+            margin_mm: 0.5,
+            sphere_mm: (3.0, 12.0),
+            punch_mm: (6.0, 12.0),
+            fingertip_mm: (15.0, 20.0),
         }
     }
 }
@@ -299,6 +372,9 @@ pub enum Scenario {
     Pair(Pair),
     /// Independent presses at random places, forces and tilts.
     Presses(Presses),
+    /// Independent presses of round tips (spheres, punches, fingertips) at
+    /// random places in x and y, forces, tilts and shears.
+    TipPresses(TipPresses),
     /// A press, then shear, with the markers' centres.
     Shear(Shear),
     /// The characterization protocol in the `tests.csv` format.
@@ -463,8 +539,8 @@ pub fn truth_record(sensor: &SyntheticSensor, c: &Press) -> ContactRecord {
         fx_n: c.force_n[0],
         fy_n: c.force_n[1],
         fz_n: c.force_n[2],
-        x_px: Some(cfg.camera.s_to_px(&cfg.skin, s)),
-        y_px: Some(cfg.camera.y_to_px(y)),
+        x_px: Some(cfg.camera.skin_to_px(&cfg.skin, s, y).0),
+        y_px: Some(cfg.camera.skin_to_px(&cfg.skin, s, y).1),
         ..Default::default()
     }
 }
@@ -526,6 +602,7 @@ pub fn run_with_progress(
                 return Err(Error::param("indenters_mm", "need at least one rod"));
             }
         }
+        Scenario::TipPresses(o) => check_tip_presses(o)?,
         Scenario::Shear(o) => {
             check_force("force_n", o.force_n)?;
             if o.frames < 3 {
@@ -583,6 +660,7 @@ pub fn run_with_progress(
         Scenario::Single(o) => single(&sensor, common, o, progress),
         Scenario::Pair(o) => pair(&sensor, common, o, progress),
         Scenario::Presses(o) => presses(&sensor, common, o, progress),
+        Scenario::TipPresses(o) => tip_presses(&sensor, common, o, progress),
         Scenario::Shear(o) => shear(&sensor, common, o, progress),
         Scenario::Characterization(o) => characterization(&sensor, common, o, progress),
         Scenario::Perches(o) => perches(&sensor, common, o, progress),
@@ -734,6 +812,160 @@ fn presses(
     })
 }
 
+fn check_tip_presses(o: &TipPresses) -> Result<()> {
+    if o.presses == 0 {
+        return Err(Error::param("presses", "need at least 1"));
+    }
+    check_force("force_min_n", o.force_min_n)?;
+    check_force("force_max_n", o.force_max_n)?;
+    if o.force_min_n > o.force_max_n {
+        return Err(Error::param(
+            "force_min_n",
+            format!("{} is above force_max_n {}", o.force_min_n, o.force_max_n),
+        ));
+    }
+    if !(o.max_tilt_deg.is_finite() && (0.0..=60.0).contains(&o.max_tilt_deg)) {
+        return Err(Error::param("max_tilt_deg", "must be within 0..=60"));
+    }
+    if !(o.max_shear_ratio.is_finite() && (0.0..=2.0).contains(&o.max_shear_ratio)) {
+        return Err(Error::param("max_shear_ratio", "must be within 0..=2"));
+    }
+    if !(o.margin_mm.is_finite() && o.margin_mm >= 0.0) {
+        return Err(Error::param("margin_mm", "must be finite and >= 0"));
+    }
+    for (name, (lo, hi)) in [
+        ("sphere_mm", o.sphere_mm),
+        ("punch_mm", o.punch_mm),
+        ("fingertip_mm", o.fingertip_mm),
+    ] {
+        if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo <= hi && hi <= 100.0) {
+            return Err(Error::param(
+                name,
+                format!("need 0 < smallest <= largest <= 100 mm, got ({lo}, {hi})"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// What `presses.json` records of one loaded frame of [`TipPresses`] (and
+/// of the `flat_press` fixture).
+#[derive(Serialize)]
+struct TipPressInfo {
+    frame: String,
+    /// `sphere`, `punch` or `fingertip`.
+    indenter: &'static str,
+    indenter_mm: f64,
+    /// Diameter of the pressed area, mm.
+    contact_mm: f64,
+    yaw_deg: f64,
+    pitch_deg: f64,
+    /// Tangential over normal force.
+    shear_ratio: f64,
+}
+
+/// The largest centre offsets `(|x|, |y|)` at which a pressed area of
+/// radius `radius_mm` stays `margin_mm` inside the skin.
+fn centre_range(skin: &crate::Skin, radius_mm: f64, margin_mm: f64) -> Result<(f64, f64)> {
+    let inset = radius_mm + margin_mm;
+    let x = skin.arc_to_chord(skin.half_length() - inset);
+    let y = 0.5 * skin.width_mm() - inset;
+    if !(inset < skin.half_length() && y >= 0.0) {
+        return Err(Error::param(
+            "margin_mm",
+            format!(
+                "a pressed area of {radius_mm:.2} mm radius, {margin_mm} mm from the edges, \
+                 does not fit on the skin"
+            ),
+        ));
+    }
+    Ok((x, y))
+}
+
+fn tip_presses(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &TipPresses,
+    progress: Progress<'_>,
+) -> Result<Summary> {
+    // All draws first, from their own stream; every press is checked before
+    // anything is written.
+    let mat = c.config.material;
+    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7469_7070_7265_7373));
+    let mut plan = Vec::with_capacity(o.presses);
+    for _ in 0..o.presses {
+        let tip = match rng.below(3) {
+            0 => Tip::Sphere(rng.uniform(o.sphere_mm.0, o.sphere_mm.1)),
+            1 => Tip::Punch(rng.uniform(o.punch_mm.0, o.punch_mm.1)),
+            _ => Tip::Fingertip(rng.uniform(o.fingertip_mm.0, o.fingertip_mm.1)),
+        };
+        let f = rng.uniform(o.force_min_n, o.force_max_n);
+        let (mut yaw, mut pitch) = (0.0, 0.0);
+        let ratio;
+        let force = if let Tip::Fingertip(_) = tip {
+            ratio = rng.uniform(0.0, o.max_shear_ratio);
+            let angle = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
+            let normal = f / (1.0 + ratio * ratio).sqrt();
+            [
+                ratio * normal * angle.cos(),
+                ratio * normal * angle.sin(),
+                -normal,
+            ]
+        } else {
+            let tilt = rng.uniform(-o.max_tilt_deg, o.max_tilt_deg);
+            if rng.below(2) == 0 {
+                pitch = tilt;
+            } else {
+                yaw = tilt;
+            }
+            ratio = tilt.to_radians().tan().abs();
+            tilted_force(f, yaw, pitch)
+        };
+        let radius = tip.contact_radius_mm(&mat, -force[2]);
+        let (x_max, y_max) = centre_range(&c.config.skin, radius, o.margin_mm)?;
+        let x = rng.uniform(-x_max, x_max);
+        let y = rng.uniform(-y_max, y_max);
+        let contact = tip.press(x, y, force);
+        sensor.loads(std::slice::from_ref(&contact))?;
+        plan.push((
+            contact,
+            TipPressInfo {
+                frame: String::new(),
+                indenter: tip.kind(),
+                indenter_mm: tip.diameter_mm(),
+                contact_mm: 2.0 * radius,
+                yaw_deg: yaw,
+                pitch_deg: pitch,
+                shear_ratio: ratio,
+            },
+        ));
+    }
+    write_tip_presses(sensor, c, "presses", plan, progress)
+}
+
+/// Writes the reference and one frame per press, `truth.jsonl` and
+/// `presses.json`.
+fn write_tip_presses(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    stage: &'static str,
+    plan: Vec<(Press, TipPressInfo)>,
+    progress: Progress<'_>,
+) -> Result<Summary> {
+    let mut w = SequenceWriter::new(c, stage, 1 + plan.len(), progress)?;
+    w.frame(sensor, &[])?;
+    let mut info = Vec::with_capacity(plan.len());
+    for (contact, mut i) in plan {
+        i.frame = w.frame(sensor, std::slice::from_ref(&contact))?;
+        info.push(i);
+    }
+    write_json(&c.out.join("presses.json"), &info)?;
+    Ok(Summary {
+        out: c.out.clone(),
+        frames: w.n,
+    })
+}
+
 fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair, progress: Progress<'_>) -> Result<Summary> {
     let skin = &c.config.skin;
     let s_mid = skin.chord_to_arc(o.x_mm)?;
@@ -792,11 +1024,83 @@ pub const TILTS_DEG: [(f64, f64); 5] = [
 ];
 const FORCES_N: [f64; 6] = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
 
+/// The flat protocol's indenters: a 5 mm sphere, an 8 mm flat punch and an
+/// 18 mm fingertip (their diameters differ, so `indenter_mm` names each).
+pub const FLAT_TIPS: [Tip; 3] = [Tip::Sphere(5.0), Tip::Punch(8.0), Tip::Fingertip(18.0)];
+/// The flat protocol's tilts `(yaw, pitch)`, degrees: shear along y (yaw)
+/// and along x (pitch) of `tan 20 deg` = 0.36 times the normal force.
+pub const FLAT_TILTS_DEG: [(f64, f64); 5] = [
+    (0.0, 0.0),
+    (0.0, 20.0),
+    (0.0, -20.0),
+    (20.0, 0.0),
+    (-20.0, 0.0),
+];
+/// The flat protocol's grid of measuring points: columns along x, rows
+/// along y. Points are numbered from 1 row by row, from the point at
+/// the smallest x and y.
+pub const FLAT_GRID: (u32, u32) = (5, 4);
+/// The flat protocol's held-out points (validation, and the separately
+/// recorded test split): a corner (1), the point nearest the centre (8), a
+/// side (15) and another side (17) of the 5 x 4 grid.
+pub const FLAT_HELD_OUT_POINTS: [u32; 4] = [1, 8, 15, 17];
+/// The flat protocol's default repetitions.
+pub const FLAT_REPEATS: u32 = 2;
+/// Margin between the largest pressed area of the flat protocol and the
+/// gel's edges, mm.
+pub const FLAT_MARGIN_MM: f64 = 1.0;
+
+/// The distance (mm) of the flat protocol's outer points from the gel's
+/// edges on a gel of `mat`: the largest contact radius of [`FLAT_TIPS`] at
+/// the top of the force ladder, plus [`FLAT_MARGIN_MM`].
+pub fn flat_inset_mm(mat: &crate::Material) -> f64 {
+    let top = FORCES_N[FORCES_N.len() - 1];
+    FLAT_TIPS
+        .iter()
+        .map(|t| t.contact_radius_mm(mat, top))
+        .fold(0.0, f64::max)
+        + FLAT_MARGIN_MM
+}
+
+/// The sensor-frame position `(x_mm, y_mm)` of the flat protocol's point
+/// `point` (1 to 20) on `skin` with a gel of `mat`: a 5 x 4 grid spread
+/// evenly over the gel inset by [`flat_inset_mm`].
+pub fn flat_point_mm(skin: &crate::Skin, mat: &crate::Material, point: u32) -> Result<(f64, f64)> {
+    let (nx, ny) = FLAT_GRID;
+    if !(1..=nx * ny).contains(&point) {
+        return Err(Error::param(
+            "point",
+            format!(
+                "the flat protocol's points are 1 to {}, got {point}",
+                nx * ny
+            ),
+        ));
+    }
+    let inset = flat_inset_mm(mat);
+    let (x_max, y_max) = centre_range(skin, inset, 0.0).map_err(|_| {
+        Error::param(
+            "material",
+            format!(
+                "the flat protocol's points lie {inset:.2} mm inside the gel's edges (its \
+                 largest pressed area at 3 N plus {FLAT_MARGIN_MM} mm): no room on a \
+                 {:.1} x {:.1} mm gel; a stiffer or thinner gel presses smaller areas",
+                2.0 * skin.half_length(),
+                skin.width_mm()
+            ),
+        )
+    })?;
+    let (col, row) = ((point - 1) % nx, (point - 1) / nx);
+    let at = |k: u32, n: u32, max: f64| -max + 2.0 * max * k as f64 / (n - 1) as f64;
+    Ok((at(col, nx, x_max), at(row, ny, y_max)))
+}
+
 /// One planned characterization test.
 #[derive(Debug, Clone, Copy)]
 struct Planned {
     point: u32,
     indenter: f64,
+    /// The flat protocol's round indenter; `None`: a rod of `indenter` mm.
+    tip: Option<Tip>,
     tilt: (f64, f64),
     repeat: u32,
     force: f64,
@@ -819,6 +1123,7 @@ fn protocol(repeats: u32) -> Vec<Planned> {
                             v.push(Planned {
                                 point,
                                 indenter,
+                                tip: None,
                                 tilt,
                                 repeat,
                                 force,
@@ -833,13 +1138,75 @@ fn protocol(repeats: u32) -> Vec<Planned> {
     v
 }
 
+/// The flat protocol: the grid's 16 training points, the 4 held-out points
+/// as `val`, then again as `test`; each with every indenter, tilt,
+/// repetition and force.
+fn flat_protocol(repeats: u32) -> Vec<Planned> {
+    let (nx, ny) = FLAT_GRID;
+    let train: Vec<u32> = (1..=nx * ny)
+        .filter(|p| !FLAT_HELD_OUT_POINTS.contains(p))
+        .collect();
+    let groups: [(&[u32], Split); 3] = [
+        (&train, Split::Train),
+        (&FLAT_HELD_OUT_POINTS, Split::Val),
+        (&FLAT_HELD_OUT_POINTS, Split::Test),
+    ];
+    let mut v = Vec::new();
+    for (points, split) in groups {
+        for &point in points {
+            for tip in FLAT_TIPS {
+                for &tilt in &FLAT_TILTS_DEG {
+                    for repeat in 1..=repeats {
+                        for &force in &FORCES_N {
+                            v.push(Planned {
+                                point,
+                                indenter: tip.diameter_mm(),
+                                tip: Some(tip),
+                                tilt,
+                                repeat,
+                                force,
+                                split,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+    v
+}
+
+/// What `indenters.json` says of each indenter of a flat protocol.
+#[derive(Serialize)]
+struct IndenterInfo {
+    indenter_mm: f64,
+    kind: &'static str,
+}
+
 fn characterization(
     sensor: &SyntheticSensor,
     c: &Common,
     o: &Characterization,
     progress: Progress<'_>,
 ) -> Result<Summary> {
-    let all = protocol(o.repeats);
+    let flat = matches!(
+        c.config.skin.geometry,
+        optical_tactile::geometry::SensorGeometry::Flat(_)
+    );
+    let all = if flat {
+        flat_protocol(o.repeats)
+    } else {
+        protocol(o.repeats)
+    };
+    // The flat protocol's points, checked before anything is written.
+    let (nx, ny) = FLAT_GRID;
+    let points: Vec<(f64, f64)> = if flat {
+        (1..=nx * ny)
+            .map(|p| flat_point_mm(&c.config.skin, &c.config.material, p))
+            .collect::<Result<_>>()?
+    } else {
+        Vec::new()
+    };
     let mut ids: Vec<usize> = (0..all.len()).collect();
     if let Some(n) = o.subset {
         // Partial Fisher-Yates with its own stream, then back to protocol order.
@@ -858,6 +1225,20 @@ fn characterization(
         create_dir(&c.out.join("flow"))?;
     }
     write_crop(c)?;
+    if flat {
+        let path = c.out.join("geometry.json");
+        let json = serde_json::to_string(&c.config.skin.geometry)
+            .map_err(|e| Error::format(&path, None, e.to_string()))?;
+        std::fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))?;
+        let info: Vec<IndenterInfo> = FLAT_TIPS
+            .iter()
+            .map(|t| IndenterInfo {
+                indenter_mm: t.diameter_mm(),
+                kind: t.kind(),
+            })
+            .collect();
+        write_json(&c.out.join("indenters.json"), &info)?;
+    }
     let skin = &c.config.skin;
     // Tests are independent (each has its own frame indices and noise), so they
     // are made in parallel; PNG encoding would otherwise leave a core idle.
@@ -867,9 +1248,17 @@ fn characterization(
         .par_iter()
         .map(|&id| -> Result<TestRow> {
             let p = all[id];
-            let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
             let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
-            let contact = Press::rod(x, f, p.indenter);
+            let (x, y, contact) = match p.tip {
+                Some(tip) => {
+                    let (x, y) = points[p.point as usize - 1];
+                    (x, y, tip.press(x, y, f))
+                }
+                None => {
+                    let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
+                    (x, 0.0, Press::rod(x, f, p.indenter))
+                }
+            };
             // Fresh noise and flicker for each image: frame indices from the test id.
             let reference = sensor.render_indexed(2 * id as u64, &[], false)?;
             let loaded = sensor.render_indexed(2 * id as u64 + 1, &[contact], c.flow)?;
@@ -897,7 +1286,7 @@ fn characterization(
                 force_n: p.force,
                 split: p.split,
                 x_mm: x,
-                y_mm: 0.0,
+                y_mm: y,
                 fx_n: noisy[0],
                 fy_n: noisy[1],
                 fz_n: noisy[2],
@@ -1078,15 +1467,36 @@ fn mapping(
     })
 }
 
+/// The presses of the `flat_press` fixture: `(indenter, x_mm, y_mm,
+/// [Fx, Fy, Fz])` on [`SimConfig::fingertip`], one per loaded frame: the
+/// three kinds of indenter at the centre, the corners and the sides, straight
+/// down, tilted, and a fingertip sheared along x and along y.
+pub const FLAT_PRESS_FIXTURE: [(Tip, f64, f64, [f64; 3]); 11] = [
+    (Tip::Sphere(5.0), 0.0, 0.0, [0.0, 0.0, -1.5]),
+    (Tip::Sphere(5.0), -7.0, -4.0, [0.0, 0.0, -2.0]),
+    (Tip::Sphere(8.0), 7.0, 4.0, [0.3, 0.0, -1.0]),
+    (Tip::Punch(8.0), -6.5, 4.0, [0.0, 0.0, -2.5]),
+    (Tip::Punch(6.0), 6.0, -4.5, [0.0, -0.4, -1.5]),
+    (Tip::Punch(10.0), 2.0, 1.0, [0.0, 0.0, -3.0]),
+    (Tip::Fingertip(18.0), 0.0, 0.0, [0.0, 0.0, -2.0]),
+    (Tip::Fingertip(18.0), -3.0, 2.0, [1.6, 0.0, -2.0]),
+    (Tip::Fingertip(16.0), 4.0, -2.0, [0.0, -1.2, -1.5]),
+    (Tip::Sphere(3.0), -2.5, -5.5, [0.0, 0.0, -0.8]),
+    (Tip::Sphere(12.0), 8.0, -1.0, [-0.5, 0.5, -2.5]),
+];
+
 /// The repository's fixtures under `out`: `press/` (two 5 mm rods 40 mm apart
-/// ramping to 2.0 and 1.5 N over 8 frames, no flow) and `characterization/`
-/// (a 6-test subset of the protocol, no flow). See `fixtures/README.md`.
+/// ramping to 2.0 and 1.5 N over 8 frames, no flow), `characterization/`
+/// (a 6-test subset of the protocol, no flow) and `flat_press/` (the flat
+/// fingertip sensor, [`SimConfig::fingertip`]: its reference and one frame
+/// per press of [`FLAT_PRESS_FIXTURE`], with `truth.jsonl` and
+/// `presses.json`, no flow). See `fixtures/README.md`.
 pub fn fixtures(out: &Path, seed: u64) -> Result<()> {
     fixtures_with_progress(out, seed, &no_progress)
 }
 
 /// [`fixtures`], reporting progress as [`run_with_progress`] does (stages
-/// `pair`, then `characterization`).
+/// `pair`, `characterization`, then `flat_press`).
 pub fn fixtures_with_progress(out: &Path, seed: u64, progress: Progress<'_>) -> Result<()> {
     let mut press = Common::new(out.join("press"));
     press.seed = seed;
@@ -1108,7 +1518,41 @@ pub fn fixtures_with_progress(out: &Path, seed: u64, progress: Progress<'_>) -> 
         ..Default::default()
     };
     run_with_progress(&Scenario::Characterization(c), &ch, progress)?;
+    let mut flat = Common::new(out.join("flat_press"));
+    flat.seed = seed;
+    flat.flow = false;
+    flat.config = SimConfig::fingertip();
+    flat_press_fixture(&flat, progress)?;
     Ok(())
+}
+
+/// Writes the presses of [`FLAT_PRESS_FIXTURE`] as a sequence.
+fn flat_press_fixture(c: &Common, progress: Progress<'_>) -> Result<Summary> {
+    let sensor = SyntheticSensor::new(c.config, c.seed)?;
+    let mat = c.config.material;
+    let plan = FLAT_PRESS_FIXTURE
+        .iter()
+        .map(|&(tip, x, y, f)| {
+            let contact = tip.press(x, y, f);
+            sensor.loads(std::slice::from_ref(&contact))?;
+            let shear = f[0].hypot(f[1]);
+            Ok((
+                contact,
+                TipPressInfo {
+                    frame: String::new(),
+                    indenter: tip.kind(),
+                    indenter_mm: tip.diameter_mm(),
+                    contact_mm: 2.0 * tip.contact_radius_mm(&mat, -f[2]),
+                    // The tilts that turn a vertical push into this force
+                    // (exactly so when it leans about one axis).
+                    yaw_deg: f[1].atan2(-f[2]).to_degrees(),
+                    pitch_deg: f[0].atan2(-f[2]).to_degrees(),
+                    shear_ratio: shear / -f[2],
+                },
+            ))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    write_tip_presses(&sensor, c, "flat_press", plan, progress)
 }
 
 #[cfg(test)]

@@ -77,6 +77,95 @@ impl Press {
     }
 }
 
+impl Press {
+    /// A spherical tip of `diameter_mm` centred at `(x_mm, y_mm)` applying
+    /// `force_n`, on a thin gel layer bonded to a rigid base: the round load
+    /// of [`Press::fingertip`] (the same model; "fingertip" names a broad
+    /// tip of 15-20 mm, "sphere" a rigid indenter of a few mm). The contact
+    /// radius is the thin-layer sphere's
+    /// ([`RoundLoad::sphere_contact_radius`](crate::elastic::RoundLoad::sphere_contact_radius)),
+    /// growing with the force as `F^(1/6)`. For a tip narrower than the
+    /// layer is thick that radius can exceed the tip's own: the layer
+    /// spreads a small tip's load over about its thickness, and the
+    /// thin-layer limit cannot describe a load concentrated on less, so the
+    /// radius is kept as the formula gives it.
+    pub fn sphere(x_mm: f64, y_mm: f64, force_n: [f64; 3], diameter_mm: f64) -> Self {
+        Press::fingertip(x_mm, y_mm, force_n, diameter_mm)
+    }
+
+    /// A flat circular punch of `diameter_mm` centred at `(x_mm, y_mm)`
+    /// applying `force_n`. Approximation: the round load of a fixed contact
+    /// diameter (the punch's), with the smooth pressure profile
+    /// `(1 - r^2/a^2)^2` of [`RoundLoad`](crate::elastic::RoundLoad) rather
+    /// than a rigid punch's pressure rising towards its edge. The total force
+    /// and the pressed area are the punch's; the motion is smoother at its
+    /// rim than a real punch's, and it does not grow with the force as a
+    /// sphere's does.
+    pub fn punch(x_mm: f64, y_mm: f64, force_n: [f64; 3], diameter_mm: f64) -> Self {
+        Press {
+            x_mm,
+            force_n,
+            diameter_mm,
+            contact_width_mm: Some(diameter_mm),
+            y_mm: Some(y_mm),
+        }
+    }
+}
+
+/// A round indenter of a flat sensor, by kind and diameter (mm): what the
+/// flat characterization protocol and the presses on a flat sensor press
+/// with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Tip {
+    /// A rigid sphere ([`Press::sphere`]), e.g. 3-12 mm.
+    Sphere(f64),
+    /// A flat circular punch ([`Press::punch`]), e.g. 3-12 mm.
+    Punch(f64),
+    /// A broad soft tip like a human fingertip ([`Press::fingertip`]),
+    /// 15-20 mm.
+    Fingertip(f64),
+}
+
+impl Tip {
+    /// The indenter's diameter, mm.
+    pub fn diameter_mm(&self) -> f64 {
+        match *self {
+            Tip::Sphere(d) | Tip::Punch(d) | Tip::Fingertip(d) => d,
+        }
+    }
+
+    /// The kind's name in files: `sphere`, `punch` or `fingertip`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Tip::Sphere(_) => "sphere",
+            Tip::Punch(_) => "punch",
+            Tip::Fingertip(_) => "fingertip",
+        }
+    }
+
+    /// This indenter centred at `(x_mm, y_mm)` applying `force_n` (sensor
+    /// frame).
+    pub fn press(&self, x_mm: f64, y_mm: f64, force_n: [f64; 3]) -> Press {
+        match *self {
+            Tip::Sphere(d) => Press::sphere(x_mm, y_mm, force_n, d),
+            Tip::Punch(d) => Press::punch(x_mm, y_mm, force_n, d),
+            Tip::Fingertip(d) => Press::fingertip(x_mm, y_mm, force_n, d),
+        }
+    }
+
+    /// Radius (mm) of the pressed area under a normal force `f_n` (N) on a
+    /// gel of `mat`: the punch's own radius, a sphere's or a fingertip's
+    /// from the thin-layer formula.
+    pub fn contact_radius_mm(&self, mat: &crate::Material, f_n: f64) -> f64 {
+        match *self {
+            Tip::Punch(d) => 0.5 * d,
+            Tip::Sphere(d) | Tip::Fingertip(d) => {
+                RoundLoad::sphere_contact_radius(mat, 0.5 * d, f_n)
+            }
+        }
+    }
+}
+
 /// A synthetic marker-based tactile sensor: build it once from a config and a
 /// seed (which fixes the marker layout), then render frames for any contacts.
 ///
@@ -95,6 +184,8 @@ pub struct SyntheticSensor {
     config: SimConfig,
     seed: u64,
     markers: Markers,
+    /// Which pixels show the skin behind a distorting lens.
+    skin_mask: Option<Vec<bool>>,
     quad: QuadratureCache,
     next_index: u64,
 }
@@ -111,6 +202,7 @@ impl SyntheticSensor {
             config,
             seed,
             markers,
+            skin_mask: render::skin_mask(&config),
             quad: QuadratureCache::default(),
             next_index: 0,
         })
@@ -250,12 +342,17 @@ impl SyntheticSensor {
 
     /// Image motion (px) of a point at `(s, y)` displaced by `u` (mm, local).
     #[inline]
-    fn to_pixels(&self, s: f64, u: [f64; 3]) -> (f32, f32) {
+    fn to_pixels(&self, s: f64, y: f64, u: [f64; 3]) -> (f32, f32) {
         let cam = &self.config.camera;
         let skin = &self.config.skin;
-        let du = cam.s_to_px(skin, s + u[0]) - cam.s_to_px(skin, s);
-        let dv = cam.px_per_mm_y * u[1];
-        (du as f32, dv as f32)
+        if cam.radial == 0.0 {
+            let du = cam.s_to_px(skin, s + u[0]) - cam.s_to_px(skin, s);
+            let dv = cam.px_per_mm_y * u[1];
+            return (du as f32, dv as f32);
+        }
+        let (x0, y0) = cam.skin_to_px(skin, s, y);
+        let (x1, y1) = cam.skin_to_px(skin, s + u[0], y + u[1]);
+        ((x1 - x0) as f32, (y1 - y0) as f32)
     }
 
     pub(crate) fn marker_pixel_motion(&self, loads: &[Load]) -> PixelMotion {
@@ -266,7 +363,10 @@ impl SyntheticSensor {
         (0..m.s.len())
             .into_par_iter()
             .with_min_len(256)
-            .map(|i| self.to_pixels(m.s[i], self.displacement_at(loads, m.s[i], m.y[i], m.z[i])))
+            .map(|i| {
+                let u = self.displacement_at(loads, m.s[i], m.y[i], m.z[i]);
+                self.to_pixels(m.s[i], m.y[i], u)
+            })
             .collect()
     }
 
@@ -294,9 +394,9 @@ impl SyntheticSensor {
                 }
                 let (gx, gy) = (k % nx, k / nx);
                 // Clamp to the skin: outside it the field is that of its edge.
-                let s = cam.px_to_s(skin, (gx * step.0) as f64).clamp(-h, h);
-                let y = cam.px_to_y((gy * step.1) as f64).clamp(-half_w, half_w);
-                self.to_pixels(s, self.displacement_at(loads, s, y, depth))
+                let (s, y) = cam.px_to_skin(skin, (gx * step.0) as f64, (gy * step.1) as f64);
+                let (s, y) = (s.clamp(-h, h), y.clamp(-half_w, half_w));
+                self.to_pixels(s, y, self.displacement_at(loads, s, y, depth))
             })
             .collect();
         let (du, dv) = pts.into_iter().unzip();
@@ -340,6 +440,7 @@ impl SyntheticSensor {
             &self.markers,
             &motion,
             grid.as_ref(),
+            self.skin_mask.as_deref(),
             stream,
             camera,
         ))
@@ -378,8 +479,9 @@ fn scatter_markers(config: &SimConfig, seed: u64) -> Markers {
         m.s.push(s);
         m.y.push(y);
         m.z.push(z);
-        m.px.push(cam.s_to_px(skin, s));
-        m.py.push(cam.y_to_px(y));
+        let (px, py) = cam.skin_to_px(skin, s, y);
+        m.px.push(px);
+        m.py.push(py);
         m.amp.push(amp as f32);
         m.sigma.push((fwhm / (8.0 * 2f64.ln()).sqrt()) as f32);
     }
@@ -413,8 +515,10 @@ fn grid_markers(config: &SimConfig, g: &DotGrid, seed: u64) -> Markers {
             m.s.push(s);
             m.y.push(yy);
             m.z.push(depth);
-            m.px.push(cam.s_to_px(skin, s));
-            m.py.push(cam.y_to_px(yy));
+            // Printed on a regular grid in mm; the lens bends it in the image.
+            let (px, py) = cam.skin_to_px(skin, s, yy);
+            m.px.push(px);
+            m.py.push(py);
             m.amp.push(-g.darkness as f32);
             m.sigma.push((0.5 * g.edge_px) as f32);
             m.radius.push((0.5 * g.diameter_px) as f32);

@@ -637,13 +637,18 @@ fn committed_fixtures_are_what_the_simulator_makes() {
     let out = tmp("fixtures");
     scenario::fixtures(&out, 1).unwrap();
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../fixtures");
-    for f in ["press/truth.jsonl", "characterization/tests.csv"] {
+    for f in [
+        "press/truth.jsonl",
+        "characterization/tests.csv",
+        "flat_press/truth.jsonl",
+        "flat_press/presses.json",
+    ] {
         let a = std::fs::read_to_string(out.join(f)).unwrap();
         let b = std::fs::read_to_string(repo.join(f)).unwrap();
         assert_eq!(a, b, "{f}");
     }
     let mut n = 0;
-    for dir in ["press", "characterization/frames"] {
+    for dir in ["press", "characterization/frames", "flat_press"] {
         for p in io::list_frames(out.join(dir)).unwrap() {
             let name = p.strip_prefix(&out).unwrap();
             let a = io::read_gray(&p).unwrap();
@@ -656,7 +661,7 @@ fn committed_fixtures_are_what_the_simulator_makes() {
             n += 1;
         }
     }
-    assert_eq!(n, 8 + 12);
+    assert_eq!(n, 8 + 12 + 12);
     std::fs::remove_dir_all(&out).unwrap();
 }
 
