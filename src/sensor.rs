@@ -1006,9 +1006,7 @@ impl TactileSensor {
         let cal = &self.calibration;
         self.raws.retain(|r| cal.is_press(r));
         for raw in &mut self.raws {
-            let loc = self
-                .calibration
-                .location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
+            let loc = self.calibration.location_of(raw)?;
             raw.d_sensor = sensor_displacements(&geometry, loc[0], raw);
             let contact = self.calibration.contact(raw)?;
             // Nothing non-finite leaves the sensor: such a contact (a

@@ -90,6 +90,7 @@ fn protocol_samples(noise: f64, seed: u64) -> Vec<Sample> {
                             + 20.0 * n(&mut rng),
                         d_pf: 0.4 * diam + 0.8 * f + n(&mut rng),
                         shear: 0.0,
+                        shear_y: 0.0,
                         x_mm,
                         y_mm: 0.0,
                         fx,
@@ -171,6 +172,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
             dz,
             d_pf,
             shear: 0.0,
+            shear_y: 0.0,
             // Order 3 in x2d, order 1 in y2d.
             x_mm: 150.0 * t - 4.0 * t * t + 2.0 * t * t * t,
             y_mm: 0.25 * (y2d - 100.0),
@@ -430,7 +432,7 @@ fn new_checks_the_variables() {
     .unwrap_err();
     assert!(
         e.to_string()
-            .contains("`g1` has variables [x], expected one of [x2d, shear], [x2d], [x2d, y2d]"),
+            .contains("`g1` has variables [x], expected one of [x2d, shear], [x2d], [x2d, y2d], [x2d, y2d, shear]"),
         "{e}"
     );
 }
@@ -714,6 +716,7 @@ fn g1_corrects_a_shear_dependent_offset() {
             dz: rng.uniform(-400.0, 0.0),
             d_pf: rng.uniform(1.0, 6.0),
             shear,
+            shear_y: 0.0,
             x_mm: 150.0 * t - 4.0 * t * t + shear * (3.0 + 2.0 * t),
             y_mm: 0.0,
             fx: 0.0,
@@ -1194,6 +1197,7 @@ fn a_flat_sensor_maps_both_coordinates_from_the_2d_contact_point() {
                 dz: 100.0 * fz + rng.normal(),
                 d_pf: 1.0 - fz,
                 shear: 0.0,
+                shear_y: 0.0,
                 x_mm: x,
                 y_mm: y,
                 fx: 0.0,
@@ -1207,8 +1211,8 @@ fn a_flat_sensor_maps_both_coordinates_from_the_2d_contact_point() {
         ..setup()
     };
     let cal = fit::fit(&samples, &setup, &small_options()).unwrap();
-    assert_eq!(cal.g1().variables(), ["x2d", "y2d"]);
-    assert_eq!(cal.g2().variables(), ["x2d", "y2d"]);
+    assert_eq!(cal.g1().variables(), ["x2d", "y2d", "shear"]);
+    assert_eq!(cal.g2().variables(), ["x2d", "y2d", "shear_y"]);
     let test = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
     assert!(test.n > 0);
     // The 0.05 px of pixel noise is 4 um: the maps are nearly exact.

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
 use super::report::{self, DetectionLimit, PointTable, evaluate};
 use super::{
-    Calibration, CalibrationReport, FORCE_VARIABLES, ForceGuard, LOCATION_2D_VARIABLES,
+    Calibration, CalibrationReport, FORCE_VARIABLES, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
     PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
@@ -327,15 +327,20 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     }
     let cols = |set: &[&Sample]| {
         let n = set.len();
-        let x2d_y2d = || Array2::from_shape_fn((n, 2), |(i, j)| [set[i].x2d, set[i].y2d][j]);
+        let with = |k: usize, shear: fn(&Sample) -> f64| {
+            Array2::from_shape_fn((n, k), |(i, j)| {
+                let s = set[i];
+                [s.x2d, s.y2d, shear(s)][j + 3 - k]
+            })
+        };
         Cols {
             g1_in: if two_d {
-                x2d_y2d()
+                with(3, |s| s.shear)
             } else {
                 Array2::from_shape_fn((n, 2), |(i, j)| [set[i].x2d, set[i].shear][j])
             },
             g2_in: if two_d {
-                x2d_y2d()
+                with(3, |s| s.shear_y)
             } else {
                 Array2::from_shape_fn((n, 1), |(i, _)| set[i].y2d)
             },
@@ -355,17 +360,20 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let named = |what: &'static str| move |e: Error| prefix_error(what, e);
 
     let (g1_spec, g2_spec) = if two_d {
-        // One group: every monomial of x2d and y2d up to the order, as a
-        // lens's distortion mixes the two.
-        let spec = PolySpec::new(
-            vec![VarGroup::new(
-                "location",
-                &LOCATION_2D_VARIABLES,
-                options.location_max_order,
-            )],
-            CrossTerms::MaxOfGroups,
-        )?;
-        (spec.clone(), spec)
+        // One location group: every monomial of x2d and y2d up to the
+        // order, as a lens's distortion mixes the two; and the shear ratio
+        // along the map's own axis, which pulls the slope peak sideways, as
+        // on the strip.
+        let spec = |vars: &[&str; 3]| {
+            PolySpec::new(
+                vec![
+                    VarGroup::new("location", &vars[..2], options.location_max_order),
+                    VarGroup::new("shear", &vars[2..], options.location_shear_order),
+                ],
+                options.location_cross,
+            )
+        };
+        (spec(&G1_2D_VARIABLES)?, spec(&G2_2D_VARIABLES)?)
     } else {
         // g1 always has the shear input (order 0 = unused, then the paper's map).
         let g1 = PolySpec::new(
@@ -744,7 +752,7 @@ pub fn fit_dataset(
     // fit everything.
     let mut second = samples(extractions, &geometry, &local, |e, raw| match &profile {
         Some(model) => Ok(match_position(model, e, raw, &pass1)?.0),
-        None => Ok(pass1.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0]),
+        None => Ok(pass1.location_of(raw)?[0]),
     })?;
     // The press test a sensor applies (`Calibration::is_press`): a test
     // whose strongest patch fails it counts as a miss, as it would at run time.
@@ -827,10 +835,7 @@ fn match_position(
 ) -> Result<(f64, f64)> {
     match &model.anchor {
         Some(map) if e.row.split == Split::Train => Ok((e.row.x_mm, map.column(e.row.x_mm))),
-        _ => Ok((
-            cal.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0],
-            cal.match_column(model, raw)?,
-        )),
+        _ => Ok((cal.location_of(raw)?[0], cal.match_column(model, raw)?)),
     }
 }
 
@@ -977,7 +982,7 @@ fn validation_force_mae(
         let (Some(raw), Some(f)) = (e.raw, f) else {
             continue;
         };
-        let x = cal.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?[0];
+        let x = cal.location_of(&raw)?[0];
         let f = geometry.local_to_sensor(x, *f);
         let r = &e.row;
         sum += (f[0] - r.fx_n).abs() + (f[1] - r.fy_n).abs() + (f[2] - r.fz_n).abs();

@@ -90,9 +90,16 @@ pub const G1_VARIABLES_LEGACY: [&str; 1] = ["x2d"];
 /// Variables of `g2` on a sensor that locates along x only (the curved strip).
 pub const G2_VARIABLES: [&str; 1] = ["y2d"];
 /// Variables of both `g1` and `g2` on a sensor that locates contacts in 2-D
-/// ([`SensorGeometry::locates_in_2d`]): each surface coordinate from the
-/// contact point's column and row, which a lens bends into each other.
+/// ([`SensorGeometry::locates_in_2d`]) without shear inputs: each surface
+/// coordinate from the contact point's column and row, which a lens bends
+/// into each other.
 pub const LOCATION_2D_VARIABLES: [&str; 2] = ["x2d", "y2d"];
+/// Variables of `g1` on a sensor that locates in 2-D: column, row and the
+/// shear ratio along x ([`RawContact::shear_ratio`]).
+pub const G1_2D_VARIABLES: [&str; 3] = ["x2d", "y2d", "shear"];
+/// Variables of `g2` on a sensor that locates in 2-D: column, row and the
+/// shear ratio across ([`RawContact::shear_ratio_y`]).
+pub const G2_2D_VARIABLES: [&str; 3] = ["x2d", "y2d", "shear_y"];
 /// Variables of the force maps `gx, gy, gz`, in evaluation order.
 pub const FORCE_VARIABLES: [&str; 6] = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
 
@@ -215,6 +222,10 @@ pub struct Sample {
     /// an input of `g1`.
     #[serde(default)]
     pub shear: f64,
+    /// The shear ratio across, `ds2 / dn` ([`RawContact::shear_ratio_y`]),
+    /// an input of a 2-D `g2`.
+    #[serde(default)]
+    pub shear_y: f64,
     /// True contact x, mm.
     pub x_mm: f64,
     /// True contact y, mm.
@@ -241,6 +252,7 @@ impl Sample {
             dz: raw.d_sensor[2],
             d_pf: raw.d_pf,
             shear: raw.shear_ratio(),
+            shear_y: raw.shear_ratio_y(),
             x_mm: row.x_mm,
             y_mm: row.y_mm,
             fx: row.fx_n,
@@ -249,7 +261,7 @@ impl Sample {
         }
     }
 
-    fn fields(&self) -> [(&'static str, f64); 12] {
+    fn fields(&self) -> [(&'static str, f64); 13] {
         [
             ("x2d", self.x2d),
             ("y2d", self.y2d),
@@ -258,6 +270,7 @@ impl Sample {
             ("dz", self.dz),
             ("d_pf", self.d_pf),
             ("shear", self.shear),
+            ("shear_y", self.shear_y),
             ("x_mm", self.x_mm),
             ("y_mm", self.y_mm),
             ("fx", self.fx),
@@ -464,20 +477,22 @@ fn check_one_of(
     ))
 }
 
-/// A location map at a contact: its variables (`x2d`, `y2d`, `shear`, as
-/// [`Calibration::check`] allows) take the contact's values.
-fn evaluate_location(p: &Polynomial, x2d: f64, y2d: f64, shear: f64) -> Result<f64> {
+/// A location map at a contact: its variables (`x2d`, `y2d`, `shear`,
+/// `shear_y`, as [`Calibration::check`] allows) take the contact's values.
+fn evaluate_location(p: &Polynomial, x2d: f64, y2d: f64, shear: [f64; 2]) -> Result<f64> {
     let pick = |name: &str| match name {
         "x2d" => x2d,
         "y2d" => y2d,
-        _ => shear,
+        "shear_y" => shear[1],
+        _ => shear[0],
     };
     match p.variables() {
         [a] => p.evaluate(&[pick(a)]),
         [a, b] => p.evaluate(&[pick(a), pick(b)]),
+        [a, b, c] => p.evaluate(&[pick(a), pick(b), pick(c)]),
         other => Err(Error::param(
             "location map",
-            format!("has {} variables, expected 1 or 2", other.len()),
+            format!("has {} variables, expected 1 to 3", other.len()),
         )),
     }
 }
@@ -513,9 +528,18 @@ impl Calibration {
         check_one_of(
             "g1",
             &self.g1,
-            &[&G1_VARIABLES, &G1_VARIABLES_LEGACY, &LOCATION_2D_VARIABLES],
+            &[
+                &G1_VARIABLES,
+                &G1_VARIABLES_LEGACY,
+                &LOCATION_2D_VARIABLES,
+                &G1_2D_VARIABLES,
+            ],
         )?;
-        check_one_of("g2", &self.g2, &[&G2_VARIABLES, &LOCATION_2D_VARIABLES])?;
+        check_one_of(
+            "g2",
+            &self.g2,
+            &[&G2_VARIABLES, &LOCATION_2D_VARIABLES, &G2_2D_VARIABLES],
+        )?;
         check_vars("gx", &self.gx, &FORCE_VARIABLES)?;
         check_vars("gy", &self.gy, &FORCE_VARIABLES)?;
         check_vars("gz", &self.gz, &FORCE_VARIABLES)?;
@@ -576,12 +600,27 @@ impl Calibration {
 
     /// Contact location `[x, y, z]` in mm from the contact point in pixels
     /// and the contact's shear-to-normal ratio ([`RawContact::shear_ratio`]):
-    /// `x = g1(x2d, shear)` (a legacy `g1`, and the 2-D maps `g1(x2d, y2d)`,
-    /// ignore `shear`).
+    /// `x = g1(x2d, shear)` (a legacy `g1` ignores `shear`). On a sensor
+    /// that locates in 2-D the ratio across is taken as 0; see
+    /// [`Calibration::location_of`] for a patch's own ratios.
     pub fn location_sheared(&self, x2d: f64, y2d: f64, shear: f64) -> Result<[f64; 3]> {
+        self.location_with_shear(x2d, y2d, [shear, 0.0])
+    }
+
+    /// Contact location `[x, y, z]` in mm from the contact point in pixels
+    /// and both shear-to-normal ratios, `[ds1 / dn, ds2 / dn]`
+    /// ([`RawContact::shear_ratio`], [`RawContact::shear_ratio_y`]): each map
+    /// takes the ones among its variables.
+    pub fn location_with_shear(&self, x2d: f64, y2d: f64, shear: [f64; 2]) -> Result<[f64; 3]> {
         let x = evaluate_location(&self.g1, x2d, y2d, shear)?;
         let y = evaluate_location(&self.g2, x2d, y2d, shear)?;
         Ok(self.setup.geometry.point_at(x, y))
+    }
+
+    /// Contact location `[x, y, z]` in mm of a patch's raw quantities: its
+    /// contact point and both of its shear ratios.
+    pub fn location_of(&self, raw: &RawContact) -> Result<[f64; 3]> {
+        self.location_with_shear(raw.x_px, raw.y_px, [raw.shear_ratio(), raw.shear_ratio_y()])
     }
 
     /// Force `[Fx, Fy, Fz]` in N from the raw displacements rotated into the
@@ -728,7 +767,7 @@ impl Calibration {
     pub fn match_column(&self, model: &ProfileModel, raw: &RawContact) -> Result<f64> {
         match &model.anchor {
             Some(map) => {
-                let [x, _, _] = self.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
+                let [x, _, _] = self.location_of(raw)?;
                 Ok(map.column(x))
             }
             None => Ok(raw.x_px),
@@ -741,7 +780,7 @@ impl Calibration {
         let [dx, dy, dz] = raw.d_sensor;
         let inputs = [dx, dy, dz, raw.x_px, raw.y_px, raw.d_pf];
         let (force_n, fallback) = self.force_checked(&inputs)?;
-        let location_mm = self.location_sheared(raw.x_px, raw.y_px, raw.shear_ratio())?;
+        let location_mm = self.location_of(raw)?;
         let outside_training = self
             .guard
             .as_ref()
@@ -760,7 +799,7 @@ impl Calibration {
 
     /// Location and force of a sample's raw quantities.
     pub fn predict(&self, s: &Sample) -> Result<Prediction> {
-        let [x_mm, y_mm, z_mm] = self.location_sheared(s.x2d, s.y2d, s.shear)?;
+        let [x_mm, y_mm, z_mm] = self.location_with_shear(s.x2d, s.y2d, [s.shear, s.shear_y])?;
         let [fx, fy, fz] = self.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf)?;
         Ok(Prediction {
             x_mm,

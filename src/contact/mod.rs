@@ -61,6 +61,17 @@ impl RawContact {
         }
     }
 
+    /// The shear-to-normal ratio across, `ds2 / dn` (0 when `dn` is 0): on
+    /// a sensor that locates in 2-D it corrects `y` as
+    /// [`RawContact::shear_ratio`] corrects `x`.
+    pub fn shear_ratio_y(&self) -> f64 {
+        if self.dn > 0.0 && self.ds2.is_finite() {
+            self.ds2 / self.dn
+        } else {
+            0.0
+        }
+    }
+
     /// The local shear-to-normal ratio `ds1 / dn` (0 when `dn` is 0): how much
     /// of the load runs along the arc. It tells how far the contact point
     /// estimate is pulled sideways, so the location map takes it as an input.
