@@ -581,22 +581,9 @@ pub fn run_with_progress(
             }
         }
         Scenario::Presses(o) => {
-            if o.presses == 0 {
-                return Err(Error::param("presses", "need at least 1"));
-            }
-            check_force("force_min_n", o.force_min_n)?;
-            check_force("force_max_n", o.force_max_n)?;
-            if o.force_min_n > o.force_max_n {
-                return Err(Error::param(
-                    "force_min_n",
-                    format!("{} is above force_max_n {}", o.force_min_n, o.force_max_n),
-                ));
-            }
+            check_random_presses(o.presses, (o.force_min_n, o.force_max_n), o.max_tilt_deg)?;
             if !(o.x_max_mm.is_finite() && o.x_max_mm >= 0.0) {
                 return Err(Error::param("x_max_mm", "must be finite and >= 0"));
-            }
-            if !(o.max_tilt_deg.is_finite() && (0.0..=60.0).contains(&o.max_tilt_deg)) {
-                return Err(Error::param("max_tilt_deg", "must be within 0..=60"));
             }
             if o.indenters_mm.is_empty() {
                 return Err(Error::param("indenters_mm", "need at least one rod"));
@@ -812,21 +799,27 @@ fn presses(
     })
 }
 
-fn check_tip_presses(o: &TipPresses) -> Result<()> {
-    if o.presses == 0 {
+/// The options random presses share: a count, a force range and a largest tilt.
+fn check_random_presses(presses: usize, (lo, hi): (f64, f64), max_tilt_deg: f64) -> Result<()> {
+    if presses == 0 {
         return Err(Error::param("presses", "need at least 1"));
     }
-    check_force("force_min_n", o.force_min_n)?;
-    check_force("force_max_n", o.force_max_n)?;
-    if o.force_min_n > o.force_max_n {
+    check_force("force_min_n", lo)?;
+    check_force("force_max_n", hi)?;
+    if lo > hi {
         return Err(Error::param(
             "force_min_n",
-            format!("{} is above force_max_n {}", o.force_min_n, o.force_max_n),
+            format!("{lo} is above force_max_n {hi}"),
         ));
     }
-    if !(o.max_tilt_deg.is_finite() && (0.0..=60.0).contains(&o.max_tilt_deg)) {
+    if !(max_tilt_deg.is_finite() && (0.0..=60.0).contains(&max_tilt_deg)) {
         return Err(Error::param("max_tilt_deg", "must be within 0..=60"));
     }
+    Ok(())
+}
+
+fn check_tip_presses(o: &TipPresses) -> Result<()> {
+    check_random_presses(o.presses, (o.force_min_n, o.force_max_n), o.max_tilt_deg)?;
     if !(o.max_shear_ratio.is_finite() && (0.0..=2.0).contains(&o.max_shear_ratio)) {
         return Err(Error::param("max_shear_ratio", "must be within 0..=2"));
     }
