@@ -516,10 +516,14 @@ struct PatchRef {
 struct Level {
     w: usize,
     h: usize,
-    /// Reference image and its gradients.
+    /// Reference image and its gradients (the gradient planes are left
+    /// empty for 8x8 patches, whose search reads `pdata`).
     i0: Vec<f32>,
     gx: Vec<f32>,
     gy: Vec<f32>,
+    /// Each 8x8 patch's reference block, in patch order (empty for other
+    /// patch sizes).
+    pdata: Vec<Patch8>,
     /// Current image at this level (per frame).
     i1: Vec<f32>,
     /// Scratch for the prefilter.
@@ -786,6 +790,24 @@ impl Dis {
                 })
                 .collect();
             let n = patches.len();
+            // 8x8 patches: each patch's reference block stored contiguously,
+            // in search order, once per reference.
+            let pdata: Vec<Patch8> = if psz == 8 {
+                (0..n)
+                    .into_par_iter()
+                    .map(|idx| {
+                        let (x0, y0) = (px[idx % ws] as usize, py[idx / ws] as usize);
+                        Patch8::from_planes([&i0, &gx, &gy], lw, x0, y0)
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            let (gx, gy) = if psz == 8 {
+                (Vec::new(), Vec::new())
+            } else {
+                (gx, gy)
+            };
             if k == 0 {
                 untextured = patches.iter().filter(|q| !q.textured).count() as f64 / n as f64;
             }
@@ -800,6 +822,7 @@ impl Dis {
                 i0,
                 gx,
                 gy,
+                pdata,
                 i1: vec![0.0; lw * lh],
                 tmp: vec![0.0; lw * lh],
                 px,
@@ -1233,10 +1256,12 @@ impl LevelView<'_> {
 
 /// The reference data of one 8x8 patch, each plane row-major and
 /// contiguous: the image and its two gradients. Copied from the level's
-/// planes once per patch and pass (the patch is then evaluated ~5 times), so
-/// the cost kernel reads whole 64-float arrays with no bounds checks or row
-/// strides, which the compiler turns into straight 4-lane SSE code.
-#[derive(Clone)]
+/// planes once per reference ([`Dis::set_reference`] stores every patch's
+/// block in search order), so the cost kernel reads whole 64-float arrays
+/// with no bounds checks or row strides, which the compiler turns into
+/// straight vector code, and the search streams through the blocks.
+#[derive(Debug, Clone)]
+#[repr(C, align(64))]
 struct Patch8 {
     i0: [f32; 64],
     gx: [f32; 64],
@@ -1252,15 +1277,17 @@ impl Patch8 {
         }
     }
 
-    /// Copies the 8x8 block at `(x0, y0)` of the level's reference planes.
-    #[inline]
-    fn load(&mut self, view: &LevelView, x0: usize, y0: usize) {
+    /// The 8x8 block at `(x0, y0)` of the reference planes `[i0, gx, gy]`
+    /// (`w` columns each).
+    fn from_planes([i0, gx, gy]: [&[f32]; 3], w: usize, x0: usize, y0: usize) -> Self {
+        let mut p = Patch8::zeroed();
         for r in 0..8 {
-            let o = (y0 + r) * view.w + x0;
-            self.i0[r * 8..][..8].copy_from_slice(&view.i0[o..o + 8]);
-            self.gx[r * 8..][..8].copy_from_slice(&view.gx[o..o + 8]);
-            self.gy[r * 8..][..8].copy_from_slice(&view.gy[o..o + 8]);
+            let o = (y0 + r) * w + x0;
+            p.i0[r * 8..][..8].copy_from_slice(&i0[o..o + 8]);
+            p.gx[r * 8..][..8].copy_from_slice(&gx[o..o + 8]);
+            p.gy[r * 8..][..8].copy_from_slice(&gy[o..o + 8]);
         }
+        p
     }
 }
 
@@ -1421,7 +1448,7 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
         lim: [(lvl.w - p.patch_size) as f32, (lvl.h - p.patch_size) as f32],
         n_px: (p.patch_size * p.patch_size) as f32,
     };
-    let (px, py, patches) = (&lvl.px, &lvl.py, &lvl.patches);
+    let (px, py, patches, pdata) = (&lvl.px, &lvl.py, &lvl.patches, &lvl.pdata);
     lvl.sx
         .par_chunks_mut(stripe_rows * ws)
         .zip(lvl.sy.par_chunks_mut(stripe_rows * ws))
@@ -1429,7 +1456,8 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
         .for_each(|(k, (sx, sy))| {
             let i_begin = k * stripe_rows;
             let rows = sx.len() / ws;
-            let mut pd = Patch8::zeroed();
+            // Read by the 8x8 kernels only: other sizes pass this unused block.
+            let unused = Patch8::zeroed();
             for forward in [true, false] {
                 for ii in 0..rows {
                     let i = if forward { ii } else { rows - 1 - ii };
@@ -1444,10 +1472,7 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                             // searched neighbours afterwards.
                             continue;
                         }
-                        if view.psz == 8 {
-                            pd.load(&view, x0, y0);
-                        }
-                        let pd = &pd;
+                        let pd = pdata.get(gi * ws + j).unwrap_or(&unused);
                         let (mut u, mut v) = (sx[idx], sy[idx]);
                         let mut cur = view.eval(x0, y0, pr, pd, u, v);
                         if forward && search.zero_candidate && (u != 0.0 || v != 0.0) {
@@ -1913,10 +1938,11 @@ mod tests {
                     (12, 4, -1e6, 1e6),
                 ] {
                     let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm, 0.0);
-                    let mut pd = Patch8::zeroed();
-                    if psz == 8 {
-                        pd.load(&view, x0, y0);
-                    }
+                    let pd = if psz == 8 {
+                        Patch8::from_planes([&i0, &gx, &gy], w, x0, y0)
+                    } else {
+                        Patch8::zeroed()
+                    };
                     let got = view.eval(x0, y0, &pr, &pd, u, v);
                     let want = naive_eval(&view, &pr, x0, y0, u, v);
                     let tol = |a: f32| 1e-3 * (1.0 + a.abs());
