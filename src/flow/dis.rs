@@ -538,6 +538,9 @@ struct Level {
     /// Patch flow vectors (per frame).
     sx: Vec<f32>,
     sy: Vec<f32>,
+    /// Per patch, the evaluation of its vector as the forward pass left it,
+    /// when that pass evaluated it (per frame; see [`Known`]).
+    known: Vec<Known>,
     /// Dense flow at this level, in this level's pixels.
     flow: FlowField,
     /// Variational refinement with this level's reference cached.
@@ -832,6 +835,7 @@ impl Dis {
                 patches,
                 sx: vec![0.0; n],
                 sy: vec![0.0; n],
+                known: vec![Known::NONE; n],
                 flow: FlowField::zeros(lw, lh),
                 refiner,
             });
@@ -1097,11 +1101,43 @@ fn init_patches(lvl: &mut Level, coarser: Option<&Level>, psz: usize) {
 }
 
 /// Cost and gradient of one patch at one displacement.
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct Eval {
     ssd: f32,
     bx: f32,
     by: f32,
+}
+
+/// The evaluation of one patch at `(u, v)` in the current frame, kept from
+/// the forward pass for the backward pass, which starts from the vector the
+/// forward pass left: an evaluation depends on the vector, the patch and the
+/// two images alone, so the backward pass reuses it instead of computing the
+/// same sums again. `NONE` (NaN, equal to no vector) when the forward pass
+/// left an unevaluated vector (a last descent step).
+#[derive(Debug, Clone, Copy)]
+struct Known {
+    u: f32,
+    v: f32,
+    e: Eval,
+}
+
+impl Known {
+    const NONE: Known = Known {
+        u: f32::NAN,
+        v: f32::NAN,
+        e: Eval {
+            ssd: f32::NAN,
+            bx: f32::NAN,
+            by: f32::NAN,
+        },
+    };
+
+    /// The kept evaluation, if it is the one at `(u, v)`. Zeros of either
+    /// sign evaluate alike (`x0 + 0.0 == x0 + -0.0`), and a NaN vector is
+    /// never known.
+    fn at(&self, u: f32, v: f32) -> Option<Eval> {
+        (self.u == u && self.v == v).then_some(self.e)
+    }
 }
 
 /// Read-only data one patch evaluation needs.
@@ -1452,8 +1488,9 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
     lvl.sx
         .par_chunks_mut(stripe_rows * ws)
         .zip(lvl.sy.par_chunks_mut(stripe_rows * ws))
+        .zip(lvl.known.par_chunks_mut(stripe_rows * ws))
         .enumerate()
-        .for_each(|(k, (sx, sy))| {
+        .for_each(|(k, ((sx, sy), known))| {
             let i_begin = k * stripe_rows;
             let rows = sx.len() / ws;
             // Read by the 8x8 kernels only: other sizes pass this unused block.
@@ -1474,7 +1511,10 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                         }
                         let pd = pdata.get(gi * ws + j).unwrap_or(&unused);
                         let (mut u, mut v) = (sx[idx], sy[idx]);
-                        let mut cur = view.eval(x0, y0, pr, pd, u, v);
+                        let mut cur = match known[idx].at(u, v) {
+                            Some(e) if !forward => e,
+                            _ => view.eval(x0, y0, pr, pd, u, v),
+                        };
                         if forward && search.zero_candidate && (u != 0.0 || v != 0.0) {
                             let e = view.eval(x0, y0, pr, pd, 0.0, 0.0);
                             if e.ssd < cur.ssd {
@@ -1508,7 +1548,11 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                                 }
                             }
                         }
-                        let (u0, v0) = (u, v);
+                        let (u0, v0, e0) = (u, v, cur);
+                        // The evaluation at the final vector, when made.
+                        let mut last = Some(cur);
+                        // The evaluation at (lu, lv).
+                        let mut best = cur;
                         let mut prev = f32::INFINITY;
                         let (mut lu, mut lv) = (u, v);
                         // Whether (u, v) is a halved step not yet evaluated.
@@ -1526,24 +1570,29 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                                     u = 0.5 * (u + lu);
                                     v = 0.5 * (v + lv);
                                     halved = true;
+                                    last = None;
                                     continue;
                                 }
                                 if p.step_on_stop && t > 0 {
                                     // OpenCV's order: step, then test.
                                     u -= pr.ih11 * cur.bx + pr.ih12 * cur.by;
                                     v -= pr.ih12 * cur.bx + pr.ih22 * cur.by;
+                                    last = None;
                                 } else {
                                     (u, v) = (lu, lv);
+                                    last = Some(best);
                                 }
                                 break;
                             }
                             prev = cur.ssd;
                             (lu, lv) = (u, v);
+                            best = cur;
                             halved = false;
                             let su = pr.ih11 * cur.bx + pr.ih12 * cur.by;
                             let sv = pr.ih12 * cur.bx + pr.ih22 * cur.by;
                             u -= su;
                             v -= sv;
+                            last = None;
                             // Converged: the next evaluation would only
                             // confirm a step this small.
                             if su * su + sv * sv < stop2 {
@@ -1552,6 +1601,7 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                         }
                         if halved {
                             (u, v) = (lu, lv);
+                            last = Some(best);
                         }
                         // A vector that wandered more than a patch away from
                         // its start is more likely wrong than a large motion.
@@ -1561,9 +1611,13 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                         let within = du * du + dv * dv <= lim * lim;
                         if !within {
                             (u, v) = (u0, v0);
+                            last = Some(e0);
                         }
                         sx[idx] = u;
                         sy[idx] = v;
+                        if forward {
+                            known[idx] = last.map_or(Known::NONE, |e| Known { u, v, e });
+                        }
                     }
                 }
             }
