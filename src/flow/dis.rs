@@ -936,21 +936,23 @@ impl Dis {
     fn build_current_pyramid(&mut self, current: &ArrayRef2<f32>) -> Result<()> {
         let (w, h) = (self.width, self.height);
         let f = 1usize << self.params.finest_scale;
+        let full = contiguous(current);
+        // At full resolution the finest level's un-filtered image is the
+        // frame itself: the prefilter reads it directly (no copy), and the
+        // next level averages it.
+        let direct = f == 1 && !self.kernel.is_empty();
         {
             let lvl = &mut self.levels[0];
-            match current.as_slice() {
-                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?,
-                None => {
-                    // Non-contiguous view: one copy (rare; not the hot path).
-                    let c = current.as_standard_layout();
-                    let s = c.as_slice().expect("standard layout");
-                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?;
-                }
+            if direct {
+                pyramid::gaussian_blur_into(&full, w, h, &self.kernel, &mut lvl.tmp, &mut lvl.i1)?;
+            } else {
+                pyramid::downsample_area(&full, w, h, f, &mut lvl.i1)?;
             }
-            // The box sums carry any NaN/inf of the pixels they cover; the
-            // margins a box does not cover are checked directly.
-            let bad = lvl.i1.par_iter().any(|v| !v.is_finite())
-                || margins_nonfinite(current, lvl.w * f, lvl.h * f);
+            // The box sums (and the blur's, whose centre tap is positive)
+            // carry any NaN/inf of the pixels they cover; the margins a box
+            // does not cover are checked directly.
+            let bad =
+                !pyramid::all_finite(&lvl.i1) || margins_nonfinite(current, lvl.w * f, lvl.h * f);
             if bad {
                 check_finite(current, "DIS current frame")?;
             }
@@ -958,7 +960,8 @@ impl Dis {
         for k in 1..self.levels.len() {
             let (a, b) = self.levels.split_at_mut(k);
             let prev = &a[k - 1];
-            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1)?;
+            let src: &[f32] = if k == 1 && direct { &full } else { &prev.i1 };
+            pyramid::downsample_area(src, prev.w, prev.h, 2, &mut b[0].i1)?;
         }
         // Filter after the whole pyramid is built: coarser levels average the
         // un-filtered finer ones, exactly as for the reference.
@@ -968,7 +971,8 @@ impl Dis {
             } else {
                 1
             };
-            for lvl in &mut self.levels[..n] {
+            let first = usize::from(direct);
+            for lvl in &mut self.levels[first..n.max(first)] {
                 pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, &self.kernel, &mut lvl.tmp)?;
             }
         }
