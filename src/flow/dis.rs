@@ -1105,7 +1105,7 @@ fn init_patches(lvl: &mut Level, coarser: Option<&Level>, psz: usize) {
 }
 
 /// Cost and gradient of one patch at one displacement.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Eval {
     ssd: f32,
     bx: f32,
@@ -1141,6 +1141,57 @@ impl Known {
     /// never known.
     fn at(&self, u: f32, v: f32) -> Option<Eval> {
         (self.u == u && self.v == v).then_some(self.e)
+    }
+}
+
+/// The candidate vectors of one patch and their evaluations (see
+/// [`search_level`]): at most four, each once (vectors equal as floats
+/// evaluate alike).
+#[derive(Default)]
+struct Cands {
+    uv: [(f32, f32); 4],
+    e: [Eval; 4],
+    /// How many of `uv` have their evaluation in `e`.
+    done: usize,
+    /// How many vectors are listed.
+    n: usize,
+}
+
+impl Cands {
+    fn find(&self, (u, v): (f32, f32)) -> Option<usize> {
+        self.uv[..self.n]
+            .iter()
+            .position(|&(a, b)| a == u && b == v)
+    }
+
+    /// Lists `c` with its evaluation `e` (before any [`Cands::want`]).
+    fn push_known(&mut self, c: (f32, f32), e: Eval) {
+        debug_assert_eq!(self.done, self.n);
+        self.uv[self.n] = c;
+        self.e[self.n] = e;
+        self.n += 1;
+        self.done = self.n;
+    }
+
+    /// Lists `c` to be evaluated unless it is listed already (or no room
+    /// is left: `get` then finds no evaluation for it).
+    fn want(&mut self, c: (f32, f32)) {
+        if self.n < 4 && self.find(c).is_none() {
+            self.uv[self.n] = c;
+            self.n += 1;
+        }
+    }
+
+    /// Evaluates every listed vector without an evaluation.
+    fn evaluate(&mut self, view: &LevelView, x0: usize, y0: usize, pr: &PatchRef, pd: &Patch8) {
+        let (d, n) = (self.done, self.n);
+        view.eval_many(x0, y0, pr, pd, &self.uv[d..n], &mut self.e[d..n]);
+        self.done = n;
+    }
+
+    /// The evaluation of `c`, if listed and evaluated.
+    fn get(&self, c: (f32, f32)) -> Option<Eval> {
+        self.find(c).filter(|&q| q < self.done).map(|q| self.e[q])
     }
 }
 
@@ -1201,6 +1252,78 @@ impl LevelView<'_> {
             sd2 -= sd * mean;
         }
         Eval { ssd: sd2, bx, by }
+    }
+
+    /// [`LevelView::eval`] at each vector of `uv` (at most 4) into `out`,
+    /// the same values bit for bit. For 8x8 patches the windows inside the
+    /// image go through one kernel together ([`accumulate8_lanes_n`]):
+    /// each evaluation is a chain of dependent sums, and independent chains
+    /// side by side keep the arithmetic units busy where one alone waits.
+    fn eval_many(
+        &self,
+        x0: usize,
+        y0: usize,
+        pr: &PatchRef,
+        pd: &Patch8,
+        uv: &[(f32, f32)],
+        out: &mut [Eval],
+    ) {
+        if self.psz != 8 || uv.len() < 2 {
+            for (o, &(u, v)) in out.iter_mut().zip(uv) {
+                *o = self.eval(x0, y0, pr, pd, u, v);
+            }
+            return;
+        }
+        let mut offs = [0usize; 4];
+        let mut wts = [[0.0f32; 2]; 4];
+        let mut which = [0usize; 4];
+        let mut m = 0;
+        for (q, &(u, v)) in uv.iter().enumerate().take(4) {
+            // As in `eval`.
+            let fxp = x0 as f32 + u;
+            let fyp = y0 as f32 + v;
+            let (ixf, ix) = floor_both(fxp);
+            let (iyf, iy) = floor_both(fyp);
+            let inside = ixf >= 0.0 && iyf >= 0.0 && ixf < self.lim[0] && iyf < self.lim[1];
+            if inside {
+                offs[m] = iy as usize * self.w + ix as usize;
+                wts[m] = [fxp - ixf, fyp - iyf];
+                which[m] = q;
+                m += 1;
+            } else {
+                out[q] = self.eval(x0, y0, pr, pd, u, v);
+            }
+        }
+        let sums = match m {
+            0 => return,
+            1 => [accumulate8_lanes(&self.i1[offs[0]..], self.w, pd, wts[0]); 4],
+            2 => {
+                let wins = [&self.i1[offs[0]..], &self.i1[offs[1]..]];
+                let [a, b] = accumulate8_lanes_n::<2>(wins, self.w, pd, [wts[0], wts[1]]);
+                [a, b, a, b]
+            }
+            _ => {
+                // A third window fills the fourth slot when there are three.
+                let k = if m == 4 { 3 } else { 2 };
+                let wins = [
+                    &self.i1[offs[0]..],
+                    &self.i1[offs[1]..],
+                    &self.i1[offs[2]..],
+                    &self.i1[offs[k]..],
+                ];
+                accumulate8_lanes_n::<4>(wins, self.w, pd, [wts[0], wts[1], wts[2], wts[k]])
+            }
+        };
+        for (t, a) in sums.iter().enumerate().take(m) {
+            let (sd, mut sd2, mut bx, mut by) = reduce_lanes(*a);
+            if self.mean_norm {
+                let mean = sd / self.n_px;
+                bx -= mean * pr.sgx;
+                by -= mean * pr.sgy;
+                sd2 -= sd * mean;
+            }
+            out[which[t]] = Eval { ssd: sd2, bx, by };
+        }
     }
 }
 
@@ -1432,9 +1555,92 @@ fn accumulate8_lanes_kernel(
 /// [`accumulate8_lanes`] reduced to the four sums.
 #[inline]
 fn accumulate8(win: &[f32], stride: usize, pd: &Patch8, wts: [f32; 2]) -> (f32, f32, f32, f32) {
-    let a = accumulate8_lanes(win, stride, pd, wts);
+    reduce_lanes(accumulate8_lanes(win, stride, pd, wts))
+}
+
+/// The four sums from their lane partials.
+#[inline]
+fn reduce_lanes(a: [[f32; 4]; 4]) -> (f32, f32, f32, f32) {
     let h = |x: [f32; 4]| (x[0] + x[2]) + (x[1] + x[3]);
     (h(a[0]), h(a[1]), h(a[2]), h(a[3]))
+}
+
+/// [`accumulate8_lanes`] of `N` windows of the same patch at once (each
+/// window with its own bilinear weights): the same operations in the same
+/// order for each, so each result equals [`accumulate8_lanes`]'s bit for
+/// bit; the `N` independent reductions are interleaved.
+#[inline(never)]
+fn accumulate8_lanes_n<const N: usize>(
+    wins: [&[f32]; N],
+    stride: usize,
+    pd: &Patch8,
+    wts: [[f32; 2]; N],
+) -> [[[f32; 4]; 4]; N] {
+    super::simd_arch().dispatch(Acc8NOp {
+        wins,
+        stride,
+        pd,
+        wts,
+    })
+}
+
+/// [`accumulate8_lanes_n`]'s arguments as a `pulp` operation.
+struct Acc8NOp<'a, const N: usize> {
+    wins: [&'a [f32]; N],
+    stride: usize,
+    pd: &'a Patch8,
+    wts: [[f32; 2]; N],
+}
+
+impl<const N: usize> pulp::WithSimd for Acc8NOp<'_, N> {
+    type Output = [[[f32; 4]; 4]; N];
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> [[[f32; 4]; 4]; N] {
+        accumulate8_lanes_n_kernel(self.wins, self.stride, self.pd, self.wts)
+    }
+}
+
+/// The body of [`accumulate8_lanes_n`]: [`accumulate8_lanes_kernel`]'s
+/// differences for each window, then its four lane reductions with the
+/// windows' sums side by side.
+#[inline(always)]
+fn accumulate8_lanes_n_kernel<const N: usize>(
+    wins: [&[f32]; N],
+    stride: usize,
+    pd: &Patch8,
+    wts: [[f32; 2]; N],
+) -> [[[f32; 4]; 4]; N] {
+    let mut d = [[0.0f32; 64]; N];
+    for e in 0..N {
+        let [ax, ay] = wts[e];
+        let mut hl = [0.0f32; 72];
+        let mut rest = wins[e];
+        for r in 0..9 {
+            if r > 0 {
+                rest = &rest[stride..];
+            }
+            let row: &[f32; 9] = rest[..9].try_into().expect("9 values");
+            for c in 0..8 {
+                hl[8 * r + c] = row[c] + ax * (row[c + 1] - row[c]);
+            }
+        }
+        for k in 0..64 {
+            d[e][k] = hl[k] + ay * (hl[k + 8] - hl[k]) - pd.i0[k];
+        }
+    }
+    let mut acc = [[[0.0f32; 4]; 4]; N];
+    for k in 0..16 {
+        for e in 0..N {
+            for l in 0..4 {
+                let x = d[e][4 * k + l];
+                acc[e][0][l] += x;
+                acc[e][1][l] += x * x;
+                acc[e][2][l] += x * pd.gx[4 * k + l];
+                acc[e][3][l] += x * pd.gy[4 * k + l];
+            }
+        }
+    }
+    acc
 }
 
 /// [`fast_floor`] and the same floor as an integer (from the one conversion
@@ -1515,41 +1721,57 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                         }
                         let pd = pdata.get(gi * ws + j).unwrap_or(&unused);
                         let (mut u, mut v) = (sx[idx], sy[idx]);
-                        let mut cur = match known[idx].at(u, v) {
-                            Some(e) if !forward => e,
-                            _ => view.eval(x0, y0, pr, pd, u, v),
+                        // Every vector the candidate step below may
+                        // evaluate: the start (unless the forward pass
+                        // left its evaluation), the zero vector and the
+                        // visited neighbours' vectors, each once, evaluated
+                        // together. The step then reads them from `cands`
+                        // in its order (a vector missing there, a NaN,
+                        // is evaluated on the spot): the same evaluations,
+                        // so the same choice.
+                        let neighbours = if !p.spatial_propagation {
+                            [None, None]
+                        } else if forward {
+                            [(j > 0).then(|| idx - 1), (i > 0).then(|| idx - ws)]
+                        } else {
+                            [
+                                (j + 1 < ws).then(|| idx + 1),
+                                (i + 1 < rows).then(|| idx + ws),
+                            ]
                         };
-                        if forward && search.zero_candidate && (u != 0.0 || v != 0.0) {
-                            let e = view.eval(x0, y0, pr, pd, 0.0, 0.0);
+                        let zero = forward && search.zero_candidate && (u != 0.0 || v != 0.0);
+                        let mut cands = Cands::default();
+                        if let Some(e) = known[idx].at(u, v).filter(|_| !forward) {
+                            cands.push_known((u, v), e);
+                        }
+                        cands.want((u, v));
+                        if zero {
+                            cands.want((0.0, 0.0));
+                        }
+                        for n in neighbours.into_iter().flatten() {
+                            cands.want((sx[n], sy[n]));
+                        }
+                        cands.evaluate(&view, x0, y0, pr, pd);
+                        let at = |c: (f32, f32)| {
+                            cands
+                                .get(c)
+                                .unwrap_or_else(|| view.eval(x0, y0, pr, pd, c.0, c.1))
+                        };
+                        let mut cur = at((u, v));
+                        if zero {
+                            let e = at((0.0, 0.0));
                             if e.ssd < cur.ssd {
                                 (u, v, cur) = (0.0, 0.0, e);
                             }
                         }
-                        if p.spatial_propagation {
-                            let mut try_cand = |n: usize| {
-                                let (cu, cv) = (sx[n], sy[n]);
-                                if cu == u && cv == v {
-                                    return;
-                                }
-                                let e = view.eval(x0, y0, pr, pd, cu, cv);
-                                if e.ssd < cur.ssd {
-                                    (u, v, cur) = (cu, cv, e);
-                                }
-                            };
-                            if forward {
-                                if j > 0 {
-                                    try_cand(idx - 1);
-                                }
-                                if i > 0 {
-                                    try_cand(idx - ws);
-                                }
-                            } else {
-                                if j + 1 < ws {
-                                    try_cand(idx + 1);
-                                }
-                                if i + 1 < rows {
-                                    try_cand(idx + ws);
-                                }
+                        for n in neighbours.into_iter().flatten() {
+                            let (cu, cv) = (sx[n], sy[n]);
+                            if cu == u && cv == v {
+                                continue;
+                            }
+                            let e = at((cu, cv));
+                            if e.ssd < cur.ssd {
+                                (u, v, cur) = (cu, cv, e);
                             }
                         }
                         let (u0, v0, e0) = (u, v, cur);
@@ -2109,6 +2331,95 @@ mod tests {
                 let bits = |a: [[f32; 4]; 4]| a.map(|l| l.map(f32::to_bits));
                 assert_eq!(bits(dispatched), bits(direct));
                 assert_eq!(bits(scalar), bits(direct));
+            }
+        }
+    }
+
+    #[test]
+    fn batched_patch_kernel_matches_the_single_kernel_bit_for_bit() {
+        // `accumulate8_lanes_n` (the candidates of a patch side by side) must
+        // give each window exactly what `accumulate8_lanes` gives it alone,
+        // on the dispatched and the scalar paths.
+        let mut rnd = crate::flow::unit_stream(0x94d0_49bb_1331_11ebu64);
+        for stride in [9usize, 17, 40] {
+            for _ in 0..50 {
+                let win: Vec<f32> = (0..12 * stride + 12)
+                    .map(|_| 255.0 * rnd() * if rnd() < 0.1 { 1e3 } else { 1.0 })
+                    .collect();
+                let mut pd = Patch8::zeroed();
+                for k in 0..64 {
+                    pd.i0[k] = 255.0 * rnd();
+                    pd.gx[k] = 2000.0 * rnd() - 1000.0;
+                    pd.gy[k] = 2e-3 * rnd() - 1e-3;
+                }
+                let wins: [&[f32]; 4] = std::array::from_fn(|e| &win[e + (e % 3) * stride..]);
+                let wts: [[f32; 2]; 4] = std::array::from_fn(|_| [rnd(), rnd()]);
+                let single: [[[f32; 4]; 4]; 4] =
+                    std::array::from_fn(|e| accumulate8_lanes(wins[e], stride, &pd, wts[e]));
+                let bits = |a: [[f32; 4]; 4]| a.map(|l| l.map(f32::to_bits));
+                let four = accumulate8_lanes_n::<4>(wins, stride, &pd, wts);
+                let two =
+                    accumulate8_lanes_n::<2>([wins[0], wins[1]], stride, &pd, [wts[0], wts[1]]);
+                let op = Acc8NOp {
+                    wins,
+                    stride,
+                    pd: &pd,
+                    wts,
+                };
+                let scalar = pulp::Arch::Scalar.dispatch(op);
+                for e in 0..4 {
+                    assert_eq!(bits(four[e]), bits(single[e]));
+                    assert_eq!(bits(scalar[e]), bits(single[e]));
+                }
+                for e in 0..2 {
+                    assert_eq!(bits(two[e]), bits(single[e]));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn batched_evaluation_matches_one_at_a_time() {
+        // `LevelView::eval_many` against `LevelView::eval`, windows inside,
+        // across the edges and far outside, in groups of 1 to 4.
+        let (w, h, psz) = (40usize, 30usize, 8usize);
+        let mut rnd = crate::flow::unit_stream(0xd6e8_feb8_6659_fd93u64);
+        let i0: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+        let i1: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+        let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
+        pyramid::sobel(&i0, w, h, 0.125, &mut gx, &mut gy).unwrap();
+        for mean_norm in [false, true] {
+            let view = LevelView {
+                w,
+                h,
+                i0: &i0,
+                gx: &gx,
+                gy: &gy,
+                i1: &i1,
+                psz,
+                mean_norm,
+                lim: [(w - psz) as f32, (h - psz) as f32],
+                n_px: (psz * psz) as f32,
+            };
+            for &(x0, y0) in &[(0usize, 0usize), (16, 11), (w - psz, h - psz), (3, h - psz)] {
+                let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm, 0.0);
+                let pd = Patch8::from_planes([&i0, &gx, &gy], w, x0, y0);
+                for _ in 0..40 {
+                    let n = 1 + (4.0 * rnd()) as usize % 4;
+                    let uv: Vec<(f32, f32)> = (0..n)
+                        .map(|_| {
+                            let s = if rnd() < 0.2 { 40.0 } else { 4.0 };
+                            (s * (2.0 * rnd() - 1.0), s * (2.0 * rnd() - 1.0))
+                        })
+                        .collect();
+                    let mut got = vec![Eval::default(); n];
+                    view.eval_many(x0, y0, &pr, &pd, &uv, &mut got);
+                    for (g, &(u, v)) in got.iter().zip(&uv) {
+                        let want = view.eval(x0, y0, &pr, &pd, u, v);
+                        let bits = |e: &Eval| [e.ssd, e.bx, e.by].map(f32::to_bits);
+                        assert_eq!(bits(g), bits(&want), "{x0},{y0} {u},{v}");
+                    }
+                }
             }
         }
     }
