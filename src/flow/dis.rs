@@ -1395,11 +1395,15 @@ impl LevelView<'_> {
         // Clamp in f32 first: a wild vector must not overflow the casts.
         let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
         let fill = |buf: &mut [f32]| {
-            for r in 0..st {
-                let yy = cl(iyf + r as f32, self.h);
-                for c in 0..st {
-                    let xx = cl(ixf + c as f32, self.w);
-                    buf[r * st + c] = self.i1[yy * self.w + xx];
+            // The window's columns, clamped once for all its rows.
+            let mut cols = [0usize; MAX_PATCH_SIZE + 1];
+            for (c, x) in cols[..st].iter_mut().enumerate() {
+                *x = cl(ixf + c as f32, self.w);
+            }
+            for (r, out) in buf.chunks_exact_mut(st).take(st).enumerate() {
+                let row = &self.i1[cl(iyf + r as f32, self.h) * self.w..][..self.w];
+                for (o, &x) in out.iter_mut().zip(&cols[..st]) {
+                    *o = row[x];
                 }
             }
         };
