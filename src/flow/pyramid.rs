@@ -65,10 +65,8 @@ pub fn downsample_area(
         let rows = &src[y * factor * sw..(y + 1) * factor * sw];
         if factor == 2 {
             let (r0, r1) = rows.split_at(sw);
-            for (x, d) in drow.iter_mut().enumerate() {
-                let c = 2 * x;
-                *d = (r0[c] + r0[c + 1] + r1[c] + r1[c + 1]) * 0.25;
-            }
+            // Dispatched at run time (see `flow::simd_arch`): same values on every path.
+            super::simd_arch().dispatch(Half2Op { r0, r1, out: drow });
         } else if factor <= 64 {
             // Sum the `factor` rows column by column first (contiguous, vectorises),
             // then each group of `factor` columns, through a stack buffer of a few
@@ -105,6 +103,27 @@ pub fn downsample_area(
         }
     });
     Ok(())
+}
+
+/// One output row of a 2x2 box average as a `pulp` operation (see
+/// [`BlendRowOp`]): `out[x]` averages columns `2x, 2x + 1` of rows `r0`, `r1`.
+struct Half2Op<'a> {
+    r0: &'a [f32],
+    r1: &'a [f32],
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for Half2Op<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let n = self.out.len();
+        let (r0, r1) = (&self.r0[..2 * n], &self.r1[..2 * n]);
+        for (x, d) in self.out.iter_mut().enumerate() {
+            let c = 2 * x;
+            *d = (r0[c] + r0[c + 1] + r1[c] + r1[c + 1]) * 0.25;
+        }
+    }
 }
 
 /// 3x3 Sobel gradients of `img` (`w x h`) into `gx`, `gy`, scaled by `scale`
@@ -680,6 +699,19 @@ mod tests {
                 out: &mut got,
             });
             assert_eq!(bits(&got), bits(&want));
+            // The 2x2 box average of rows `t` and `r1` (half as many outputs).
+            let want: Vec<f32> = (0..n / 2)
+                .map(|x| (t[2 * x] + t[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]) * 0.25)
+                .collect();
+            for a in [arch, pulp::Arch::Scalar] {
+                let mut got = vec![0.0f32; n / 2];
+                a.dispatch(Half2Op {
+                    r0: &t,
+                    r1: &r1,
+                    out: &mut got,
+                });
+                assert_eq!(bits(&got), bits(&want));
+            }
         }
     }
 
