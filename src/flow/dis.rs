@@ -876,6 +876,14 @@ impl Dis {
             lvl.flow.u.as_slice().expect("standard layout"),
             lvl.flow.v.as_slice().expect("standard layout"),
         );
+        if (lvl.w, lvl.h) == (self.width, self.height) {
+            // The finest level is full resolution (scale 0): the resize's
+            // taps would all be whole pixels with weight 0 and gain 1, so
+            // the flow is the level's own (up to the sign of a zero).
+            ou.copy_from_slice(fu);
+            ov.copy_from_slice(fv);
+            return Ok(());
+        }
         let tmp = &mut self.out_tmp;
         pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, tmp, ou)?;
         pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, tmp, ov)?;
