@@ -437,14 +437,14 @@ impl pulp::WithSimd for FiniteOp<'_> {
     type Output = bool;
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) -> bool {
-        // `v - v` is 0 for a finite value and NaN otherwise, and a NaN stays
+        // `0 v` is zero for a finite value and NaN otherwise, and a NaN stays
         // in a sum whatever the order: eight lane sums, no early exit, so the
         // loop vectorises.
         let mut acc = [0.0f32; 8];
         let mut chunks = self.buf.chunks_exact(8);
         for c in &mut chunks {
             for l in 0..8 {
-                acc[l] += c[l] - c[l];
+                acc[l] += 0.0 * c[l];
             }
         }
         let tail = chunks.remainder().iter().all(|v| v.is_finite());
