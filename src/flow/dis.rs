@@ -516,10 +516,14 @@ struct PatchRef {
 struct Level {
     w: usize,
     h: usize,
-    /// Reference image and its gradients.
+    /// Reference image and its gradients (the gradient planes are left
+    /// empty for 8x8 patches, whose search reads `pdata`).
     i0: Vec<f32>,
     gx: Vec<f32>,
     gy: Vec<f32>,
+    /// Each 8x8 patch's reference block, in patch order (empty for other
+    /// patch sizes).
+    pdata: Vec<Patch8>,
     /// Current image at this level (per frame).
     i1: Vec<f32>,
     /// Scratch for the prefilter.
@@ -534,6 +538,9 @@ struct Level {
     /// Patch flow vectors (per frame).
     sx: Vec<f32>,
     sy: Vec<f32>,
+    /// Per patch, the evaluation of its vector as the forward pass left it,
+    /// when that pass evaluated it (per frame; see [`Known`]).
+    known: Vec<Known>,
     /// Dense flow at this level, in this level's pixels.
     flow: FlowField,
     /// Variational refinement with this level's reference cached.
@@ -786,6 +793,24 @@ impl Dis {
                 })
                 .collect();
             let n = patches.len();
+            // 8x8 patches: each patch's reference block stored contiguously,
+            // in search order, once per reference.
+            let pdata: Vec<Patch8> = if psz == 8 {
+                (0..n)
+                    .into_par_iter()
+                    .map(|idx| {
+                        let (x0, y0) = (px[idx % ws] as usize, py[idx / ws] as usize);
+                        Patch8::from_planes([&i0, &gx, &gy], lw, x0, y0)
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            let (gx, gy) = if psz == 8 {
+                (Vec::new(), Vec::new())
+            } else {
+                (gx, gy)
+            };
             if k == 0 {
                 untextured = patches.iter().filter(|q| !q.textured).count() as f64 / n as f64;
             }
@@ -800,6 +825,7 @@ impl Dis {
                 i0,
                 gx,
                 gy,
+                pdata,
                 i1: vec![0.0; lw * lh],
                 tmp: vec![0.0; lw * lh],
                 px,
@@ -809,6 +835,7 @@ impl Dis {
                 patches,
                 sx: vec![0.0; n],
                 sy: vec![0.0; n],
+                known: vec![Known::NONE; n],
                 flow: FlowField::zeros(lw, lh),
                 refiner,
             });
@@ -849,6 +876,14 @@ impl Dis {
             lvl.flow.u.as_slice().expect("standard layout"),
             lvl.flow.v.as_slice().expect("standard layout"),
         );
+        if (lvl.w, lvl.h) == (self.width, self.height) {
+            // The finest level is full resolution (scale 0): the resize's
+            // taps would all be whole pixels with weight 0 and gain 1, so
+            // the flow is the level's own (up to the sign of a zero).
+            ou.copy_from_slice(fu);
+            ov.copy_from_slice(fv);
+            return Ok(());
+        }
         let tmp = &mut self.out_tmp;
         pyramid::resize_bilinear(fu, lvl.w, &self.out_x, &self.out_y, gain, tmp, ou)?;
         pyramid::resize_bilinear(fv, lvl.w, &self.out_x, &self.out_y, gain, tmp, ov)?;
@@ -909,21 +944,23 @@ impl Dis {
     fn build_current_pyramid(&mut self, current: &ArrayRef2<f32>) -> Result<()> {
         let (w, h) = (self.width, self.height);
         let f = 1usize << self.params.finest_scale;
+        let full = contiguous(current);
+        // At full resolution the finest level's un-filtered image is the
+        // frame itself: the prefilter reads it directly (no copy), and the
+        // next level averages it.
+        let direct = f == 1 && !self.kernel.is_empty();
         {
             let lvl = &mut self.levels[0];
-            match current.as_slice() {
-                Some(s) => pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?,
-                None => {
-                    // Non-contiguous view: one copy (rare; not the hot path).
-                    let c = current.as_standard_layout();
-                    let s = c.as_slice().expect("standard layout");
-                    pyramid::downsample_area(s, w, h, f, &mut lvl.i1)?;
-                }
+            if direct {
+                pyramid::gaussian_blur_into(&full, w, h, &self.kernel, &mut lvl.tmp, &mut lvl.i1)?;
+            } else {
+                pyramid::downsample_area(&full, w, h, f, &mut lvl.i1)?;
             }
-            // The box sums carry any NaN/inf of the pixels they cover; the
-            // margins a box does not cover are checked directly.
-            let bad = lvl.i1.par_iter().any(|v| !v.is_finite())
-                || margins_nonfinite(current, lvl.w * f, lvl.h * f);
+            // The box sums (and the blur's, whose centre tap is positive)
+            // carry any NaN/inf of the pixels they cover; the margins a box
+            // does not cover are checked directly.
+            let bad =
+                !pyramid::all_finite(&lvl.i1) || margins_nonfinite(current, lvl.w * f, lvl.h * f);
             if bad {
                 check_finite(current, "DIS current frame")?;
             }
@@ -931,7 +968,8 @@ impl Dis {
         for k in 1..self.levels.len() {
             let (a, b) = self.levels.split_at_mut(k);
             let prev = &a[k - 1];
-            pyramid::downsample_area(&prev.i1, prev.w, prev.h, 2, &mut b[0].i1)?;
+            let src: &[f32] = if k == 1 && direct { &full } else { &prev.i1 };
+            pyramid::downsample_area(src, prev.w, prev.h, 2, &mut b[0].i1)?;
         }
         // Filter after the whole pyramid is built: coarser levels average the
         // un-filtered finer ones, exactly as for the reference.
@@ -941,7 +979,8 @@ impl Dis {
             } else {
                 1
             };
-            for lvl in &mut self.levels[..n] {
+            let first = usize::from(direct);
+            for lvl in &mut self.levels[first..n.max(first)] {
                 pyramid::gaussian_blur(&mut lvl.i1, lvl.w, lvl.h, &self.kernel, &mut lvl.tmp)?;
             }
         }
@@ -1074,11 +1113,94 @@ fn init_patches(lvl: &mut Level, coarser: Option<&Level>, psz: usize) {
 }
 
 /// Cost and gradient of one patch at one displacement.
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Eval {
     ssd: f32,
     bx: f32,
     by: f32,
+}
+
+/// The evaluation of one patch at `(u, v)` in the current frame, kept from
+/// the forward pass for the backward pass, which starts from the vector the
+/// forward pass left: an evaluation depends on the vector, the patch and the
+/// two images alone, so the backward pass reuses it instead of computing the
+/// same sums again. `NONE` (NaN, equal to no vector) when the forward pass
+/// left an unevaluated vector (a last descent step).
+#[derive(Debug, Clone, Copy)]
+struct Known {
+    u: f32,
+    v: f32,
+    e: Eval,
+}
+
+impl Known {
+    const NONE: Known = Known {
+        u: f32::NAN,
+        v: f32::NAN,
+        e: Eval {
+            ssd: f32::NAN,
+            bx: f32::NAN,
+            by: f32::NAN,
+        },
+    };
+
+    /// The kept evaluation, if it is the one at `(u, v)`. Zeros of either
+    /// sign evaluate alike (`x0 + 0.0 == x0 + -0.0`), and a NaN vector is
+    /// never known.
+    fn at(&self, u: f32, v: f32) -> Option<Eval> {
+        (self.u == u && self.v == v).then_some(self.e)
+    }
+}
+
+/// The candidate vectors of one patch and their evaluations (see
+/// [`search_level`]): at most four, each once (vectors equal as floats
+/// evaluate alike).
+#[derive(Default)]
+struct Cands {
+    uv: [(f32, f32); 4],
+    e: [Eval; 4],
+    /// How many of `uv` have their evaluation in `e`.
+    done: usize,
+    /// How many vectors are listed.
+    n: usize,
+}
+
+impl Cands {
+    fn find(&self, (u, v): (f32, f32)) -> Option<usize> {
+        self.uv[..self.n]
+            .iter()
+            .position(|&(a, b)| a == u && b == v)
+    }
+
+    /// Lists `c` with its evaluation `e` (before any [`Cands::want`]).
+    fn push_known(&mut self, c: (f32, f32), e: Eval) {
+        debug_assert_eq!(self.done, self.n);
+        self.uv[self.n] = c;
+        self.e[self.n] = e;
+        self.n += 1;
+        self.done = self.n;
+    }
+
+    /// Lists `c` to be evaluated unless it is listed already (or no room
+    /// is left: `get` then finds no evaluation for it).
+    fn want(&mut self, c: (f32, f32)) {
+        if self.n < 4 && self.find(c).is_none() {
+            self.uv[self.n] = c;
+            self.n += 1;
+        }
+    }
+
+    /// Evaluates every listed vector without an evaluation.
+    fn evaluate(&mut self, view: &LevelView, x0: usize, y0: usize, pr: &PatchRef, pd: &Patch8) {
+        let (d, n) = (self.done, self.n);
+        view.eval_many(x0, y0, pr, pd, &self.uv[d..n], &mut self.e[d..n]);
+        self.done = n;
+    }
+
+    /// The evaluation of `c`, if listed and evaluated.
+    fn get(&self, c: (f32, f32)) -> Option<Eval> {
+        self.find(c).filter(|&q| q < self.done).map(|q| self.e[q])
+    }
 }
 
 /// Read-only data one patch evaluation needs.
@@ -1138,6 +1260,78 @@ impl LevelView<'_> {
             sd2 -= sd * mean;
         }
         Eval { ssd: sd2, bx, by }
+    }
+
+    /// [`LevelView::eval`] at each vector of `uv` (at most 4) into `out`,
+    /// the same values bit for bit. For 8x8 patches the windows inside the
+    /// image go through one kernel together ([`accumulate8_lanes_n`]):
+    /// each evaluation is a chain of dependent sums, and independent chains
+    /// side by side keep the arithmetic units busy where one alone waits.
+    fn eval_many(
+        &self,
+        x0: usize,
+        y0: usize,
+        pr: &PatchRef,
+        pd: &Patch8,
+        uv: &[(f32, f32)],
+        out: &mut [Eval],
+    ) {
+        if self.psz != 8 || uv.len() < 2 {
+            for (o, &(u, v)) in out.iter_mut().zip(uv) {
+                *o = self.eval(x0, y0, pr, pd, u, v);
+            }
+            return;
+        }
+        let mut offs = [0usize; 4];
+        let mut wts = [[0.0f32; 2]; 4];
+        let mut which = [0usize; 4];
+        let mut m = 0;
+        for (q, &(u, v)) in uv.iter().enumerate().take(4) {
+            // As in `eval`.
+            let fxp = x0 as f32 + u;
+            let fyp = y0 as f32 + v;
+            let (ixf, ix) = floor_both(fxp);
+            let (iyf, iy) = floor_both(fyp);
+            let inside = ixf >= 0.0 && iyf >= 0.0 && ixf < self.lim[0] && iyf < self.lim[1];
+            if inside {
+                offs[m] = iy as usize * self.w + ix as usize;
+                wts[m] = [fxp - ixf, fyp - iyf];
+                which[m] = q;
+                m += 1;
+            } else {
+                out[q] = self.eval(x0, y0, pr, pd, u, v);
+            }
+        }
+        let sums = match m {
+            0 => return,
+            1 => [accumulate8_lanes(&self.i1[offs[0]..], self.w, pd, wts[0]); 4],
+            2 => {
+                let wins = [&self.i1[offs[0]..], &self.i1[offs[1]..]];
+                let [a, b] = accumulate8_lanes_n::<2>(wins, self.w, pd, [wts[0], wts[1]]);
+                [a, b, a, b]
+            }
+            _ => {
+                // A third window fills the fourth slot when there are three.
+                let k = if m == 4 { 3 } else { 2 };
+                let wins = [
+                    &self.i1[offs[0]..],
+                    &self.i1[offs[1]..],
+                    &self.i1[offs[2]..],
+                    &self.i1[offs[k]..],
+                ];
+                accumulate8_lanes_n::<4>(wins, self.w, pd, [wts[0], wts[1], wts[2], wts[k]])
+            }
+        };
+        for (t, a) in sums.iter().enumerate().take(m) {
+            let (sd, mut sd2, mut bx, mut by) = reduce_lanes(*a);
+            if self.mean_norm {
+                let mean = sd / self.n_px;
+                bx -= mean * pr.sgx;
+                by -= mean * pr.sgy;
+                sd2 -= sd * mean;
+            }
+            out[which[t]] = Eval { ssd: sd2, bx, by };
+        }
     }
 }
 
@@ -1209,11 +1403,15 @@ impl LevelView<'_> {
         // Clamp in f32 first: a wild vector must not overflow the casts.
         let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
         let fill = |buf: &mut [f32]| {
-            for r in 0..st {
-                let yy = cl(iyf + r as f32, self.h);
-                for c in 0..st {
-                    let xx = cl(ixf + c as f32, self.w);
-                    buf[r * st + c] = self.i1[yy * self.w + xx];
+            // The window's columns, clamped once for all its rows.
+            let mut cols = [0usize; MAX_PATCH_SIZE + 1];
+            for (c, x) in cols[..st].iter_mut().enumerate() {
+                *x = cl(ixf + c as f32, self.w);
+            }
+            for (r, out) in buf.chunks_exact_mut(st).take(st).enumerate() {
+                let row = &self.i1[cl(iyf + r as f32, self.h) * self.w..][..self.w];
+                for (o, &x) in out.iter_mut().zip(&cols[..st]) {
+                    *o = row[x];
                 }
             }
         };
@@ -1233,10 +1431,12 @@ impl LevelView<'_> {
 
 /// The reference data of one 8x8 patch, each plane row-major and
 /// contiguous: the image and its two gradients. Copied from the level's
-/// planes once per patch and pass (the patch is then evaluated ~5 times), so
-/// the cost kernel reads whole 64-float arrays with no bounds checks or row
-/// strides, which the compiler turns into straight 4-lane SSE code.
-#[derive(Clone)]
+/// planes once per reference ([`Dis::set_reference`] stores every patch's
+/// block in search order), so the cost kernel reads whole 64-float arrays
+/// with no bounds checks or row strides, which the compiler turns into
+/// straight vector code, and the search streams through the blocks.
+#[derive(Debug, Clone)]
+#[repr(C, align(64))]
 struct Patch8 {
     i0: [f32; 64],
     gx: [f32; 64],
@@ -1252,15 +1452,17 @@ impl Patch8 {
         }
     }
 
-    /// Copies the 8x8 block at `(x0, y0)` of the level's reference planes.
-    #[inline]
-    fn load(&mut self, view: &LevelView, x0: usize, y0: usize) {
+    /// The 8x8 block at `(x0, y0)` of the reference planes `[i0, gx, gy]`
+    /// (`w` columns each).
+    fn from_planes([i0, gx, gy]: [&[f32]; 3], w: usize, x0: usize, y0: usize) -> Self {
+        let mut p = Patch8::zeroed();
         for r in 0..8 {
-            let o = (y0 + r) * view.w + x0;
-            self.i0[r * 8..][..8].copy_from_slice(&view.i0[o..o + 8]);
-            self.gx[r * 8..][..8].copy_from_slice(&view.gx[o..o + 8]);
-            self.gy[r * 8..][..8].copy_from_slice(&view.gy[o..o + 8]);
+            let o = (y0 + r) * w + x0;
+            p.i0[r * 8..][..8].copy_from_slice(&i0[o..o + 8]);
+            p.gx[r * 8..][..8].copy_from_slice(&gx[o..o + 8]);
+            p.gy[r * 8..][..8].copy_from_slice(&gy[o..o + 8]);
         }
+        p
     }
 }
 
@@ -1365,9 +1567,92 @@ fn accumulate8_lanes_kernel(
 /// [`accumulate8_lanes`] reduced to the four sums.
 #[inline]
 fn accumulate8(win: &[f32], stride: usize, pd: &Patch8, wts: [f32; 2]) -> (f32, f32, f32, f32) {
-    let a = accumulate8_lanes(win, stride, pd, wts);
+    reduce_lanes(accumulate8_lanes(win, stride, pd, wts))
+}
+
+/// The four sums from their lane partials.
+#[inline]
+fn reduce_lanes(a: [[f32; 4]; 4]) -> (f32, f32, f32, f32) {
     let h = |x: [f32; 4]| (x[0] + x[2]) + (x[1] + x[3]);
     (h(a[0]), h(a[1]), h(a[2]), h(a[3]))
+}
+
+/// [`accumulate8_lanes`] of `N` windows of the same patch at once (each
+/// window with its own bilinear weights): the same operations in the same
+/// order for each, so each result equals [`accumulate8_lanes`]'s bit for
+/// bit; the `N` independent reductions are interleaved.
+#[inline(never)]
+fn accumulate8_lanes_n<const N: usize>(
+    wins: [&[f32]; N],
+    stride: usize,
+    pd: &Patch8,
+    wts: [[f32; 2]; N],
+) -> [[[f32; 4]; 4]; N] {
+    super::simd_arch().dispatch(Acc8NOp {
+        wins,
+        stride,
+        pd,
+        wts,
+    })
+}
+
+/// [`accumulate8_lanes_n`]'s arguments as a `pulp` operation.
+struct Acc8NOp<'a, const N: usize> {
+    wins: [&'a [f32]; N],
+    stride: usize,
+    pd: &'a Patch8,
+    wts: [[f32; 2]; N],
+}
+
+impl<const N: usize> pulp::WithSimd for Acc8NOp<'_, N> {
+    type Output = [[[f32; 4]; 4]; N];
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> [[[f32; 4]; 4]; N] {
+        accumulate8_lanes_n_kernel(self.wins, self.stride, self.pd, self.wts)
+    }
+}
+
+/// The body of [`accumulate8_lanes_n`]: [`accumulate8_lanes_kernel`]'s
+/// differences for each window, then its four lane reductions with the
+/// windows' sums side by side.
+#[inline(always)]
+fn accumulate8_lanes_n_kernel<const N: usize>(
+    wins: [&[f32]; N],
+    stride: usize,
+    pd: &Patch8,
+    wts: [[f32; 2]; N],
+) -> [[[f32; 4]; 4]; N] {
+    let mut d = [[0.0f32; 64]; N];
+    for e in 0..N {
+        let [ax, ay] = wts[e];
+        let mut hl = [0.0f32; 72];
+        let mut rest = wins[e];
+        for r in 0..9 {
+            if r > 0 {
+                rest = &rest[stride..];
+            }
+            let row: &[f32; 9] = rest[..9].try_into().expect("9 values");
+            for c in 0..8 {
+                hl[8 * r + c] = row[c] + ax * (row[c + 1] - row[c]);
+            }
+        }
+        for k in 0..64 {
+            d[e][k] = hl[k] + ay * (hl[k + 8] - hl[k]) - pd.i0[k];
+        }
+    }
+    let mut acc = [[[0.0f32; 4]; 4]; N];
+    for k in 0..16 {
+        for e in 0..N {
+            for l in 0..4 {
+                let x = d[e][4 * k + l];
+                acc[e][0][l] += x;
+                acc[e][1][l] += x * x;
+                acc[e][2][l] += x * pd.gx[4 * k + l];
+                acc[e][3][l] += x * pd.gy[4 * k + l];
+            }
+        }
+    }
+    acc
 }
 
 /// [`fast_floor`] and the same floor as an integer (from the one conversion
@@ -1421,15 +1706,17 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
         lim: [(lvl.w - p.patch_size) as f32, (lvl.h - p.patch_size) as f32],
         n_px: (p.patch_size * p.patch_size) as f32,
     };
-    let (px, py, patches) = (&lvl.px, &lvl.py, &lvl.patches);
+    let (px, py, patches, pdata) = (&lvl.px, &lvl.py, &lvl.patches, &lvl.pdata);
     lvl.sx
         .par_chunks_mut(stripe_rows * ws)
         .zip(lvl.sy.par_chunks_mut(stripe_rows * ws))
+        .zip(lvl.known.par_chunks_mut(stripe_rows * ws))
         .enumerate()
-        .for_each(|(k, (sx, sy))| {
+        .for_each(|(k, ((sx, sy), known))| {
             let i_begin = k * stripe_rows;
             let rows = sx.len() / ws;
-            let mut pd = Patch8::zeroed();
+            // Read by the 8x8 kernels only: other sizes pass this unused block.
+            let unused = Patch8::zeroed();
             for forward in [true, false] {
                 for ii in 0..rows {
                     let i = if forward { ii } else { rows - 1 - ii };
@@ -1444,46 +1731,66 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                             // searched neighbours afterwards.
                             continue;
                         }
-                        if view.psz == 8 {
-                            pd.load(&view, x0, y0);
-                        }
-                        let pd = &pd;
+                        let pd = pdata.get(gi * ws + j).unwrap_or(&unused);
                         let (mut u, mut v) = (sx[idx], sy[idx]);
-                        let mut cur = view.eval(x0, y0, pr, pd, u, v);
-                        if forward && search.zero_candidate && (u != 0.0 || v != 0.0) {
-                            let e = view.eval(x0, y0, pr, pd, 0.0, 0.0);
+                        // Every vector the candidate step below may
+                        // evaluate: the start (unless the forward pass
+                        // left its evaluation), the zero vector and the
+                        // visited neighbours' vectors, each once, evaluated
+                        // together. The step then reads them from `cands`
+                        // in its order (a vector missing there, a NaN,
+                        // is evaluated on the spot): the same evaluations,
+                        // so the same choice.
+                        let neighbours = if !p.spatial_propagation {
+                            [None, None]
+                        } else if forward {
+                            [(j > 0).then(|| idx - 1), (i > 0).then(|| idx - ws)]
+                        } else {
+                            [
+                                (j + 1 < ws).then(|| idx + 1),
+                                (i + 1 < rows).then(|| idx + ws),
+                            ]
+                        };
+                        let zero = forward && search.zero_candidate && (u != 0.0 || v != 0.0);
+                        let mut cands = Cands::default();
+                        if let Some(e) = known[idx].at(u, v).filter(|_| !forward) {
+                            cands.push_known((u, v), e);
+                        }
+                        cands.want((u, v));
+                        if zero {
+                            cands.want((0.0, 0.0));
+                        }
+                        for n in neighbours.into_iter().flatten() {
+                            cands.want((sx[n], sy[n]));
+                        }
+                        cands.evaluate(&view, x0, y0, pr, pd);
+                        let at = |c: (f32, f32)| {
+                            cands
+                                .get(c)
+                                .unwrap_or_else(|| view.eval(x0, y0, pr, pd, c.0, c.1))
+                        };
+                        let mut cur = at((u, v));
+                        if zero {
+                            let e = at((0.0, 0.0));
                             if e.ssd < cur.ssd {
                                 (u, v, cur) = (0.0, 0.0, e);
                             }
                         }
-                        if p.spatial_propagation {
-                            let mut try_cand = |n: usize| {
-                                let (cu, cv) = (sx[n], sy[n]);
-                                if cu == u && cv == v {
-                                    return;
-                                }
-                                let e = view.eval(x0, y0, pr, pd, cu, cv);
-                                if e.ssd < cur.ssd {
-                                    (u, v, cur) = (cu, cv, e);
-                                }
-                            };
-                            if forward {
-                                if j > 0 {
-                                    try_cand(idx - 1);
-                                }
-                                if i > 0 {
-                                    try_cand(idx - ws);
-                                }
-                            } else {
-                                if j + 1 < ws {
-                                    try_cand(idx + 1);
-                                }
-                                if i + 1 < rows {
-                                    try_cand(idx + ws);
-                                }
+                        for n in neighbours.into_iter().flatten() {
+                            let (cu, cv) = (sx[n], sy[n]);
+                            if cu == u && cv == v {
+                                continue;
+                            }
+                            let e = at((cu, cv));
+                            if e.ssd < cur.ssd {
+                                (u, v, cur) = (cu, cv, e);
                             }
                         }
-                        let (u0, v0) = (u, v);
+                        let (u0, v0, e0) = (u, v, cur);
+                        // The evaluation at the final vector, when made.
+                        let mut last = Some(cur);
+                        // The evaluation at (lu, lv).
+                        let mut best = cur;
                         let mut prev = f32::INFINITY;
                         let (mut lu, mut lv) = (u, v);
                         // Whether (u, v) is a halved step not yet evaluated.
@@ -1501,24 +1808,29 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                                     u = 0.5 * (u + lu);
                                     v = 0.5 * (v + lv);
                                     halved = true;
+                                    last = None;
                                     continue;
                                 }
                                 if p.step_on_stop && t > 0 {
                                     // OpenCV's order: step, then test.
                                     u -= pr.ih11 * cur.bx + pr.ih12 * cur.by;
                                     v -= pr.ih12 * cur.bx + pr.ih22 * cur.by;
+                                    last = None;
                                 } else {
                                     (u, v) = (lu, lv);
+                                    last = Some(best);
                                 }
                                 break;
                             }
                             prev = cur.ssd;
                             (lu, lv) = (u, v);
+                            best = cur;
                             halved = false;
                             let su = pr.ih11 * cur.bx + pr.ih12 * cur.by;
                             let sv = pr.ih12 * cur.bx + pr.ih22 * cur.by;
                             u -= su;
                             v -= sv;
+                            last = None;
                             // Converged: the next evaluation would only
                             // confirm a step this small.
                             if su * su + sv * sv < stop2 {
@@ -1527,6 +1839,7 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                         }
                         if halved {
                             (u, v) = (lu, lv);
+                            last = Some(best);
                         }
                         // A vector that wandered more than a patch away from
                         // its start is more likely wrong than a large motion.
@@ -1536,9 +1849,13 @@ fn search_level(lvl: &mut Level, p: &DisParams, search: Search) {
                         let within = du * du + dv * dv <= lim * lim;
                         if !within {
                             (u, v) = (u0, v0);
+                            last = Some(e0);
                         }
                         sx[idx] = u;
                         sy[idx] = v;
+                        if forward {
+                            known[idx] = last.map_or(Known::NONE, |e| Known { u, v, e });
+                        }
                     }
                 }
             }
@@ -1913,10 +2230,11 @@ mod tests {
                     (12, 4, -1e6, 1e6),
                 ] {
                     let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm, 0.0);
-                    let mut pd = Patch8::zeroed();
-                    if psz == 8 {
-                        pd.load(&view, x0, y0);
-                    }
+                    let pd = if psz == 8 {
+                        Patch8::from_planes([&i0, &gx, &gy], w, x0, y0)
+                    } else {
+                        Patch8::zeroed()
+                    };
                     let got = view.eval(x0, y0, &pr, &pd, u, v);
                     let want = naive_eval(&view, &pr, x0, y0, u, v);
                     let tol = |a: f32| 1e-3 * (1.0 + a.abs());
@@ -2025,6 +2343,95 @@ mod tests {
                 let bits = |a: [[f32; 4]; 4]| a.map(|l| l.map(f32::to_bits));
                 assert_eq!(bits(dispatched), bits(direct));
                 assert_eq!(bits(scalar), bits(direct));
+            }
+        }
+    }
+
+    #[test]
+    fn batched_patch_kernel_matches_the_single_kernel_bit_for_bit() {
+        // `accumulate8_lanes_n` (the candidates of a patch side by side) must
+        // give each window exactly what `accumulate8_lanes` gives it alone,
+        // on the dispatched and the scalar paths.
+        let mut rnd = crate::flow::unit_stream(0x94d0_49bb_1331_11ebu64);
+        for stride in [9usize, 17, 40] {
+            for _ in 0..50 {
+                let win: Vec<f32> = (0..12 * stride + 12)
+                    .map(|_| 255.0 * rnd() * if rnd() < 0.1 { 1e3 } else { 1.0 })
+                    .collect();
+                let mut pd = Patch8::zeroed();
+                for k in 0..64 {
+                    pd.i0[k] = 255.0 * rnd();
+                    pd.gx[k] = 2000.0 * rnd() - 1000.0;
+                    pd.gy[k] = 2e-3 * rnd() - 1e-3;
+                }
+                let wins: [&[f32]; 4] = std::array::from_fn(|e| &win[e + (e % 3) * stride..]);
+                let wts: [[f32; 2]; 4] = std::array::from_fn(|_| [rnd(), rnd()]);
+                let single: [[[f32; 4]; 4]; 4] =
+                    std::array::from_fn(|e| accumulate8_lanes(wins[e], stride, &pd, wts[e]));
+                let bits = |a: [[f32; 4]; 4]| a.map(|l| l.map(f32::to_bits));
+                let four = accumulate8_lanes_n::<4>(wins, stride, &pd, wts);
+                let two =
+                    accumulate8_lanes_n::<2>([wins[0], wins[1]], stride, &pd, [wts[0], wts[1]]);
+                let op = Acc8NOp {
+                    wins,
+                    stride,
+                    pd: &pd,
+                    wts,
+                };
+                let scalar = pulp::Arch::Scalar.dispatch(op);
+                for e in 0..4 {
+                    assert_eq!(bits(four[e]), bits(single[e]));
+                    assert_eq!(bits(scalar[e]), bits(single[e]));
+                }
+                for e in 0..2 {
+                    assert_eq!(bits(two[e]), bits(single[e]));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn batched_evaluation_matches_one_at_a_time() {
+        // `LevelView::eval_many` against `LevelView::eval`, windows inside,
+        // across the edges and far outside, in groups of 1 to 4.
+        let (w, h, psz) = (40usize, 30usize, 8usize);
+        let mut rnd = crate::flow::unit_stream(0xd6e8_feb8_6659_fd93u64);
+        let i0: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+        let i1: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+        let (mut gx, mut gy) = (vec![0.0; w * h], vec![0.0; w * h]);
+        pyramid::sobel(&i0, w, h, 0.125, &mut gx, &mut gy).unwrap();
+        for mean_norm in [false, true] {
+            let view = LevelView {
+                w,
+                h,
+                i0: &i0,
+                gx: &gx,
+                gy: &gy,
+                i1: &i1,
+                psz,
+                mean_norm,
+                lim: [(w - psz) as f32, (h - psz) as f32],
+                n_px: (psz * psz) as f32,
+            };
+            for &(x0, y0) in &[(0usize, 0usize), (16, 11), (w - psz, h - psz), (3, h - psz)] {
+                let pr = patch_ref(&gx, &gy, w, x0, y0, psz, mean_norm, 0.0);
+                let pd = Patch8::from_planes([&i0, &gx, &gy], w, x0, y0);
+                for _ in 0..40 {
+                    let n = 1 + (4.0 * rnd()) as usize % 4;
+                    let uv: Vec<(f32, f32)> = (0..n)
+                        .map(|_| {
+                            let s = if rnd() < 0.2 { 40.0 } else { 4.0 };
+                            (s * (2.0 * rnd() - 1.0), s * (2.0 * rnd() - 1.0))
+                        })
+                        .collect();
+                    let mut got = vec![Eval::default(); n];
+                    view.eval_many(x0, y0, &pr, &pd, &uv, &mut got);
+                    for (g, &(u, v)) in got.iter().zip(&uv) {
+                        let want = view.eval(x0, y0, &pr, &pd, u, v);
+                        let bits = |e: &Eval| [e.ssd, e.bx, e.by].map(f32::to_bits);
+                        assert_eq!(bits(g), bits(&want), "{x0},{y0} {u},{v}");
+                    }
+                }
             }
         }
     }

@@ -92,12 +92,9 @@ impl FlowField {
     /// Errors with [`Error::NonFinite`] at the first NaN or infinite value.
     pub fn check_finite(&self, what: &str) -> Result<()> {
         for plane in [&self.u, &self.v] {
-            // The common case, all finite, as a plain pass over the slice;
-            // the indexed search only runs to name a bad value.
-            if plane
-                .as_slice()
-                .is_some_and(|s| s.iter().all(|x| x.is_finite()))
-            {
+            // The common case, all finite, as a vectorised pass over the
+            // slice; the indexed search only runs to name a bad value.
+            if plane.as_slice().is_some_and(pyramid::all_finite) {
                 continue;
             }
             if let Some(((row, col), _)) = plane.indexed_iter().find(|(_, x)| !x.is_finite()) {

@@ -65,10 +65,8 @@ pub fn downsample_area(
         let rows = &src[y * factor * sw..(y + 1) * factor * sw];
         if factor == 2 {
             let (r0, r1) = rows.split_at(sw);
-            for (x, d) in drow.iter_mut().enumerate() {
-                let c = 2 * x;
-                *d = (r0[c] + r0[c + 1] + r1[c] + r1[c + 1]) * 0.25;
-            }
+            // Dispatched at run time (see `flow::simd_arch`): same values on every path.
+            super::simd_arch().dispatch(Half2Op { r0, r1, out: drow });
         } else if factor <= 64 {
             // Sum the `factor` rows column by column first (contiguous, vectorises),
             // then each group of `factor` columns, through a stack buffer of a few
@@ -105,6 +103,27 @@ pub fn downsample_area(
         }
     });
     Ok(())
+}
+
+/// One output row of a 2x2 box average as a `pulp` operation (see
+/// [`BlendRowOp`]): `out[x]` averages columns `2x, 2x + 1` of rows `r0`, `r1`.
+struct Half2Op<'a> {
+    r0: &'a [f32],
+    r1: &'a [f32],
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for Half2Op<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let n = self.out.len();
+        let (r0, r1) = (&self.r0[..2 * n], &self.r1[..2 * n]);
+        for (x, d) in self.out.iter_mut().enumerate() {
+            let c = 2 * x;
+            *d = (r0[c] + r0[c + 1] + r1[c] + r1[c + 1]) * 0.25;
+        }
+    }
 }
 
 /// 3x3 Sobel gradients of `img` (`w x h`) into `gx`, `gy`, scaled by `scale`
@@ -187,76 +206,250 @@ pub fn gaussian_blur(
 ) -> Result<()> {
     check_len("img", img, w, h)?;
     check_len("tmp", tmp, w, h)?;
-    if k.len() % 2 == 0 && !k.is_empty() {
-        return Err(Error::param("kernel", "needs an odd number of taps"));
-    }
+    check_taps(k)?;
     if k.is_empty() || w == 0 || h == 0 {
         return Ok(());
     }
-    let rad = (k.len() / 2) as isize;
-    let refl = |i: isize, n: usize| -> usize {
-        let n = n as isize;
-        if n == 1 {
-            return 0;
-        }
-        let mut i = i;
-        // Reflect until inside (radius may exceed the size on tiny images).
-        loop {
-            if i < 0 {
-                i = -i;
-            } else if i >= n {
-                i = 2 * n - 2 - i;
-            } else {
-                return i as usize;
-            }
-        }
-    };
-    // Horizontal pass: img -> tmp.
-    // Interior outputs tap by tap over contiguous slices (vectorises; each
-    // output still sums its taps in order from 0.0, so the result is the
-    // same as the per-output dot product), the reflected borders per output.
-    let r = rad as usize;
-    tmp.par_chunks_mut(w).enumerate().for_each(|(y, trow)| {
-        let row = &img[y * w..][..w];
-        let border = |x: usize| -> f32 {
-            let mut acc = 0.0f32;
-            for (t, kv) in k.iter().enumerate() {
-                acc += kv * row[refl(x as isize + t as isize - rad, w)];
-            }
-            acc
-        };
-        if w <= 2 * r {
-            for (x, o) in trow.iter_mut().enumerate() {
-                *o = border(x);
-            }
-            return;
-        }
-        let n = w - 2 * r;
-        let inner = &mut trow[r..][..n];
-        inner.fill(0.0);
-        for (t, &kv) in k.iter().enumerate() {
-            let src = &row[t..][..n];
-            for (o, &v) in inner.iter_mut().zip(src) {
-                *o += kv * v;
-            }
-        }
-        for x in (0..r).chain(w - r..w) {
-            trow[x] = border(x);
-        }
-    });
-    // Vertical pass: tmp -> img.
-    let tmp = &*tmp;
-    img.par_chunks_mut(w).enumerate().for_each(|(y, orow)| {
-        orow.fill(0.0);
-        for (t, kv) in k.iter().enumerate() {
-            let yy = refl(y as isize + t as isize - rad, h);
-            let src = &tmp[yy * w..][..w];
-            for x in 0..w {
-                orow[x] += kv * src[x];
-            }
-        }
-    });
+    blur_rows(img, w, k, tmp);
+    blur_cols(tmp, w, h, k, img);
     Ok(())
+}
+
+/// [`gaussian_blur`] of `src` into `dst` (both `w x h`), `src` unchanged;
+/// an empty `k` copies. The same values as blurring a copy in place.
+pub fn gaussian_blur_into(
+    src: &[f32],
+    w: usize,
+    h: usize,
+    k: &[f32],
+    tmp: &mut [f32],
+    dst: &mut [f32],
+) -> Result<()> {
+    check_len("src", src, w, h)?;
+    check_len("tmp", tmp, w, h)?;
+    check_len("dst", dst, w, h)?;
+    check_taps(k)?;
+    if k.is_empty() {
+        dst.copy_from_slice(src);
+        return Ok(());
+    }
+    if w == 0 || h == 0 {
+        return Ok(());
+    }
+    blur_rows(src, w, k, tmp);
+    blur_cols(tmp, w, h, k, dst);
+    Ok(())
+}
+
+fn check_taps(k: &[f32]) -> Result<()> {
+    if k.len() % 2 == 0 && !k.is_empty() {
+        return Err(Error::param("kernel", "needs an odd number of taps"));
+    }
+    Ok(())
+}
+
+/// Index `i` reflected into `0..n` without repeating the edge (reflect-101),
+/// reflecting again until inside (a radius may exceed a tiny size).
+fn reflect101(i: isize, n: usize) -> usize {
+    let n = n as isize;
+    if n == 1 {
+        return 0;
+    }
+    let mut i = i;
+    loop {
+        if i < 0 {
+            i = -i;
+        } else if i >= n {
+            i = 2 * n - 2 - i;
+        } else {
+            return i as usize;
+        }
+    }
+}
+
+/// Most taps the vertical pass keeps its row offsets for on the stack
+/// (a prefilter of up to 8 px has 49); longer kernels take the per-tap loop.
+const MAX_TAPS: usize = 64;
+
+/// The horizontal pass of the blur: each row of `src` (`w` columns) into the
+/// same row of `out`. Every output sums its taps in order from 0.0, in `f32`
+/// (`((0 + k0 a0) + k1 a1) + ...`), on every path and instruction set.
+fn blur_rows(src: &[f32], w: usize, k: &[f32], out: &mut [f32]) {
+    out.par_chunks_mut(w)
+        .zip(src.par_chunks(w))
+        .for_each(|(orow, row)| {
+            // Dispatched at run time (see `flow::simd_arch`): same values on every path.
+            super::simd_arch().dispatch(BlurRowOp { row, k, out: orow });
+        });
+}
+
+/// The vertical pass of the blur: each row of `out` (`w x h`) from the rows
+/// of `src` its taps reach, summed as in [`blur_rows`].
+fn blur_cols(src: &[f32], w: usize, h: usize, k: &[f32], out: &mut [f32]) {
+    let rad = (k.len() / 2) as isize;
+    out.par_chunks_mut(w).enumerate().for_each(|(y, orow)| {
+        let row_of = |t: usize| reflect101(y as isize + t as isize - rad, h) * w;
+        if k.len() <= MAX_TAPS {
+            let mut offsets = [0usize; MAX_TAPS];
+            for (t, o) in offsets[..k.len()].iter_mut().enumerate() {
+                *o = row_of(t);
+            }
+            // Dispatched at run time (see `flow::simd_arch`): same values on every path.
+            super::simd_arch().dispatch(BlurColsOp {
+                src,
+                offsets: &offsets[..k.len()],
+                k,
+                out: orow,
+            });
+        } else {
+            orow.fill(0.0);
+            for (t, &kv) in k.iter().enumerate() {
+                let s = &src[row_of(t)..][..w];
+                for (o, &v) in orow.iter_mut().zip(s) {
+                    *o += kv * v;
+                }
+            }
+        }
+    });
+}
+
+/// [`blur_row`] as a `pulp` operation (see [`BlendRowOp`]).
+struct BlurRowOp<'a> {
+    row: &'a [f32],
+    k: &'a [f32],
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for BlurRowOp<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        blur_row(self.row, self.k, self.out);
+    }
+}
+
+/// One row of the horizontal pass: the interior eight outputs at a time,
+/// each group's eight sums held in registers across the taps; the reflected
+/// borders (and a last group of fewer than eight) one output at a time.
+#[inline(always)]
+fn blur_row(row: &[f32], k: &[f32], out: &mut [f32]) {
+    let w = row.len();
+    let rad = k.len() / 2;
+    let out = &mut out[..w];
+    let border = |x: usize| -> f32 {
+        let mut acc = 0.0f32;
+        for (t, &kv) in k.iter().enumerate() {
+            acc += kv * row[reflect101(x as isize + t as isize - rad as isize, w)];
+        }
+        acc
+    };
+    if w <= 2 * rad {
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = border(x);
+        }
+        return;
+    }
+    // Output `rad + x` reads `row[x..x + k.len()]`.
+    let n = w - 2 * rad;
+    let groups = n / 8;
+    for (g, o) in out[rad..][..groups * 8].chunks_exact_mut(8).enumerate() {
+        let x = 8 * g;
+        let mut acc = [0.0f32; 8];
+        for (t, &kv) in k.iter().enumerate() {
+            let s: &[f32; 8] = row[x + t..][..8].try_into().expect("8 values");
+            for l in 0..8 {
+                acc[l] += kv * s[l];
+            }
+        }
+        o.copy_from_slice(&acc);
+    }
+    for x in groups * 8..n {
+        let mut acc = 0.0f32;
+        for (t, &kv) in k.iter().enumerate() {
+            acc += kv * row[x + t];
+        }
+        out[rad + x] = acc;
+    }
+    for x in (0..rad).chain(w - rad..w) {
+        out[x] = border(x);
+    }
+}
+
+/// [`blur_cols_row`] as a `pulp` operation (see [`BlendRowOp`]).
+struct BlurColsOp<'a> {
+    src: &'a [f32],
+    offsets: &'a [usize],
+    k: &'a [f32],
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for BlurColsOp<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        blur_cols_row(self.src, self.offsets, self.k, self.out);
+    }
+}
+
+/// One output row of the vertical pass: tap `t` reads the row of `src`
+/// starting at `offsets[t]`; eight outputs at a time, their sums held in
+/// registers across the taps, then the last few one at a time.
+#[inline(always)]
+fn blur_cols_row(src: &[f32], offsets: &[usize], k: &[f32], out: &mut [f32]) {
+    let w = out.len();
+    let rows_end = offsets.iter().map(|&o| o + w).max().unwrap_or(0);
+    let src = &src[..rows_end];
+    let groups = w / 8;
+    for (g, o) in out[..groups * 8].chunks_exact_mut(8).enumerate() {
+        let x = 8 * g;
+        let mut acc = [0.0f32; 8];
+        for (&off, &kv) in offsets.iter().zip(k) {
+            let s: &[f32; 8] = src[off + x..][..8].try_into().expect("8 values");
+            for l in 0..8 {
+                acc[l] += kv * s[l];
+            }
+        }
+        o.copy_from_slice(&acc);
+    }
+    for x in groups * 8..w {
+        let mut acc = 0.0f32;
+        for (&off, &kv) in offsets.iter().zip(k) {
+            acc += kv * src[off + x];
+        }
+        out[x] = acc;
+    }
+}
+
+/// Whether every value of `buf` is finite (neither NaN nor infinite).
+pub fn all_finite(buf: &[f32]) -> bool {
+    buf.par_chunks(4096).all(|c| {
+        // Dispatched at run time (see `flow::simd_arch`).
+        super::simd_arch().dispatch(FiniteOp { buf: c })
+    })
+}
+
+/// [`all_finite`] on one chunk as a `pulp` operation (see [`BlendRowOp`]).
+struct FiniteOp<'a> {
+    buf: &'a [f32],
+}
+
+impl pulp::WithSimd for FiniteOp<'_> {
+    type Output = bool;
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> bool {
+        // `0 v` is zero for a finite value and NaN otherwise, and a NaN stays
+        // in a sum whatever the order: eight lane sums, no early exit, so the
+        // loop vectorises.
+        let mut acc = [0.0f32; 8];
+        let mut chunks = self.buf.chunks_exact(8);
+        for c in &mut chunks {
+            for l in 0..8 {
+                acc[l] += 0.0 * c[l];
+            }
+        }
+        let tail = chunks.remainder().iter().all(|v| v.is_finite());
+        tail && acc.iter().all(|a| *a == 0.0)
+    }
 }
 
 /// Precomputed bilinear taps for resizing one axis from `src_n` to `dst_n`
@@ -506,6 +699,19 @@ mod tests {
                 out: &mut got,
             });
             assert_eq!(bits(&got), bits(&want));
+            // The 2x2 box average of rows `t` and `r1` (half as many outputs).
+            let want: Vec<f32> = (0..n / 2)
+                .map(|x| (t[2 * x] + t[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]) * 0.25)
+                .collect();
+            for a in [arch, pulp::Arch::Scalar] {
+                let mut got = vec![0.0f32; n / 2];
+                a.dispatch(Half2Op {
+                    r0: &t,
+                    r1: &r1,
+                    out: &mut got,
+                });
+                assert_eq!(bits(&got), bits(&want));
+            }
         }
     }
 
@@ -554,6 +760,80 @@ mod tests {
                     let want = naive_box(&src, w, f, x, y);
                     let got = dst[y * dw + x] as f64;
                     assert!((got - want).abs() < 1e-4 * want.max(1.0), "f={f} {x},{y}");
+                }
+            }
+        }
+    }
+
+    /// The blur as two plain passes, tap by tap over whole rows: the oracle
+    /// of the register-blocked passes, which must give the same bits.
+    fn blur_two_pass(img: &mut [f32], w: usize, h: usize, k: &[f32]) {
+        let rad = (k.len() / 2) as isize;
+        let mut tmp = vec![0.0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0f32;
+                for (t, &kv) in k.iter().enumerate() {
+                    acc += kv * img[y * w + reflect101(x as isize + t as isize - rad, w)];
+                }
+                tmp[y * w + x] = acc;
+            }
+        }
+        for (y, orow) in img.chunks_mut(w).enumerate() {
+            orow.fill(0.0);
+            for (t, &kv) in k.iter().enumerate() {
+                let yy = reflect101(y as isize + t as isize - rad, h);
+                for x in 0..w {
+                    orow[x] += kv * tmp[yy * w + x];
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn blur_matches_the_two_pass_oracle_bit_for_bit() {
+        let mut rnd = crate::flow::unit_stream(0x5851_f42d_4c95_7f2du64);
+        for &(w, h) in &[
+            (1, 1),
+            (3, 2),
+            (7, 5),
+            (11, 9),
+            (24, 17),
+            (61, 13),
+            (200, 40),
+        ] {
+            for sigma in [0.4f32, 1.5, 2.0, 3.3, 8.0, 11.0] {
+                let k = gaussian_kernel(sigma);
+                let img: Vec<f32> = (0..w * h)
+                    .map(|_| 255.0 * rnd() * if rnd() < 0.1 { 1e3 } else { 1.0 })
+                    .collect();
+                let mut want = img.clone();
+                blur_two_pass(&mut want, w, h, &k);
+                let mut tmp = vec![0.0; w * h];
+                let mut got = img.clone();
+                gaussian_blur(&mut got, w, h, &k, &mut tmp).unwrap();
+                let mut into = vec![0.0; w * h];
+                gaussian_blur_into(&img, w, h, &k, &mut tmp, &mut into).unwrap();
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "{w}x{h}, sigma {sigma}");
+                assert_eq!(bits(&into), bits(&want), "{w}x{h}, sigma {sigma}");
+            }
+        }
+    }
+
+    #[test]
+    fn all_finite_finds_any_nan_or_infinity() {
+        for n in [0usize, 1, 7, 8, 9, 4095, 4096, 4097, 10_000] {
+            let mut v = vec![1.5f32; n];
+            assert!(all_finite(&v));
+            for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+                for at in [0, n / 2, n.saturating_sub(1)] {
+                    if n == 0 {
+                        continue;
+                    }
+                    v[at] = bad;
+                    assert!(!all_finite(&v), "{n} {at} {bad}");
+                    v[at] = 1.5;
                 }
             }
         }
