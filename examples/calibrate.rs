@@ -11,8 +11,9 @@
 //! Runs the pipeline on every test (each frame against its own reference) on
 //! all cores, fits the five polynomial maps with the paper's order search and
 //! prints, in markdown, Table I (per threshold preset: minimum detectable force,
-//! test MAE of x, Fx, Fy, Fz) and Table II (test MAE per point), and between
-//! them the load cell's floor: how much the recorded force scatters between
+//! test MAE of x, Fx, Fy, Fz), Table II (test MAE per point) and the test MAE
+//! per indenter and commanded force, and between Tables I and II the load
+//! cell's floor: how much the recorded force scatters between
 //! repetitions of a test, and the MAE a sensor reading the applied force
 //! exactly would score against it (`characterize::load_cell_spread`). With
 //! `--thresholds all` the presets are fitted in turn; `--out` gets the `high`
@@ -72,7 +73,7 @@ use optical_tactile::sensor::ExtractorConfig;
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
 /// every test, fits the polynomial maps and prints the paper's Tables I and
-/// II (test-set errors) in markdown.
+/// II and the errors per indenter and force (test set) in markdown.
 #[derive(Parser, Debug)]
 #[command(name = "calibrate")]
 struct Cli {
@@ -472,7 +473,15 @@ fn run(args: Args) -> Result<(), Failure> {
             min_force_n: fit.min_force.to_string(),
             mae: fit.test_table.total,
         });
-        table_ii.push((preset.to_string(), fit.test_table));
+        let by_load = report::evaluate_by_load(
+            &fit.calibration,
+            ex.iter()
+                .zip(&fit.samples)
+                .filter_map(|(e, s)| s.as_ref().map(|s| (&e.row, s))),
+            Split::Test,
+        )
+        .map_err(err)?;
+        table_ii.push((preset.to_string(), fit.test_table, by_load));
     }
     writeln!(out, "## Table I: test-set errors per threshold preset\n")?;
     writeln!(out, "{}", report::table_i_markdown(&table_i))?;
@@ -488,12 +497,19 @@ fn run(args: Args) -> Result<(), Failure> {
             s.groups
         )?;
     }
-    for (preset, t) in &table_ii {
+    for (preset, t, _) in &table_ii {
         writeln!(
             out,
             "## Table II: test-set errors per point ({preset} thresholds)\n"
         )?;
         writeln!(out, "{}", report::table_ii_markdown(t))?;
+    }
+    for (preset, _, by_load) in &table_ii {
+        writeln!(
+            out,
+            "## Test-set errors per indenter and force ({preset} thresholds)\n"
+        )?;
+        writeln!(out, "{}", report::table_loads_markdown(by_load))?;
     }
     Ok(())
 }

@@ -9,8 +9,8 @@ use optical_tactile::calibration::fit::{
 };
 use optical_tactile::calibration::poly::{CrossTerms, Polynomial};
 use optical_tactile::calibration::report::{
-    DetectionLimit, ThresholdRow, evaluate, min_detectable_force, table_i_markdown,
-    table_ii_markdown,
+    DetectionLimit, ThresholdRow, evaluate, evaluate_by_load, min_detectable_force,
+    table_i_markdown, table_ii_markdown, table_loads_markdown,
 };
 use optical_tactile::calibration::{
     self, Calibration, ForceGuard, GUARD_BOX_MARGIN, Sample, SensorSetup,
@@ -1229,4 +1229,90 @@ fn a_flat_sensor_maps_both_coordinates_from_the_2d_contact_point() {
     // The strip's calibration takes y from y2d alone, as before.
     let strip = fit::fit(&protocol_samples(0.1, 2), &self::setup(), &small_options()).unwrap();
     assert_eq!(strip.g2().variables(), ["y2d"]);
+}
+
+/// A test row for `sample`, with the indenter and commanded force given.
+fn row_of(sample: &Sample, indenter_mm: f64, force_n: f64) -> TestRow {
+    TestRow {
+        test: 0,
+        frame: String::new(),
+        reference: String::new(),
+        point: sample.point,
+        indenter_mm,
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
+        repeat: 1,
+        force_n,
+        split: sample.split,
+        x_mm: sample.x_mm,
+        y_mm: sample.y_mm,
+        fx_n: sample.fx,
+        fy_n: sample.fy,
+        fz_n: sample.fz,
+    }
+}
+
+#[test]
+fn errors_per_indenter_and_force_match_a_direct_count() {
+    let samples = protocol_samples(0.1, 5);
+    let opts = FitOptions {
+        cross: CrossTerms::None,
+        ..small_options()
+    };
+    let cal = fit::fit(&samples, &setup(), &opts).unwrap();
+    // Two indenters, three force levels, assigned in a fixed pattern.
+    let rows: Vec<TestRow> = samples
+        .iter()
+        .enumerate()
+        .map(|(i, s)| row_of(s, [5.0, 2.0][i % 2], [3.0, 0.5, 1.5][i % 3]))
+        .collect();
+    let t = evaluate_by_load(&cal, rows.iter().zip(&samples), Split::Test).unwrap();
+    // The total is the per-point table's total.
+    let by_point = evaluate(&cal, &samples, Split::Test).unwrap();
+    assert_eq!(t.total.n, by_point.total.n);
+    approx::assert_relative_eq!(t.total.fz, by_point.total.fz, max_relative = 1e-12);
+    // Sorted by indenter, then force; six cases.
+    let cases: Vec<(f64, f64)> = t
+        .per_load
+        .iter()
+        .map(|(c, _)| (c.indenter_mm, c.force_n))
+        .collect();
+    let mut want = Vec::new();
+    for d in [2.0, 5.0] {
+        for f in [0.5, 1.5, 3.0] {
+            want.push((d, f));
+        }
+    }
+    assert_eq!(cases, want);
+    // Each case's errors, counted directly.
+    for (c, m) in &t.per_load {
+        let (mut n, mut fx, mut x) = (0, 0.0, 0.0);
+        for (r, s) in rows.iter().zip(&samples) {
+            if s.split == Split::Test && r.indenter_mm == c.indenter_mm && r.force_n == c.force_n {
+                let p = cal.predict(s).unwrap();
+                n += 1;
+                fx += (p.fx - s.fx).abs();
+                x += (p.x_mm - s.x_mm).abs();
+            }
+        }
+        assert_eq!(m.n, n);
+        approx::assert_relative_eq!(m.fx, fx / n as f64, max_relative = 1e-12);
+        approx::assert_relative_eq!(m.x_mm, x / n as f64, max_relative = 1e-12);
+    }
+    // The markdown: a header, a separator, six cases and the total; no y
+    // column on the strip (every y error is 0).
+    let md = table_loads_markdown(&t);
+    let lines: Vec<&str> = md.lines().collect();
+    assert_eq!(lines.len(), 9, "{md}");
+    assert!(!lines[0].contains("y3D"), "{}", lines[0]);
+    assert!(lines[2].starts_with("| 2 | 0.5 | "), "{}", lines[2]);
+    assert!(lines[8].starts_with(&format!("| all | all | {} |", t.total.n)));
+    // No test sample: an error, not an empty table.
+    let train_only: Vec<Sample> = samples
+        .iter()
+        .filter(|s| s.split == Split::Train)
+        .copied()
+        .collect();
+    let e = evaluate_by_load(&cal, rows.iter().zip(&train_only), Split::Test).unwrap_err();
+    assert!(e.to_string().contains("no `test` sample"), "{e}");
 }

@@ -1,7 +1,7 @@
-//! How good a calibration is: errors per split and per measuring point, the
-//! minimum detectable force, and the paper's Table I and Table II.
+//! How good a calibration is: errors per split, per measuring point and per
+//! indenter and force, the minimum detectable force, and the paper's Table I
+//! and Table II.
 
-use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::poly;
 use super::{Calibration, Prediction, Sample};
 use crate::error::{Error, Result};
-use crate::io::Split;
+use crate::io::{Split, TestRow};
 
 /// Mean absolute errors of one group of samples.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -44,47 +44,63 @@ pub struct PointTable {
     pub per_point: Vec<(u32, QuantityMae)>,
 }
 
-/// MAE of the calibration's predictions on the samples of `split`, in total
-/// and per measuring point (the paper's Table II). Errors if the split has no
-/// sample or a prediction fails.
-pub fn evaluate(cal: &Calibration, samples: &[Sample], split: Split) -> Result<PointTable> {
-    #[derive(Default)]
-    struct Acc {
-        n: usize,
-        s: [f64; 5],
-    }
-    impl Acc {
-        fn add(&mut self, p: &Prediction, s: &Sample) {
-            self.n += 1;
-            let e = [
-                p.x_mm - s.x_mm,
-                p.y_mm - s.y_mm,
-                p.fx - s.fx,
-                p.fy - s.fy,
-                p.fz - s.fz,
-            ];
-            for (a, e) in self.s.iter_mut().zip(e) {
-                *a += e.abs();
-            }
-        }
-        fn mae(&self) -> QuantityMae {
-            let n = self.n.max(1) as f64;
-            QuantityMae {
-                n: self.n,
-                x_mm: self.s[0] / n,
-                y_mm: self.s[1] / n,
-                fx: self.s[2] / n,
-                fy: self.s[3] / n,
-                fz: self.s[4] / n,
-            }
+/// Running sums of absolute errors of one group of samples.
+#[derive(Default)]
+struct Acc {
+    n: usize,
+    s: [f64; 5],
+}
+
+impl Acc {
+    fn add(&mut self, p: &Prediction, s: &Sample) {
+        self.n += 1;
+        let e = [
+            p.x_mm - s.x_mm,
+            p.y_mm - s.y_mm,
+            p.fx - s.fx,
+            p.fy - s.fy,
+            p.fz - s.fz,
+        ];
+        for (a, e) in self.s.iter_mut().zip(e) {
+            *a += e.abs();
         }
     }
+
+    fn mae(&self) -> QuantityMae {
+        let n = self.n.max(1) as f64;
+        QuantityMae {
+            n: self.n,
+            x_mm: self.s[0] / n,
+            y_mm: self.s[1] / n,
+            fx: self.s[2] / n,
+            fy: self.s[3] / n,
+            fz: self.s[4] / n,
+        }
+    }
+}
+
+/// MAE of the calibration's predictions on the samples of `split` among
+/// `items`, in total and per key (in the order `order` sorts the keys).
+/// Errors if the split has no sample or a prediction fails.
+fn grouped_mae<'a, K: PartialEq + Copy>(
+    cal: &Calibration,
+    items: impl IntoIterator<Item = (K, &'a Sample)>,
+    split: Split,
+    order: impl Fn(&K, &K) -> std::cmp::Ordering,
+) -> Result<(QuantityMae, Vec<(K, QuantityMae)>)> {
     let mut total = Acc::default();
-    let mut per: BTreeMap<u32, Acc> = BTreeMap::new();
-    for s in samples.iter().filter(|s| s.split == split) {
+    let mut per: Vec<(K, Acc)> = Vec::new();
+    for (k, s) in items.into_iter().filter(|(_, s)| s.split == split) {
         let p = cal.predict(s)?;
         total.add(&p, s);
-        per.entry(s.point).or_default().add(&p, s);
+        match per.iter_mut().find(|(key, _)| *key == k) {
+            Some((_, a)) => a.add(&p, s),
+            None => {
+                let mut a = Acc::default();
+                a.add(&p, s);
+                per.push((k, a));
+            }
+        }
     }
     if total.n == 0 {
         return Err(Error::param(
@@ -92,10 +108,73 @@ pub fn evaluate(cal: &Calibration, samples: &[Sample], split: Split) -> Result<P
             format!("no `{}` sample to evaluate on", split.as_str()),
         ));
     }
+    per.sort_by(|a, b| order(&a.0, &b.0));
+    Ok((
+        total.mae(),
+        per.into_iter().map(|(k, a)| (k, a.mae())).collect(),
+    ))
+}
+
+/// MAE of the calibration's predictions on the samples of `split`, in total
+/// and per measuring point (the paper's Table II). Errors if the split has no
+/// sample or a prediction fails.
+pub fn evaluate(cal: &Calibration, samples: &[Sample], split: Split) -> Result<PointTable> {
+    let (total, per_point) =
+        grouped_mae(cal, samples.iter().map(|s| (s.point, s)), split, Ord::cmp)?;
     Ok(PointTable {
         split,
-        total: total.mae(),
-        per_point: per.into_iter().map(|(k, a)| (k, a.mae())).collect(),
+        total,
+        per_point,
+    })
+}
+
+/// One indenter at one commanded force of a characterization protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoadCase {
+    /// The indenter's size, mm (`indenter_mm` of `tests.csv`).
+    pub indenter_mm: f64,
+    /// The commanded force, N (`force_n` of `tests.csv`).
+    pub force_n: f64,
+}
+
+/// Errors on a split, in total and per indenter and commanded force: where
+/// in the protocol's range a calibration is weak.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoadTable {
+    /// The split the errors are measured on.
+    pub split: Split,
+    /// Over all samples of the split.
+    pub total: QuantityMae,
+    /// Per indenter (ascending), then per commanded force (ascending).
+    pub per_load: Vec<(LoadCase, QuantityMae)>,
+}
+
+/// MAE of the calibration's predictions on the samples of `split`, in total
+/// and per indenter and commanded force, each sample with the test row it
+/// came from (as [`crate::calibration::fit::DatasetFit::samples`] pairs with
+/// the extractions' rows). Errors if the split has no sample or a
+/// prediction fails.
+pub fn evaluate_by_load<'a>(
+    cal: &Calibration,
+    tests: impl IntoIterator<Item = (&'a TestRow, &'a Sample)>,
+    split: Split,
+) -> Result<LoadTable> {
+    let keyed = tests.into_iter().map(|(row, s)| {
+        let case = LoadCase {
+            indenter_mm: row.indenter_mm,
+            force_n: row.force_n,
+        };
+        (case, s)
+    });
+    let (total, per_load) = grouped_mae(cal, keyed, split, |a, b| {
+        a.indenter_mm
+            .total_cmp(&b.indenter_mm)
+            .then(a.force_n.total_cmp(&b.force_n))
+    })?;
+    Ok(LoadTable {
+        split,
+        total,
+        per_load,
     })
 }
 
@@ -217,6 +296,35 @@ pub fn table_ii_markdown(t: &PointTable) -> String {
         let _ = write!(s, " {} |", m.n);
     }
     s.push('\n');
+    s
+}
+
+/// The errors per indenter and commanded force in markdown: one row per
+/// load case (and a last row over all), columns indenter (mm), force (N),
+/// samples, MAE of x (mm), of y (mm) when not all zero, Fx, Fy, Fz (N).
+pub fn table_loads_markdown(t: &LoadTable) -> String {
+    let with_y = t.total.y_mm != 0.0 || t.per_load.iter().any(|(_, m)| m.y_mm != 0.0);
+    let mut s = String::from("| indenter [mm] | force [N] | samples | MAE x3D [mm] |");
+    if with_y {
+        s.push_str(" MAE y3D [mm] |");
+    }
+    s.push_str(" MAE Fx [N] | MAE Fy [N] | MAE Fz [N] |\n|---|---|---|---|");
+    s.push_str(if with_y {
+        "---|---|---|---|\n"
+    } else {
+        "---|---|---|\n"
+    });
+    let mut row = |indenter: &str, force: &str, m: &QuantityMae| {
+        let _ = write!(s, "| {indenter} | {force} | {} | {:.2} |", m.n, m.x_mm);
+        if with_y {
+            let _ = write!(s, " {:.2} |", m.y_mm);
+        }
+        let _ = writeln!(s, " {:.4} | {:.4} | {:.4} |", m.fx, m.fy, m.fz);
+    };
+    for (c, m) in &t.per_load {
+        row(&c.indenter_mm.to_string(), &c.force_n.to_string(), m);
+    }
+    row("all", "all", &t.total);
     s
 }
 
