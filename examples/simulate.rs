@@ -54,7 +54,8 @@ pub struct Cli {
 /// The scenarios, each with the common options and its own.
 #[derive(Subcommand, Debug)]
 pub enum Command {
-    /// One indenter, force ramp (frame 0 unloaded), optional tilt.
+    /// One indenter, force ramp (frame 0 unloaded), optional tilt; with
+    /// --sweep-to-mm, one force held while the rod moves along the skin.
     Single {
         /// Common options.
         #[command(flatten)]
@@ -367,6 +368,10 @@ pub struct SingleArgs {
     /// Force tilt in the y-z plane, deg.
     #[arg(long, value_name = "Y", allow_negative_numbers = true, default_value_t = Single::default().yaw_deg)]
     pub yaw_deg: f64,
+    /// A position sweep: every loaded frame holds the peak force, and the
+    /// rod moves in equal steps from --x-mm (frame 1) to X (the last frame).
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    pub sweep_to_mm: Option<f64>,
 }
 
 /// `pair`'s options.
@@ -595,6 +600,7 @@ impl Command {
                     indenter_mm: o.indenter_mm,
                     yaw_deg: o.yaw_deg,
                     pitch_deg: o.pitch_deg,
+                    sweep_to_mm: o.sweep_to_mm,
                 }),
                 &common,
                 true,

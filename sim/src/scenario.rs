@@ -69,6 +69,41 @@ pub struct Single {
     pub yaw_deg: f64,
     /// Tilt of the force in the x-z plane, degrees.
     pub pitch_deg: f64,
+    /// A position sweep: `Some(x_to)` holds the peak force on every loaded
+    /// frame and moves the rod from `x_mm` (frame 1) to `x_to` (the last
+    /// frame) in equal steps, each frame against the unloaded frame 0. It
+    /// shows how a calibration's readings change with the position of one
+    /// load, between the protocol's points and across the marker pattern.
+    pub sweep_to_mm: Option<f64>,
+}
+
+impl Single {
+    /// The rod of frame `k` (`None` for the reference, frame 0).
+    pub fn press(&self, k: usize) -> Option<Press> {
+        if k == 0 {
+            return None;
+        }
+        let f = tilted_force(1.0, self.yaw_deg, self.pitch_deg);
+        match self.sweep_to_mm {
+            None => Some(Press::rod(
+                self.x_mm,
+                f.map(|v| v * (self.force_n * ramp(k, self.frames))),
+                self.indenter_mm,
+            )),
+            Some(to) => {
+                let t = if self.frames > 2 {
+                    (k - 1) as f64 / (self.frames - 2) as f64
+                } else {
+                    0.0
+                };
+                Some(Press::rod(
+                    self.x_mm + t * (to - self.x_mm),
+                    f.map(|v| v * self.force_n),
+                    self.indenter_mm,
+                ))
+            }
+        }
+    }
 }
 
 impl Default for Single {
@@ -80,6 +115,7 @@ impl Default for Single {
             indenter_mm: 5.0,
             yaw_deg: 0.0,
             pitch_deg: 0.0,
+            sweep_to_mm: None,
         }
     }
 }
@@ -366,7 +402,8 @@ impl Default for Rest {
 /// A scenario and its options.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Scenario {
-    /// One indenter, force ramp, optional tilt.
+    /// One indenter, force ramp, optional tilt; or a position sweep at one
+    /// force.
     Single(Single),
     /// Two indenters at a given spacing.
     Pair(Pair),
@@ -568,6 +605,14 @@ pub fn run_with_progress(
         Scenario::Single(o) => {
             check_force("force_n", o.force_n)?;
             check_frames(o.frames)?;
+            if let Some(to) = o.sweep_to_mm
+                && !to.is_finite()
+            {
+                return Err(Error::param(
+                    "sweep_to_mm",
+                    format!("must be finite, got {to}"),
+                ));
+            }
         }
         Scenario::Pair(o) => {
             check_force("force_n", o.force_n)?;
@@ -667,18 +712,14 @@ fn single(
     o: &Single,
     progress: Progress<'_>,
 ) -> Result<Summary> {
+    // Reject a bad contact (at either end of a sweep) before writing anything.
     let f = tilted_force(1.0, o.yaw_deg, o.pitch_deg);
-    // Reject a bad contact before writing anything.
-    sensor.loads(&[Press::rod(o.x_mm, f, o.indenter_mm)])?;
+    for x in [Some(o.x_mm), o.sweep_to_mm].into_iter().flatten() {
+        sensor.loads(&[Press::rod(x, f, o.indenter_mm)])?;
+    }
     let mut w = SequenceWriter::new(c, "single", o.frames, progress)?;
     for k in 0..o.frames {
-        let a = o.force_n * ramp(k, o.frames);
-        let contacts = if k == 0 {
-            vec![]
-        } else {
-            vec![Press::rod(o.x_mm, f.map(|v| v * a), o.indenter_mm)]
-        };
-        w.frame(sensor, &contacts)?;
+        w.frame(sensor, o.press(k).as_slice())?;
     }
     Ok(Summary {
         out: c.out.clone(),

@@ -719,3 +719,47 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn single_sweep_moves_one_load_along_the_skin() {
+    let out = tmp("sweep");
+    let mut c = Common::new(&out);
+    c.flow = false;
+    let o = Single {
+        frames: 5,
+        force_n: 2.0,
+        pitch_deg: 15.0,
+        x_mm: 10.0,
+        sweep_to_mm: Some(13.0),
+        ..Single::default()
+    };
+    // Frames 1..=4 at 10, 11, 12, 13 mm, each at the full force.
+    let want_x = [10.0, 11.0, 12.0, 13.0];
+    for (k, x) in want_x.iter().enumerate() {
+        let p = o.press(k + 1).unwrap();
+        assert!((p.x_mm - x).abs() < 1e-12, "frame {}: {}", k + 1, p.x_mm);
+    }
+    assert!(o.press(0).is_none());
+    scenario::run(&Scenario::Single(o.clone()), &c).unwrap();
+    let truth: Vec<FrameRecord> = io::read_jsonl(out.join("truth.jsonl")).unwrap();
+    assert_eq!(truth.len(), 5);
+    assert!(truth[0].contacts.is_empty());
+    let f = tilted_force(2.0, 0.0, 15.0);
+    let mut last_x = f64::NEG_INFINITY;
+    for r in &truth[1..] {
+        let t = &r.contacts[0];
+        assert!((t.fx_n - f[0]).abs() < 1e-9 && (t.fz_n - f[2]).abs() < 1e-9);
+        assert!(t.x_mm > last_x, "the chord position grows along the sweep");
+        last_x = t.x_mm;
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+    // An end off the skin or a non-finite end: an error, nothing written.
+    for to in [400.0, f64::NAN] {
+        let bad = Single {
+            sweep_to_mm: Some(to),
+            ..o.clone()
+        };
+        assert!(scenario::run(&Scenario::Single(bad), &c).is_err(), "{to}");
+        assert!(!out.exists());
+    }
+}
