@@ -244,6 +244,7 @@ def simulate(
     flow: bool = False,
     fps: float = 50.0,
     full_frame: bool = False,
+    sensor: Literal["strip", "fingertip"] = "strip",
     **options: object,
 ) -> int:
     """Writes a synthetic recording into ``out``; returns the frames written."""

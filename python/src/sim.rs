@@ -64,8 +64,32 @@ fn at_most(name: &str, value: usize, max: usize) -> Result<(), Failure> {
     Ok(())
 }
 
-fn scenario(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Failure> {
-    let sc = scenario_options(name, kw)?;
+/// The simulated sensors: the paper's curved strip, or a flat fingertip
+/// sensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Sensor {
+    Strip,
+    Fingertip,
+}
+
+impl Sensor {
+    fn parse(name: &str) -> Result<Self, Failure> {
+        match name {
+            "strip" => Ok(Sensor::Strip),
+            "fingertip" => Ok(Sensor::Fingertip),
+            _ => Err(Failure::Invalid(format!(
+                "invalid parameter `sensor`: unknown sensor {name:?} (strip, fingertip)"
+            ))),
+        }
+    }
+}
+
+fn scenario(
+    name: &str,
+    sensor: Sensor,
+    kw: Option<&Bound<'_, PyDict>>,
+) -> Result<Scenario, Failure> {
+    let sc = scenario_options(name, sensor, kw)?;
     match &sc {
         Scenario::Single(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
         Scenario::Pair(s) => at_most("frames", s.frames, MAX_SIM_FRAMES)?,
@@ -86,7 +110,12 @@ fn scenario(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Fail
     Ok(sc)
 }
 
-fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenario, Failure> {
+fn scenario_options(
+    name: &str,
+    sensor: Sensor,
+    kw: Option<&Bound<'_, PyDict>>,
+) -> Result<Scenario, Failure> {
+    let fingertip = sensor == Sensor::Fingertip;
     Ok(match name {
         "single" => {
             let mut s = scenario::Single::default();
@@ -99,7 +128,8 @@ fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenar
                 frames,
                 indenter_mm,
                 yaw_deg,
-                pitch_deg
+                pitch_deg,
+                sweep_to_mm
             );
             Scenario::Single(s)
         }
@@ -118,6 +148,24 @@ fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenar
             );
             Scenario::Pair(s)
         }
+        "presses" if fingertip => {
+            let mut s = scenario::TipPresses::default();
+            set_fields!(
+                kw,
+                s,
+                name,
+                presses,
+                force_min_n,
+                force_max_n,
+                max_tilt_deg,
+                max_shear_ratio,
+                margin_mm,
+                sphere_mm,
+                punch_mm,
+                fingertip_mm
+            );
+            Scenario::TipPresses(s)
+        }
         "presses" => {
             let mut s = scenario::Presses::default();
             set_fields!(
@@ -134,12 +182,30 @@ fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenar
             Scenario::Presses(s)
         }
         "shear" => {
-            let mut s = scenario::Shear::default();
-            set_fields!(kw, s, name, x_mm, force_n, shear_n, frames, indenter_mm);
+            // On the fingertip sensor a round tip, at the centre unless placed.
+            let mut s = scenario::Shear {
+                fingertip_y_mm: fingertip.then_some(0.0),
+                ..scenario::Shear::default()
+            };
+            set_fields!(
+                kw,
+                s,
+                name,
+                x_mm,
+                force_n,
+                shear_n,
+                frames,
+                indenter_mm,
+                fingertip_y_mm
+            );
             Scenario::Shear(s)
         }
         "characterization" => {
-            let mut s = scenario::Characterization::default();
+            let mut s = if fingertip {
+                scenario::Characterization::flat()
+            } else {
+                scenario::Characterization::default()
+            };
             set_fields!(kw, s, name, subset, repeats, load_cell_noise_n);
             Scenario::Characterization(s)
         }
@@ -193,9 +259,14 @@ fn scenario_options(name: &str, kw: Option<&Bound<'_, PyDict>>) -> Result<Scenar
 /// The scenario's options are keywords (e.g. `force_n=2.0, frames=8` for
 /// `single`; `subset=400` for `characterization`); `flow` also writes the
 /// true dense motion (`.flo`), `full_frame` renders the whole camera frame.
+/// `sensor` is `"strip"` (the paper's curved strip, rods across it) or
+/// `"fingertip"` (a flat GelSight-Mini-like sensor: a 24 x 18 mm gel with a
+/// grid of dark dots filmed at 320x240; `presses` then draws spheres, flat
+/// punches and sheared fingertips anywhere in x and y, and
+/// `characterization` writes the flat protocol with its `geometry.json`).
 /// Returns the number of frames written.
 #[pyfunction]
-#[pyo3(signature = (scenario, out, *, seed=1, flow=false, fps=50.0, full_frame=false, **options))]
+#[pyo3(signature = (scenario, out, *, seed=1, flow=false, fps=50.0, full_frame=false, sensor="strip", **options))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate(
     py: Python<'_>,
@@ -205,10 +276,15 @@ pub fn simulate(
     flow: bool,
     fps: f64,
     full_frame: bool,
+    sensor: &str,
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<usize> {
-    let sc = self::scenario(scenario, options).map_err(|e| e.into_py(py))?;
+    let sensor = Sensor::parse(sensor).map_err(|e| e.into_py(py))?;
+    let sc = self::scenario(scenario, sensor, options).map_err(|e| e.into_py(py))?;
     let mut common = Common::new(out);
+    if sensor == Sensor::Fingertip {
+        common.config = SimConfig::fingertip();
+    }
     common.seed = seed;
     common.flow = flow;
     common.fps = fps;

@@ -112,3 +112,31 @@ def test_simulated_pair_through_the_sensor(calibration, tmp_path):
     with pytest.raises(TypeError, match="frames"):
         ot.simulate("single", tmp_path / "big", frames=-1)
     assert not (tmp_path / "big").exists() or not any((tmp_path / "big").iterdir())
+
+
+def test_simulated_fingertip_sensor(tmp_path):
+    import json
+
+    # Presses of round tips anywhere on the flat gel: 320x240 frames, and
+    # truth in both surface coordinates.
+    n = ot.simulate("presses", tmp_path / "p", sensor="fingertip", presses=3, seed=2)
+    assert n == 4
+    frames = list(ot.Sequence(tmp_path / "p"))
+    assert frames[0][2].shape == (240, 320)
+    truth = [json.loads(line) for line in open(tmp_path / "p" / "truth.jsonl")]
+    loaded = [c for r in truth for c in r["contacts"]]
+    assert len(loaded) == 3
+    assert any(c["y_mm"] != 0.0 for c in loaded)
+    assert all(abs(c["x_mm"]) < 12.0 and abs(c["y_mm"]) < 9.0 for c in loaded)
+    # The flat protocol writes the geometry `calibrate` reads.
+    ot.simulate("characterization", tmp_path / "c", sensor="fingertip", subset=2)
+    geometry = json.loads((tmp_path / "c" / "geometry.json").read_text())
+    assert geometry["kind"] == "flat"
+    # A position sweep on the strip: one load moved in equal steps.
+    ot.simulate("single", tmp_path / "s", frames=4, x_mm=10.0, sweep_to_mm=12.0)
+    xs = [r["contacts"][0]["x_mm"] for r in map(json.loads, open(tmp_path / "s" / "truth.jsonl")) if r["contacts"]]
+    assert len(xs) == 3 and xs[0] < xs[1] < xs[2]
+    with pytest.raises(ValueError, match="sensor"):
+        ot.simulate("presses", tmp_path / "x", sensor="cylinder")
+    with pytest.raises(ValueError, match="x_max_mm"):
+        ot.simulate("presses", tmp_path / "x", sensor="fingertip", x_max_mm=5.0)
