@@ -58,10 +58,12 @@ use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
-use optical_tactile::calibration::fit::{FitOptions, GuardOptions};
+use optical_tactile::calibration::Sample;
 use optical_tactile::calibration::fit::{
-    extract_dataset, fit_dataset, load_cell_spread, read_dataset, read_dataset_geometry,
+    DatasetFit, Extraction, extract_dataset, fit_dataset, load_cell_spread, read_dataset,
+    read_dataset_geometry,
 };
+use optical_tactile::calibration::fit::{FitOptions, GuardOptions};
 use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
@@ -481,7 +483,8 @@ fn run(args: Args) -> Result<(), Failure> {
             Split::Test,
         )
         .map_err(err)?;
-        table_ii.push((preset.to_string(), fit.test_table, by_load));
+        let beyond = beyond_markers_note(&ex, &fit).map_err(err)?;
+        table_ii.push((preset.to_string(), fit.test_table, (by_load, beyond)));
     }
     writeln!(out, "## Table I: test-set errors per threshold preset\n")?;
     writeln!(out, "{}", report::table_i_markdown(&table_i))?;
@@ -504,14 +507,46 @@ fn run(args: Args) -> Result<(), Failure> {
         )?;
         writeln!(out, "{}", report::table_ii_markdown(t))?;
     }
-    for (preset, _, by_load) in &table_ii {
+    for (preset, _, (by_load, beyond)) in &table_ii {
         writeln!(
             out,
             "## Test-set errors per indenter and force ({preset} thresholds)\n"
         )?;
         writeln!(out, "{}", report::table_loads_markdown(by_load))?;
+        if let Some(note) = beyond {
+            writeln!(out, "{note}\n")?;
+        }
     }
     Ok(())
+}
+
+/// On a regular grid of markers: how many detected test rows moved by half
+/// the grid's pitch or more (marked out of domain at run time), and the
+/// test errors of the others; `None` when no test row did.
+fn beyond_markers_note(
+    ex: &[Extraction],
+    fit: &DatasetFit,
+) -> optical_tactile::Result<Option<String>> {
+    let test = |e: &&Extraction| e.row.split == Split::Test && e.raw.is_some();
+    let detected = ex.iter().filter(test).count();
+    let beyond = ex.iter().filter(test).filter(|e| e.beyond_markers).count();
+    if beyond == 0 {
+        return Ok(None);
+    }
+    let inside: Vec<Sample> = ex
+        .iter()
+        .zip(&fit.samples)
+        .filter(|(e, _)| !e.beyond_markers)
+        .filter_map(|(_, s)| *s)
+        .collect();
+    let m = report::evaluate(&fit.calibration, &inside, Split::Test)?.total;
+    Ok(Some(format!(
+        "Motion beyond the markers: {beyond} of {detected} detected test rows moved by half \
+         the dot grid's pitch or more, where a dot cannot be told from its neighbour; the \
+         sensor marks such contacts out of domain. The other {}: MAE x {:.2} mm, y {:.2} mm, \
+         Fx {:.4}, Fy {:.4}, Fz {:.4} N.",
+        m.n, m.x_mm, m.y_mm, m.fx, m.fy, m.fz
+    )))
 }
 
 fn main() -> ExitCode {

@@ -111,6 +111,7 @@ pub mod sensor;
 pub mod error;
 pub mod geometry;
 pub mod io;
+pub mod markers;
 pub mod viz;
 
 pub use calibration::Calibration;

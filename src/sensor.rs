@@ -389,6 +389,9 @@ pub struct ContactExtractor {
     unseen: Vec<RawContact>,
     locator: ContactLocator,
     timings: StageTimings,
+    /// The pitch of the reference's markers when they form a regular grid
+    /// ([`crate::markers::grid_pitch`]).
+    marker_pitch: Option<f64>,
 }
 
 impl ContactExtractor {
@@ -415,6 +418,7 @@ impl ContactExtractor {
             unseen: Vec::new(),
             locator: ContactLocator::new(),
             timings: StageTimings::default(),
+            marker_pitch: None,
         })
     }
 
@@ -456,7 +460,24 @@ impl ContactExtractor {
         self.exposure.set_reference(reference);
         self.segmenter
             .set_observable(self.grid.observable(&self.dis));
+        self.marker_pitch = crate::markers::grid_pitch(reference);
         Ok(())
+    }
+
+    /// The pitch, in pixels, of the reference's markers when they form a
+    /// regular grid (a pattern whose autocorrelation repeats,
+    /// [`crate::markers::grid_pitch`]); `None` for random markers or before
+    /// a reference is set.
+    pub fn marker_pitch(&self) -> Option<f64> {
+        self.marker_pitch
+    }
+
+    /// Whether a contact's motion is beyond what the reference's markers can
+    /// tell: on a regular grid, a flow of half the pitch or more
+    /// ([`RawContact::peak_px`]), where a marker cannot be told from its
+    /// neighbour. Always false on random markers.
+    pub fn beyond_markers(&self, raw: &RawContact) -> bool {
+        self.marker_pitch.is_some_and(|p| raw.peak_px >= 0.5 * p)
     }
 
     /// `(width, height)` of the reference, `(0, 0)` before one is set.
@@ -1008,7 +1029,8 @@ impl TactileSensor {
         for raw in &mut self.raws {
             let loc = self.calibration.location_of(raw)?;
             raw.d_sensor = sensor_displacements(&geometry, loc[0], raw);
-            let contact = self.calibration.contact(raw)?;
+            let mut contact = self.calibration.contact(raw)?;
+            contact.out_of_domain |= self.extractor.beyond_markers(raw);
             // Nothing non-finite leaves the sensor: such a contact (a
             // calibration evaluated far outside its range) is dropped and counted.
             if contact.is_finite() {
@@ -1077,6 +1099,13 @@ impl TactileSensor {
     /// How many references have been taken (the first included).
     pub fn reference_count(&self) -> u64 {
         self.references
+    }
+
+    /// The pitch, in pixels, of the reference's markers when they form a
+    /// regular grid ([`ContactExtractor::marker_pitch`]): a contact whose
+    /// flow reaches half of it is marked [`Contact::out_of_domain`].
+    pub fn marker_pitch(&self) -> Option<f64> {
+        self.extractor.marker_pitch()
     }
 
     /// The extractor (flow, patches, divergent parts of the last frame).

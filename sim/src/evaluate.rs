@@ -56,6 +56,29 @@ pub struct Evaluation {
     pub median_latency_ms: Option<f64>,
     /// 95th percentile per-frame latency, ms (if recorded).
     pub p95_latency_ms: Option<f64>,
+    /// Matched predictions the sensor marked out of domain
+    /// (`out_of_domain` in the contacts file).
+    pub matched_out_of_domain: usize,
+    /// The errors of the matched predictions not marked out of domain, when
+    /// some are marked (`None` when none is, or when all are).
+    pub in_domain: Option<DomainErrors>,
+}
+
+/// Location and force errors of a subset of the matched contacts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct DomainErrors {
+    /// Matched pairs in the subset.
+    pub matched: usize,
+    /// Mean |x error|, mm.
+    pub mae_x_mm: f64,
+    /// Mean |y error|, mm.
+    pub mae_y_mm: f64,
+    /// Mean |Fx error|, N.
+    pub mae_fx_n: f64,
+    /// Mean |Fy error|, N.
+    pub mae_fy_n: f64,
+    /// Mean |Fz error|, N.
+    pub mae_fz_n: f64,
 }
 
 /// Matches contacts one to one by their distance in the x-y plane within
@@ -98,6 +121,8 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
         truth.iter().map(|f| (f.frame.as_str(), f)).collect();
     let mut e = Evaluation::default();
     let mut sums = [0.0f64; 7];
+    // Over the pairs whose prediction is not out of domain: x, y, Fx, Fy, Fz.
+    let mut inside = [0.0f64; 5];
     let mut latencies = Vec::new();
     for p in pred {
         if let Some(l) = p.latency_ms {
@@ -122,7 +147,32 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
             sums[4] += (a.fx_n - b.fx_n).abs();
             sums[5] += (a.fy_n - b.fy_n).abs();
             sums[6] += (a.fz_n - b.fz_n).abs();
+            if a.out_of_domain == Some(true) {
+                e.matched_out_of_domain += 1;
+            } else {
+                for (acc, err) in inside.iter_mut().zip([
+                    d[0],
+                    d[1],
+                    a.fx_n - b.fx_n,
+                    a.fy_n - b.fy_n,
+                    a.fz_n - b.fz_n,
+                ]) {
+                    *acc += err.abs();
+                }
+            }
         }
+    }
+    let kept = e.matched - e.matched_out_of_domain;
+    if e.matched_out_of_domain > 0 && kept > 0 {
+        let k = kept as f64;
+        e.in_domain = Some(DomainErrors {
+            matched: kept,
+            mae_x_mm: inside[0] / k,
+            mae_y_mm: inside[1] / k,
+            mae_fx_n: inside[2] / k,
+            mae_fy_n: inside[3] / k,
+            mae_fz_n: inside[4] / k,
+        });
     }
     let n = e.matched.max(1) as f64;
     [
@@ -182,6 +232,21 @@ impl Evaluation {
         err("MAE Fx (N)", self.mae_fx_n, 4);
         err("MAE Fy (N)", self.mae_fy_n, 4);
         err("MAE Fz (N)", self.mae_fz_n, 4);
+        if self.matched_out_of_domain > 0 {
+            row(
+                "matched contacts marked out of domain",
+                self.matched_out_of_domain.to_string(),
+            );
+        }
+        if let Some(d) = &self.in_domain {
+            row(
+                "the others: MAE x / y (mm), Fx / Fy / Fz (N)",
+                format!(
+                    "{:.3} / {:.3}, {:.4} / {:.4} / {:.4} ({} contacts)",
+                    d.mae_x_mm, d.mae_y_mm, d.mae_fx_n, d.mae_fy_n, d.mae_fz_n, d.matched
+                ),
+            );
+        }
         if let (Some(m), Some(p)) = (self.median_latency_ms, self.p95_latency_ms) {
             row("latency median / p95 (ms)", format!("{m:.2} / {p:.2}"));
         }
@@ -218,6 +283,31 @@ mod tests {
         // Both predictions near the same truth: one match, one false contact.
         let p = [c(0.0, 0.0), c(0.5, 0.0)];
         assert_eq!(match_contacts(&p, &[c(0.4, 0.0)], 5.0), vec![(1, 0)]);
+    }
+
+    #[test]
+    fn contacts_out_of_domain_are_counted_and_the_others_scored_apart() {
+        let mut far = c(10.0, -2.0);
+        far.out_of_domain = Some(true);
+        let mut near = c(0.5, -1.5);
+        near.out_of_domain = Some(false);
+        let pred = vec![f("a", vec![near, far], None)];
+        let truth = vec![f("a", vec![c(0.0, -1.0), c(10.0, -1.0)], None)];
+        let e = score(&pred, &truth, 5.0);
+        assert_eq!((e.matched, e.matched_out_of_domain), (2, 1));
+        let d = e.in_domain.expect("one contact in domain");
+        assert_eq!(d.matched, 1);
+        assert!((d.mae_x_mm - 0.5).abs() < 1e-12 && (d.mae_fz_n - 0.5).abs() < 1e-12);
+        // Over both: x (0.5 + 0) / 2, Fz (0.5 + 1) / 2.
+        assert!((e.mae_x_mm - 0.25).abs() < 1e-12 && (e.mae_fz_n - 0.75).abs() < 1e-12);
+        let md = e.to_markdown();
+        assert!(
+            md.contains("| matched contacts marked out of domain | 1 |"),
+            "{md}"
+        );
+        // Nothing marked: no separate scores.
+        let plain = score(&[f("a", vec![c(0.5, -1.5)], None)], &truth, 5.0);
+        assert_eq!((plain.matched_out_of_domain, plain.in_domain), (0, None));
     }
 
     #[test]

@@ -534,6 +534,11 @@ pub struct Extraction {
     pub profiles: [Vec<f64>; 2],
     /// The flow grid's scale (full-resolution pixels per cell).
     pub scale: f64,
+    /// Whether the strongest patch moved beyond what the reference's
+    /// markers can tell ([`ContactExtractor::beyond_markers`]: half the
+    /// pitch of a regular grid or more); such a contact is marked out of
+    /// domain at run time.
+    pub beyond_markers: bool,
 }
 
 /// Largest `geometry.json` read: 64 KiB (a geometry is a few fields).
@@ -628,8 +633,10 @@ pub fn extract_dataset(
                         column_profile_into(flow.u.view(), s, &mut profiles[0]);
                         column_profile_into(flow.v.view(), s, &mut profiles[1]);
                     }
+                    let beyond_markers = raws.first().is_some_and(|r| ex.beyond_markers(r));
                     Ok(Extraction {
                         row: row.clone(),
+                        beyond_markers,
                         raw: raws.first().copied(),
                         patches: raws.len(),
                         profiles,
@@ -703,6 +710,20 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
     s.iter().flatten().copied().collect()
 }
 
+/// The detected samples the maps are fitted on: every test row, but no
+/// training or validation row whose motion went beyond what the markers can
+/// tell ([`Extraction::beyond_markers`]): its flow may have matched each dot
+/// to a neighbour, and a map fitted on it would be wrong for every other
+/// contact. The sensor marks such contacts out of domain; the test split
+/// keeps them, so that the test errors count them.
+fn trusted(ex: &[Extraction], s: &[Option<Sample>]) -> Vec<Sample> {
+    ex.iter()
+        .zip(s)
+        .filter(|(e, _)| !(e.beyond_markers && e.row.split != Split::Test))
+        .filter_map(|(_, s)| *s)
+        .collect()
+}
+
 /// Fits a calibration from the extractions (see the module docs).
 ///
 pub fn fit_dataset(
@@ -732,7 +753,10 @@ pub fn fit_dataset(
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).
-    let first = detected(&samples(extractions, &geometry, &[], |_, _| Ok(0.0))?);
+    let first = trusted(
+        extractions,
+        &samples(extractions, &geometry, &[], |_, _| Ok(0.0))?,
+    );
     let pass1 = fit(&first, &setup, options)?;
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
@@ -764,7 +788,7 @@ pub fn fit_dataset(
             *s = None;
         }
     }
-    let mut cal = fit(&detected(&second), &setup, options)?;
+    let mut cal = fit(&trusted(extractions, &second), &setup, options)?;
     cal.profile = profile;
     cal.min_normal_n = min_normal_n;
     let mut misses = [0usize; 3];
@@ -840,10 +864,12 @@ fn match_position(
 }
 
 /// The extractions of `split` in which a contact was detected.
+/// The detected tests of a split that the profile model is fitted and
+/// checked on (not those beyond the markers, as in [`trusted`]).
 fn detected_in(extractions: &[Extraction], split: Split) -> Vec<&Extraction> {
     extractions
         .iter()
-        .filter(|e| e.row.split == split && e.raw.is_some())
+        .filter(|e| e.row.split == split && e.raw.is_some() && !e.beyond_markers)
         .collect()
 }
 

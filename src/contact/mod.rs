@@ -36,6 +36,12 @@ pub struct RawContact {
     pub bbox: Roi,
     /// Summed flow magnitude of the patch: the detection strength.
     pub strength: f64,
+    /// The largest flow magnitude in the patch's box, full-resolution
+    /// pixels. On a regular grid of markers, motion of half the grid's
+    /// pitch or more cannot be told apart from a neighbouring marker's
+    /// ([`crate::markers`]).
+    #[serde(default)]
+    pub peak_px: f64,
     /// Local force components (tangential, across, outward normal) matched
     /// from the frame's motion profile ([`crate::contact::profile::ForceMatcher`]),
     /// when the calibration has a profile model; they then replace the sums
@@ -105,8 +111,11 @@ pub struct Contact {
     pub fallback: bool,
     /// Whether the contact lies outside what its calibration knows: force
     /// inputs outside the box of the training data (beyond the guard's
-    /// margin, [`crate::calibration::GUARD_BOX_MARGIN`]), or a location off
-    /// the sensor's surface ([`crate::geometry::SensorGeometry::contains`]).
+    /// margin, [`crate::calibration::GUARD_BOX_MARGIN`]), a location off
+    /// the sensor's surface ([`crate::geometry::SensorGeometry::contains`]),
+    /// or, on a regular grid of markers, motion of half the grid's pitch or
+    /// more ([`crate::sensor::ContactExtractor::beyond_markers`]), where a
+    /// marker cannot be told from its neighbour.
     /// Its location and force are extrapolations: use them with care (a
     /// calibration from another sensor, a crop that is not the calibration's,
     /// a press far stronger than any in the characterization).
@@ -205,7 +214,8 @@ fn parabola_offset(a: f64, b: f64, c: f64) -> f64 {
 ///   over the patch at full resolution;
 /// - `dn`: sum of `|d|`, times `scale^2`;
 /// - `d_pf`: `max D - min D` (already in full-resolution units when the
-///   decomposition used spacing `scale`).
+///   decomposition used spacing `scale`);
+/// - `peak_px`: the largest `|(u, v)|`.
 ///
 /// `area_px`, `bbox` and `strength` are left for the caller (the segmentation
 /// knows them). Errors on mismatched shapes or an empty patch.
@@ -274,7 +284,13 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
         .map(|(a, b)| (a * a + b * b).sqrt())
         .sum::<f64>()
         * area;
+    let peak_px =
+        f.u.iter()
+            .zip(f.v.iter())
+            .map(|(&a, &b)| f64::from(a.hypot(b)))
+            .fold(0.0, f64::max);
     Ok(RawContact {
+        peak_px,
         x_px: (grid.x0 as f64 + j as f64 + oj + 0.5) * s - 0.5,
         y_px: (grid.y0 as f64 + i as f64 + oi + 0.5) * s - 0.5,
         ds1: sum(&f.u),

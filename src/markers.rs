@@ -1,0 +1,318 @@
+//! The marker pattern of a reference frame: the pitch of a regular grid.
+//!
+//! A regular grid of markers (the dark dots of a GelSight-class sensor) is
+//! periodic: seen against one unloaded reference, a dot that moved by a
+//! whole pitch looks exactly like its neighbour that did not move, and once
+//! neighbouring dots move by half the pitch or more relative to each other,
+//! no flow can tell which dot went where. [`grid_pitch`] measures the pitch
+//! so that the sensor can mark such motion ([`crate::Contact::out_of_domain`]).
+//! A random marker pattern has no pitch: its autocorrelation has no second
+//! peak, and [`grid_pitch`] returns `None`.
+//!
+//! Method: the autocorrelation of the mean-removed image (by FFT, on a
+//! central window of at most [`MAX_WINDOW_PX`] a side, zero-padded so that
+//! nothing wraps around), normalised by its value at zero shift. Past the
+//! central peak (the first shift along either axis where it stops falling),
+//! the highest value within a third of the window is the nearest lattice
+//! vector; its length is the pitch when that value reaches
+//! [`MIN_GRID_CORRELATION`].
+
+use ndarray::ArrayRef2;
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex64;
+
+/// Largest side, in pixels, of the central window the pitch is measured on:
+/// the pattern repeats, so a window of many pitches says as much as the
+/// whole frame, at a bounded cost.
+pub const MAX_WINDOW_PX: usize = 160;
+
+/// Smallest normalised autocorrelation of the nearest lattice vector for the
+/// pattern to count as a regular grid. Regular grids score about 0.5-0.9
+/// (less with noise, jitter or vignetting); random markers stay below 0.15.
+pub const MIN_GRID_CORRELATION: f64 = 0.35;
+
+/// Smallest window side, in pixels, on which a pitch is looked for.
+const MIN_WINDOW_PX: usize = 16;
+
+/// The pitch, in pixels, of a regular grid of markers in `reference`, or
+/// `None` when the image shows no regular grid (random markers, a plain
+/// image, a window smaller than 16 px, non-finite pixels). The shortest
+/// lattice vector's length, to the nearest pixel of shift; a pitch above a
+/// third of the window (53 px at the most) is not looked for.
+pub fn grid_pitch(reference: &ArrayRef2<f32>) -> Option<f64> {
+    let (h, w) = reference.dim();
+    let (wh, ww) = (h.min(MAX_WINDOW_PX), w.min(MAX_WINDOW_PX));
+    if wh < MIN_WINDOW_PX || ww < MIN_WINDOW_PX {
+        return None;
+    }
+    let (y0, x0) = ((h - wh) / 2, (w - ww) / 2);
+    let window = reference.slice(ndarray::s![y0..y0 + wh, x0..x0 + ww]);
+    if window.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let (ph, pw) = (2 * wh, 2 * ww);
+    let buf = raw_autocorrelation(window);
+    let zero = buf[0];
+    if !(zero > 0.0 && zero.is_finite()) {
+        return None; // a plain image
+    }
+    // Normalised by the number of overlapping pixels at each shift, so
+    // that long shifts (few pixels overlap) are not penalised.
+    let at = |dy: isize, dx: isize| -> f64 {
+        let (iy, ix) = (
+            dy.rem_euclid(ph as isize) as usize,
+            dx.rem_euclid(pw as isize) as usize,
+        );
+        let overlap = (wh - dy.unsigned_abs()) * (ww - dx.unsigned_abs());
+        buf[iy * pw + ix] / zero * (wh * ww) as f64 / overlap as f64
+    };
+    let reach = (wh.min(ww) / 3) as isize;
+    // The central peak's radius: the first shift along each axis where the
+    // correlation stops falling.
+    let fall = |step: (isize, isize)| -> isize {
+        let mut k = 1;
+        while k < reach && at(k * step.0, k * step.1) > at((k + 1) * step.0, (k + 1) * step.1) {
+            k += 1;
+        }
+        k
+    };
+    let r0 = fall((0, 1)).max(fall((1, 0)));
+    // Every lattice vector correlates about as well as the shortest (a
+    // perfect grid: all equally), so the pitch is the shortest peak whose
+    // correlation comes within 15% of the highest.
+    let mut shifts = Vec::new();
+    // Half the shifts suffice (the correlation is symmetric): dy >= 0.
+    for dy in 0..=reach {
+        for dx in -reach..=reach {
+            let d = ((dy * dy + dx * dx) as f64).sqrt();
+            if d <= r0 as f64 || d > reach as f64 {
+                continue;
+            }
+            // Only the peaks: a broad peak's inner slope can come within
+            // 15% of the highest value at a shorter shift than the peak's.
+            let c = at(dy, dx);
+            let peak = (-1..=1)
+                .flat_map(|a| (-1..=1).map(move |b| (a, b)))
+                .filter(|&o| o != (0, 0))
+                .all(|(a, b)| at(dy + a, dx + b) <= c);
+            if peak {
+                shifts.push((d, c));
+            }
+        }
+    }
+    let best = shifts.iter().map(|s| s.1).fold(f64::NEG_INFINITY, f64::max);
+    if best < MIN_GRID_CORRELATION {
+        return None;
+    }
+    shifts
+        .iter()
+        .filter(|s| s.1 >= 0.85 * best)
+        .map(|s| s.0)
+        .min_by(f64::total_cmp)
+}
+
+/// The autocorrelation of the mean-removed `window` (`h x w`), unnormalised:
+/// `sum over (i, j) of a(i, j) a(i + dy, j + dx)` with `a` the window minus
+/// its mean and zero outside, at index `(dy mod 2h) * 2w + (dx mod 2w)`. By
+/// FFT of the window zero-padded to `2h x 2w`, so that no shift wraps round.
+fn raw_autocorrelation(window: ndarray::ArrayView2<'_, f32>) -> Vec<f64> {
+    let (wh, ww) = window.dim();
+    let mean = window.iter().map(|&v| f64::from(v)).sum::<f64>() / (wh * ww) as f64;
+    let (ph, pw) = (2 * wh, 2 * ww);
+    let mut buf = vec![Complex64::new(0.0, 0.0); ph * pw];
+    for (i, row) in window.rows().into_iter().enumerate() {
+        for (j, &v) in row.iter().enumerate() {
+            buf[i * pw + j].re = f64::from(v) - mean;
+        }
+    }
+    let mut planner = FftPlanner::<f64>::new();
+    fft2(&mut buf, ph, pw, &mut planner, false);
+    for z in &mut buf {
+        *z = Complex64::new(z.norm_sqr(), 0.0);
+    }
+    fft2(&mut buf, ph, pw, &mut planner, true);
+    let n = (ph * pw) as f64;
+    buf.iter().map(|z| z.re / n).collect()
+}
+
+/// In-place 2-D FFT of a row-major `h x w` buffer (forward, or inverse
+/// without the `1 / (h w)` scale).
+fn fft2(buf: &mut [Complex64], h: usize, w: usize, planner: &mut FftPlanner<f64>, inverse: bool) {
+    let plan = |n: usize, planner: &mut FftPlanner<f64>| {
+        if inverse {
+            planner.plan_fft_inverse(n)
+        } else {
+            planner.plan_fft_forward(n)
+        }
+    };
+    let rows = plan(w, planner);
+    for row in buf.chunks_exact_mut(w) {
+        rows.process(row);
+    }
+    let cols = plan(h, planner);
+    let mut col = vec![Complex64::new(0.0, 0.0); h];
+    for j in 0..w {
+        for (i, c) in col.iter_mut().enumerate() {
+            *c = buf[i * w + j];
+        }
+        cols.process(&mut col);
+        for (i, c) in col.iter().enumerate() {
+            buf[i * w + j] = *c;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+
+    /// A grid of round dots: `pitch` px apart along two lattice vectors at
+    /// `angle` (radians) and `angle + gamma`, dots of `radius` px, `dark`
+    /// dots on a bright background or bright on dark.
+    fn grid(
+        w: usize,
+        h: usize,
+        pitch: f64,
+        angle: f64,
+        gamma: f64,
+        radius: f64,
+        dark: bool,
+    ) -> Array2<f32> {
+        let (a, b) = (
+            (pitch * angle.cos(), pitch * angle.sin()),
+            (pitch * (angle + gamma).cos(), pitch * (angle + gamma).sin()),
+        );
+        let det = a.0 * b.1 - a.1 * b.0;
+        Array2::from_shape_fn((h, w), |(i, j)| {
+            let (x, y) = (j as f64 + 0.3, i as f64 + 0.7);
+            // Lattice coordinates, then the nearest lattice point.
+            let s = (x * b.1 - y * b.0) / det;
+            let t = (a.0 * y - a.1 * x) / det;
+            let mut near = f64::INFINITY;
+            for ds in [-1.0, 0.0, 1.0] {
+                for dt in [-1.0, 0.0, 1.0] {
+                    let (ps, pt) = (s.round() + ds, t.round() + dt);
+                    let (px, py) = (ps * a.0 + pt * b.0, ps * a.1 + pt * b.1);
+                    near = near.min(((x - px).powi(2) + (y - py).powi(2)).sqrt());
+                }
+            }
+            let on = near < radius;
+            (if on == dark { 40.0 } else { 200.0 }) as f32
+        })
+    }
+
+    #[test]
+    fn square_and_hexagonal_grids_give_their_pitch() {
+        use std::f64::consts::FRAC_PI_2;
+        for (pitch, angle, gamma, dark) in [
+            (22.0, 0.0, FRAC_PI_2, true),
+            (30.0, 0.3, FRAC_PI_2, true),
+            (14.0, 0.0, FRAC_PI_2, false),
+            (25.0, 0.1, std::f64::consts::PI / 3.0, true),
+        ] {
+            let img = grid(320, 240, pitch, angle, gamma, 3.5, dark);
+            let p = grid_pitch(&img).expect("a grid");
+            assert!((p - pitch).abs() <= 1.0, "pitch {pitch}: measured {p}");
+        }
+    }
+
+    #[test]
+    fn the_fft_autocorrelation_matches_the_direct_sum() {
+        let mut state = 7_u64;
+        let img = Array2::from_shape_fn((19, 23), |_| {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+            (state >> 40) as f32
+        });
+        let (h, w) = img.dim();
+        let mean = img.iter().map(|&v| f64::from(v)).sum::<f64>() / (h * w) as f64;
+        let a = |i: isize, j: isize| -> f64 {
+            if (0..h as isize).contains(&i) && (0..w as isize).contains(&j) {
+                f64::from(img[[i as usize, j as usize]]) - mean
+            } else {
+                0.0
+            }
+        };
+        let fast = raw_autocorrelation(img.view());
+        for (dy, dx) in [
+            (0, 0),
+            (0, 1),
+            (1, 0),
+            (3, -5),
+            (-7, 2),
+            (18, 22),
+            (-18, -22),
+        ] {
+            let mut direct = 0.0;
+            for i in 0..h as isize {
+                for j in 0..w as isize {
+                    direct += a(i, j) * a(i + dy, j + dx);
+                }
+            }
+            let (iy, ix) = (
+                dy.rem_euclid(2 * h as isize) as usize,
+                dx.rem_euclid(2 * w as isize) as usize,
+            );
+            let f = fast[iy * 2 * w + ix];
+            assert!(
+                (f - direct).abs() <= 1e-6 * direct.abs().max(1.0),
+                "({dy}, {dx}): {f} vs {direct}"
+            );
+        }
+    }
+
+    #[test]
+    fn random_markers_and_plain_images_have_no_pitch() {
+        let mut state = 0x1234_5678_u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as f64 / (1u64 << 31) as f64
+        };
+        let mut img = Array2::<f32>::from_elem((240, 320), 30.0);
+        for _ in 0..900 {
+            let (cx, cy) = (next() * 320.0, next() * 240.0);
+            for i in 0..240 {
+                for j in 0..320 {
+                    if (j as f64 - cx).powi(2) + (i as f64 - cy).powi(2) < 4.0 {
+                        img[[i, j]] = 220.0;
+                    }
+                }
+            }
+        }
+        assert_eq!(grid_pitch(&img), None);
+        assert_eq!(grid_pitch(&Array2::from_elem((240, 320), 80.0)), None);
+        assert_eq!(grid_pitch(&Array2::from_elem((8, 320), 80.0)), None);
+        let mut bad = grid(64, 64, 16.0, 0.0, std::f64::consts::FRAC_PI_2, 3.0, true);
+        bad[[3, 3]] = f32::NAN;
+        assert_eq!(grid_pitch(&bad), None);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config {
+            cases: 32,
+            rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(11),
+            failure_persistence: None,
+            ..Default::default()
+        })]
+
+        /// Square grids of any pitch a sensor uses, turned by any angle,
+        /// with dots of a fifth to a third of the pitch, either polarity,
+        /// on frames of various sizes: the pitch within a pixel.
+        #[test]
+        fn any_square_grid_gives_its_pitch(
+            pitch in 10.0f64..45.0,
+            angle in 0.0f64..std::f64::consts::FRAC_PI_2,
+            dot in 0.2f64..0.33,
+            dark in proptest::bool::ANY,
+            w in 200usize..400,
+            h in 150usize..300,
+        ) {
+            let img = grid(w, h, pitch, angle, std::f64::consts::FRAC_PI_2, dot * pitch, dark);
+            let p = grid_pitch(&img);
+            proptest::prop_assert!(p.is_some_and(|p| (p - pitch).abs() <= 1.0), "pitch {pitch}: {p:?}");
+        }
+    }
+}
