@@ -1022,9 +1022,15 @@ impl TactileSensor {
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);
         let live = self.tracker.update(&self.detections, dt).len();
-        let (flow, scale) = self.extractor.flow();
-        let tile = (QUIET_TILE_PX / scale).max(1);
-        let quiet_flow = max_tile_mean_where(flow, tile, &self.textured, self.textured_x);
+        // The quiet flow only where the monitor reads it (re-referencing on,
+        // no contact): otherwise its answer does not depend on it.
+        let quiet_flow = if self.monitor.reads_flow(live) {
+            let (flow, scale) = self.extractor.flow();
+            let tile = (QUIET_TILE_PX / scale).max(1);
+            max_tile_mean_where(flow, tile, &self.textured, self.textured_x)
+        } else {
+            f64::NAN
+        };
         self.rereferenced = self.monitor.observe(t_s, live, quiet_flow);
         if self.rereferenced {
             // Quiet for long enough: this frame becomes the reference.
