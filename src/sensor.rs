@@ -37,7 +37,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, ArrayRef2};
+use ndarray::{Array2, ArrayRef2, ArrayView2};
 use rayon::prelude::*;
 
 use crate::calibration::{Calibration, SensorSetup};
@@ -322,6 +322,22 @@ fn scale_into(flow: &FlowField, gain: f32, out: &mut FlowField) {
         (None, _) | (_, None) => ndarray::Zip::from(o).and(x).for_each(|o, &x| *o = x * gain),
     };
     rayon::join(|| scale(&mut out.u, &flow.u), || scale(&mut out.v, &flow.v));
+}
+
+/// `dst.assign(src)` (same shapes), row by row as slices when `src`'s rows
+/// are contiguous (a crop's are) and `dst` is standard layout: `assign`
+/// goes element by element through ndarray's `Zip`.
+fn copy_rows(src: &ArrayView2<'_, f32>, dst: &mut Array2<f32>) {
+    let rows_ok = src.rows().into_iter().all(|r| r.as_slice().is_some());
+    if rows_ok && dst.is_standard_layout() {
+        for (s, mut d) in src.rows().into_iter().zip(dst.rows_mut()) {
+            d.as_slice_mut()
+                .expect("standard layout")
+                .copy_from_slice(s.to_slice().expect("contiguous row"));
+        }
+    } else {
+        dst.assign(src);
+    }
 }
 
 /// Averages `flow` over `factor x factor` blocks into `out`, in the pixel
@@ -949,7 +965,7 @@ impl TactileSensor {
         if self.cropped.dim() != view.dim() {
             self.cropped = Array2::zeros(view.dim());
         }
-        self.cropped.assign(&view);
+        copy_rows(&view, &mut self.cropped);
         Ok(())
     }
 
@@ -1106,6 +1122,20 @@ impl TactileSensor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn copy_rows_copies_crops_and_strided_views() {
+        let big = Array2::from_shape_fn((9, 14), |(y, x)| (y * 14 + x) as f32 * 0.5 - 7.0);
+        for view in [
+            big.slice(ndarray::s![1..8, 2..13]),
+            big.t().slice_move(ndarray::s![..10, ..]),
+            big.view(),
+        ] {
+            let mut dst = Array2::from_elem(view.dim(), f32::NAN);
+            copy_rows(&view, &mut dst);
+            assert_eq!(dst, view);
+        }
+    }
 
     #[test]
     fn scale_into_multiplies_every_value() {
