@@ -37,7 +37,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, ArrayRef2};
+use ndarray::{Array2, ArrayRef2, ArrayView2};
 use rayon::prelude::*;
 
 use crate::calibration::{Calibration, SensorSetup};
@@ -311,10 +311,33 @@ fn scale_into(flow: &FlowField, gain: f32, out: &mut FlowField) {
     if out.size() != flow.size() {
         *out = FlowField::zeros(flow.width(), flow.height());
     }
-    let scale = |o: &mut Array2<f32>, x: &Array2<f32>| {
-        ndarray::Zip::from(o).and(x).for_each(|o, &x| *o = x * gain)
+    let scale = |o: &mut Array2<f32>, x: &Array2<f32>| match (o.as_slice_mut(), x.as_slice()) {
+        // Both standard layout (the flows here are): a plain loop over the
+        // slices, which vectorises.
+        (Some(o), Some(x)) => {
+            for (o, &x) in o.iter_mut().zip(x) {
+                *o = x * gain;
+            }
+        }
+        (None, _) | (_, None) => ndarray::Zip::from(o).and(x).for_each(|o, &x| *o = x * gain),
     };
     rayon::join(|| scale(&mut out.u, &flow.u), || scale(&mut out.v, &flow.v));
+}
+
+/// `dst.assign(src)` (same shapes), row by row as slices when `src`'s rows
+/// are contiguous (a crop's are) and `dst` is standard layout: `assign`
+/// goes element by element through ndarray's `Zip`.
+fn copy_rows(src: &ArrayView2<'_, f32>, dst: &mut Array2<f32>) {
+    let rows_ok = src.rows().into_iter().all(|r| r.as_slice().is_some());
+    if rows_ok && dst.is_standard_layout() {
+        for (s, mut d) in src.rows().into_iter().zip(dst.rows_mut()) {
+            d.as_slice_mut()
+                .expect("standard layout")
+                .copy_from_slice(s.to_slice().expect("contiguous row"));
+        }
+    } else {
+        dst.assign(src);
+    }
 }
 
 /// Averages `flow` over `factor x factor` blocks into `out`, in the pixel
@@ -963,7 +986,7 @@ impl TactileSensor {
         if self.cropped.dim() != view.dim() {
             self.cropped = Array2::zeros(view.dim());
         }
-        self.cropped.assign(&view);
+        copy_rows(&view, &mut self.cropped);
         Ok(())
     }
 
@@ -1044,9 +1067,15 @@ impl TactileSensor {
         let dt = self.last_t.map_or(0.0, |p| t_s - p);
         self.last_t = Some(t_s);
         let live = self.tracker.update(&self.detections, dt).len();
-        let (flow, scale) = self.extractor.flow();
-        let tile = (QUIET_TILE_PX / scale).max(1);
-        let quiet_flow = max_tile_mean_where(flow, tile, &self.textured, self.textured_x);
+        // The quiet flow only where the monitor reads it (re-referencing on,
+        // no contact): otherwise its answer does not depend on it.
+        let quiet_flow = if self.monitor.reads_flow(live) {
+            let (flow, scale) = self.extractor.flow();
+            let tile = (QUIET_TILE_PX / scale).max(1);
+            max_tile_mean_where(flow, tile, &self.textured, self.textured_x)
+        } else {
+            f64::NAN
+        };
         self.rereferenced = self.monitor.observe(t_s, live, quiet_flow);
         if self.rereferenced {
             // Quiet for long enough: this frame becomes the reference.
@@ -1122,6 +1151,42 @@ impl TactileSensor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn copy_rows_copies_crops_and_strided_views() {
+        let big = Array2::from_shape_fn((9, 14), |(y, x)| (y * 14 + x) as f32 * 0.5 - 7.0);
+        for view in [
+            big.slice(ndarray::s![1..8, 2..13]),
+            big.t().slice_move(ndarray::s![..10, ..]),
+            big.view(),
+        ] {
+            let mut dst = Array2::from_elem(view.dim(), f32::NAN);
+            copy_rows(&view, &mut dst);
+            assert_eq!(dst, view);
+        }
+    }
+
+    #[test]
+    fn scale_into_multiplies_every_value() {
+        // Against the plain product per element: the slice loop (standard
+        // layout) and the resize of a wrong-sized output.
+        let mut rnd = crate::flow::unit_stream(0x6a09_e667_f3bc_c908u64);
+        let mut flow = FlowField::zeros(37, 11);
+        for x in flow.u.iter_mut().chain(flow.v.iter_mut()) {
+            *x = if rnd() < 0.1 {
+                -0.0
+            } else {
+                40.0 * rnd() - 20.0
+            };
+        }
+        for gain in [1.0f32, 2.0, 0.37] {
+            let mut out = FlowField::zeros(3, 2);
+            scale_into(&flow, gain, &mut out);
+            let bits = |a: &Array2<f32>| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&out.u), bits(&flow.u.mapv(|x| x * gain)));
+            assert_eq!(bits(&out.v), bits(&flow.v.mapv(|x| x * gain)));
+        }
+    }
 
     /// The obvious twin of `pool_into`: each output cell averages its block
     /// one value at a time.

@@ -432,6 +432,15 @@ impl ReferenceMonitor {
         &self.policy
     }
 
+    /// Whether [`observe`](Self::observe) reads its flow magnitude for a
+    /// frame with `live_contacts` live contacts: only when the policy is on
+    /// and nothing touches (otherwise the frame is not quiet, or not
+    /// watched, whatever the flow). A caller may then skip measuring it and
+    /// pass any value, such as NaN.
+    pub fn reads_flow(&self, live_contacts: usize) -> bool {
+        self.policy.enabled && live_contacts == 0
+    }
+
     /// Feeds one frame: its time, the number of live contacts (held ones
     /// included) and its largest flow magnitude. Returns `true` when this frame
     /// should become the new reference; the quiet clock then starts again.
@@ -463,6 +472,36 @@ impl ReferenceMonitor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_flow_the_monitor_does_not_read_changes_nothing() {
+        // Wherever `reads_flow` is false, NaN in place of the flow gives the
+        // same answers and leaves the same state, frame after frame.
+        for enabled in [false, true] {
+            let policy = ReferencePolicy {
+                enabled,
+                quiet_s: 0.05,
+                max_flow_px: 0.1,
+                ..Default::default()
+            };
+            let (mut a, mut b) = (
+                ReferenceMonitor::new(policy).unwrap(),
+                ReferenceMonitor::new(policy).unwrap(),
+            );
+            for k in 0..40 {
+                let t = 0.02 * k as f64;
+                let live = [0, 0, 0, 1, 0, 0, 0, 0, 2, 0][k % 10];
+                let flow = [0.01, 0.5, 0.02, 0.03, 0.0][k % 5];
+                let skipped = if a.reads_flow(live) { flow } else { f64::NAN };
+                assert_eq!(
+                    a.observe(t, live, skipped),
+                    b.observe(t, live, flow),
+                    "frame {k}"
+                );
+                assert_eq!(a.quiet_since, b.quiet_since);
+            }
+        }
+    }
 
     fn det(x: f64, fz: f64, strength: f64) -> Contact {
         let mut c = Contact {

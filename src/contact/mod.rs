@@ -246,13 +246,58 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
         });
     }
     let d = &f.potential_d;
+    // One pass over the five fields: the minimum and maximum of D, the
+    // largest |(u, v)| and the three sums, each in row-major order as the plain twin (in the tests)
+    // takes them one field at a time, so the same values bit for bit; side
+    // by side, the five chains of dependent operations overlap. Each sum
+    // starts where `Iterator::sum` starts.
+    let zero: f64 = std::iter::empty::<f64>().sum();
     let (mut best, mut lo, mut hi) = ((0, 0), f64::INFINITY, f64::NEG_INFINITY);
-    for ((i, j), &x) in d.indexed_iter() {
-        if x < lo {
-            lo = x;
-            best = (i, j);
+    let (mut su, mut sv, mut dn) = (zero, zero, zero);
+    // The largest squared |(u, v)|: one square root at the end.
+    let mut peak2 = 0.0f32;
+    for i in 0..h {
+        let rows = (d.row(i), f.u.row(i), f.v.row(i), f.d_u.row(i), f.d_v.row(i));
+        let slices = (
+            rows.0.as_slice(),
+            rows.1.as_slice(),
+            rows.2.as_slice(),
+            rows.3.as_slice(),
+            rows.4.as_slice(),
+        );
+        if let (Some(dr), Some(ur), Some(vr), Some(dur), Some(dvr)) = slices {
+            for j in 0..w {
+                let x = dr[j];
+                if x < lo {
+                    lo = x;
+                    best = (i, j);
+                }
+                hi = hi.max(x);
+                su += ur[j] as f64;
+                sv += vr[j] as f64;
+                peak2 = peak2.max(ur[j] * ur[j] + vr[j] * vr[j]);
+                let (a, b) = (dur[j], dvr[j]);
+                // |d| as sqrt(a^2 + b^2): within an ulp of `hypot`, which
+                // guards against overflow that displacements of a few
+                // pixels never reach, at several times the cost.
+                dn += (a * a + b * b).sqrt();
+            }
+        } else {
+            let (dr, ur, vr, dur, dvr) = rows;
+            for j in 0..w {
+                let x = dr[j];
+                if x < lo {
+                    lo = x;
+                    best = (i, j);
+                }
+                hi = hi.max(x);
+                su += ur[j] as f64;
+                sv += vr[j] as f64;
+                peak2 = peak2.max(ur[j] * ur[j] + vr[j] * vr[j]);
+                let (a, b) = (dur[j], dvr[j]);
+                dn += (a * a + b * b).sqrt();
+            }
         }
-        hi = hi.max(x);
     }
     if !(lo.is_finite() && hi.is_finite()) {
         return Err(Error::NonFinite {
@@ -273,29 +318,13 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
     }
     let s = grid.scale;
     let area = s * s;
-    let sum = |a: &ArrayView2<'_, f32>| a.iter().map(|&x| x as f64).sum::<f64>() * area;
-    // |d| as sqrt(a^2 + b^2): within an ulp of `hypot`, which guards
-    // against overflow that displacements of a few pixels never reach, at
-    // several times the cost.
-    let dn = f
-        .d_u
-        .iter()
-        .zip(f.d_v.iter())
-        .map(|(a, b)| (a * a + b * b).sqrt())
-        .sum::<f64>()
-        * area;
-    let peak_px =
-        f.u.iter()
-            .zip(f.v.iter())
-            .map(|(&a, &b)| f64::from(a.hypot(b)))
-            .fold(0.0, f64::max);
     Ok(RawContact {
-        peak_px,
+        peak_px: f64::from(peak2.sqrt()),
         x_px: (grid.x0 as f64 + j as f64 + oj + 0.5) * s - 0.5,
         y_px: (grid.y0 as f64 + i as f64 + oi + 0.5) * s - 0.5,
-        ds1: sum(&f.u),
-        ds2: sum(&f.v),
-        dn,
+        ds1: su * area,
+        ds2: sv * area,
+        dn: dn * area,
         d_pf: hi - lo,
         ..Default::default()
     })
@@ -840,6 +869,193 @@ pub fn rotate_to_sensor(geometry: &SensorGeometry, x_mm: f64, raw: &RawContact) 
 mod tests {
     use super::*;
     use ndarray::Array2;
+
+    /// The plain twin of [`raw_quantities`]: one field at a time.
+    fn raw_quantities_plain(
+        f: &PatchFields<'_>,
+        grid: PatchGrid,
+        subpixel: bool,
+    ) -> Result<RawContact> {
+        let shape = f.u.dim();
+        for (what, dim) in [
+            ("v", f.v.dim()),
+            ("D", f.potential_d.dim()),
+            ("d.u", f.d_u.dim()),
+            ("d.v", f.d_v.dim()),
+        ] {
+            if dim != shape {
+                return Err(Error::shape(
+                    format!("patch field {what} against u"),
+                    (shape.1, shape.0),
+                    (dim.1, dim.0),
+                ));
+            }
+        }
+        let (h, w) = shape;
+        if h == 0 || w == 0 {
+            return Err(Error::TooSmall {
+                what: "contact patch".into(),
+                width: w,
+                height: h,
+                min_w: 1,
+                min_h: 1,
+            });
+        }
+        let d = &f.potential_d;
+        let (mut best, mut lo, mut hi) = ((0, 0), f64::INFINITY, f64::NEG_INFINITY);
+        for ((i, j), &x) in d.indexed_iter() {
+            if x < lo {
+                lo = x;
+                best = (i, j);
+            }
+            hi = hi.max(x);
+        }
+        if !(lo.is_finite() && hi.is_finite()) {
+            return Err(Error::NonFinite {
+                what: "divergence potential".into(),
+                row: best.0,
+                col: best.1,
+            });
+        }
+        let (i, j) = best;
+        let (mut oi, mut oj) = (0.0, 0.0);
+        if subpixel {
+            if i > 0 && i + 1 < h {
+                oi = parabola_offset(d[[i - 1, j]], d[[i, j]], d[[i + 1, j]]);
+            }
+            if j > 0 && j + 1 < w {
+                oj = parabola_offset(d[[i, j - 1]], d[[i, j]], d[[i, j + 1]]);
+            }
+        }
+        let s = grid.scale;
+        let area = s * s;
+        let sum = |a: &ArrayView2<'_, f32>| a.iter().map(|&x| x as f64).sum::<f64>() * area;
+        // |d| as sqrt(a^2 + b^2): within an ulp of `hypot`, which guards
+        // against overflow that displacements of a few pixels never reach, at
+        // several times the cost.
+        let dn = f
+            .d_u
+            .iter()
+            .zip(f.d_v.iter())
+            .map(|(a, b)| (a * a + b * b).sqrt())
+            .sum::<f64>()
+            * area;
+        let peak_px = f64::from(
+            f.u.iter()
+                .zip(f.v.iter())
+                .map(|(&a, &b)| (a * a + b * b).sqrt())
+                .fold(0.0f32, f32::max),
+        );
+        Ok(RawContact {
+            peak_px,
+            x_px: (grid.x0 as f64 + j as f64 + oj + 0.5) * s - 0.5,
+            y_px: (grid.y0 as f64 + i as f64 + oi + 0.5) * s - 0.5,
+            ds1: sum(&f.u),
+            ds2: sum(&f.v),
+            dn,
+            d_pf: hi - lo,
+            ..Default::default()
+        })
+    }
+
+    #[test]
+    fn raw_quantities_match_the_plain_twin_bit_for_bit() {
+        // Random fields (some exactly -0.0, and u, v as windows of a larger
+        // flow, whose rows are not contiguous), both sub-pixel settings,
+        // and a NaN and an infinity in D (the same error, or none).
+        let mut rnd = crate::flow::unit_stream(0x3c6e_f372_fe94_f82bu64);
+        for round in 0..60 {
+            let (h, w) = (1 + (12.0 * rnd()) as usize, 1 + (30.0 * rnd()) as usize);
+            let mut val = || -> f64 {
+                let r = rnd();
+                if r < 0.1 {
+                    -0.0
+                } else {
+                    f64::from(8.0 * rnd() - 4.0)
+                }
+            };
+            let big_u = Array2::from_shape_fn((h + 3, w + 5), |_| val() as f32);
+            let big_v = Array2::from_shape_fn((h + 3, w + 5), |_| val() as f32);
+            let mut pd = Array2::from_shape_fn((h, w), |_| val());
+            let du = Array2::from_shape_fn((h, w), |_| val());
+            let dv = Array2::from_shape_fn((h, w), |_| val());
+            if round % 7 == 3 {
+                pd[[h / 2, w / 2]] = f64::NAN;
+            }
+            if round % 11 == 5 {
+                pd[[h - 1, 0]] = f64::NEG_INFINITY;
+            }
+            let (u, v) = if round % 2 == 0 {
+                (
+                    big_u.slice(ndarray::s![1..h + 1, 2..w + 2]),
+                    big_v.slice(ndarray::s![2..h + 2, 3..w + 3]),
+                )
+            } else {
+                (
+                    big_u.slice(ndarray::s![..h;1, ..w;1]),
+                    big_v.slice(ndarray::s![..h, ..w]),
+                )
+            };
+            let f = PatchFields {
+                u,
+                v,
+                potential_d: pd.view(),
+                d_u: du.view(),
+                d_v: dv.view(),
+            };
+            let grid = PatchGrid {
+                x0: 3,
+                y0: 1,
+                scale: 2.0,
+            };
+            for subpixel in [false, true] {
+                let got = raw_quantities(&f, grid, subpixel);
+                let want = raw_quantities_plain(&f, grid, subpixel);
+                match (got, want) {
+                    (Ok(a), Ok(b)) => {
+                        let bits = |r: &RawContact| {
+                            [r.x_px, r.y_px, r.ds1, r.ds2, r.dn, r.d_pf].map(f64::to_bits)
+                        };
+                        assert_eq!(bits(&a), bits(&b), "round {round}");
+                    }
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                    (a, b) => panic!("round {round}: {a:?} against {b:?}"),
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn raw_quantities_read_strided_columns() {
+        // A transposed view: no row is contiguous, the general loop runs.
+        let pd = Array2::from_shape_fn((5, 4), |(i, j)| {
+            ((i as f64) - 2.0).powi(2) + (j as f64 - 1.0).powi(2)
+        });
+        let t = pd.t().to_owned();
+        let du = Array2::from_shape_fn((5, 4), |(i, j)| (i * 5 + j) as f64 * 0.1 - 1.0);
+        let dut = du.t().to_owned();
+        let u = Array2::from_shape_fn((4, 5), |(i, j)| (i + 2 * j) as f32 * 0.25);
+        let f = PatchFields {
+            u: u.t(),
+            v: u.t(),
+            potential_d: t.t(),
+            d_u: dut.t(),
+            d_v: dut.t(),
+        };
+        let grid = PatchGrid {
+            x0: 0,
+            y0: 0,
+            scale: 1.0,
+        };
+        let (a, b) = (
+            raw_quantities(&f, grid, true).unwrap(),
+            raw_quantities_plain(&f, grid, true).unwrap(),
+        );
+        assert_eq!(
+            [a.x_px, a.y_px, a.ds1, a.ds2, a.dn, a.d_pf],
+            [b.x_px, b.y_px, b.ds1, b.ds2, b.dn, b.d_pf]
+        );
+    }
 
     #[test]
     fn parabola_vertex_is_exact_for_a_parabola() {

@@ -534,6 +534,11 @@ struct Level {
     /// Patch rows covering pixel row `y`: `ilo[y]..=ihi[y]`.
     ilo: Vec<u32>,
     ihi: Vec<u32>,
+    /// Per patch column, whether no other patch column covers any of its
+    /// pixels (see [`solo_columns`]), and the pixel spans (start, end) the
+    /// other columns cover, merged.
+    solo: Vec<bool>,
+    shared: Vec<(u32, u32)>,
     patches: Vec<PatchRef>,
     /// Patch flow vectors (per frame).
     sx: Vec<f32>,
@@ -580,6 +585,30 @@ fn coverage(n: usize, p: usize, corners: &[u32]) -> (Vec<u32>, Vec<u32>) {
         hi[x] = last as u32;
     }
     (lo, hi)
+}
+
+/// Which patch columns of corners `px` (patches of side `p`) are alone on
+/// their pixels (no other column's patch covers any of them), and the
+/// spans `(start, end)` of the pixels the other columns cover, merged and
+/// in order. With a stride equal to the patch (`fine`) every column is
+/// alone but the last ones when the width is not a multiple of the patch.
+fn solo_columns(px: &[u32], p: usize) -> (Vec<bool>, Vec<(u32, u32)>) {
+    let n = px.len();
+    let solo: Vec<bool> = (0..n)
+        .map(|j| {
+            let (x0, x1) = (px[j] as usize, px[j] as usize + p);
+            (0..n).all(|k| k == j || px[k] as usize >= x1 || px[k] as usize + p <= x0)
+        })
+        .collect();
+    let mut shared: Vec<(u32, u32)> = Vec::new();
+    for j in (0..n).filter(|&j| !solo[j]) {
+        let (a, b) = (px[j], px[j] + p as u32);
+        match shared.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => shared.push((a, b)),
+        }
+    }
+    (solo, shared)
 }
 
 /// Dense Inverse Search optical flow against a fixed reference frame.
@@ -784,6 +813,7 @@ impl Dis {
             let px = patch_corners(lw, psz, stride);
             let py = patch_corners(lh, psz, stride);
             let (ilo, ihi) = coverage(lh, psz, &py);
+            let (solo, shared) = solo_columns(&px, psz);
             let ws = px.len();
             let patches: Vec<PatchRef> = (0..py.len() * ws)
                 .into_par_iter()
@@ -832,6 +862,8 @@ impl Dis {
                 py,
                 ilo,
                 ihi,
+                solo,
+                shared,
                 patches,
                 sx: vec![0.0; n],
                 sy: vec![0.0; n],
@@ -1954,6 +1986,8 @@ fn densify(lvl: &mut Level, psz: usize) {
         px,
         ilo,
         ihi,
+        solo: &lvl.solo,
+        shared: &lvl.shared,
     };
     fu.par_chunks_mut(w)
         .zip(fv.par_chunks_mut(w))
@@ -1982,6 +2016,9 @@ struct DenseRows<'a> {
     px: &'a [u32],
     ilo: &'a [u32],
     ihi: &'a [u32],
+    /// [`solo_columns`] of `px`.
+    solo: &'a [bool],
+    shared: &'a [(u32, u32)],
 }
 
 /// [`densify_row`] as a `pulp` operation (a `with_simd` method marked
@@ -2001,69 +2038,199 @@ impl pulp::WithSimd for DensifyRowOp<'_, '_> {
     }
 }
 
-/// Row `y` of [`densify`]: the flow sums `ur`, `vr` and the weight sums `swr`, then
-/// the weighted averages.
+/// Row `y` of [`densify`]: the flow `ur`, `vr` ([`densify_row_sums`]'s
+/// values bit for bit). A row that one patch row covers (every row of
+/// `fine` on a height that is a multiple of the patch) takes each pixel
+/// that one patch alone covers straight to its value: that pixel's sums
+/// would be `0 + wgt pu`, `0 + wgt pv` and `0 + wgt`, and its flow their
+/// quotients, which is what [`densify_solo_row8`] computes, with no sums
+/// to clear, add to and divide afterwards. The pixels of the other patch
+/// columns (the spans `d.shared`) are summed in `ur`, `vr` and `swr` as
+/// [`densify_row_sums`] does.
 #[inline(always)]
 fn densify_row(d: &DenseRows, y: usize, [ur, vr, swr]: [&mut [f32]; 3]) {
-    let DenseRows {
-        w,
-        h,
-        ws,
-        psz,
-        i0,
-        i1,
-        sx,
-        sy,
-        px,
-        ilo,
-        ihi,
-    } = *d;
+    let i = d.ilo[y] as usize;
+    if i != d.ihi[y] as usize {
+        densify_row_sums(d, y, [ur, vr, swr]);
+        return;
+    }
+    for &(a, b) in d.shared {
+        let span = a as usize..b as usize;
+        ur[span.clone()].fill(0.0);
+        vr[span.clone()].fill(0.0);
+        swr[span].fill(0.0);
+    }
+    for j in 0..d.ws {
+        if d.solo[j] {
+            densify_patch_solo(d, y, i, j, [&mut *ur, &mut *vr]);
+        } else {
+            densify_patch(d, y, i, j, [&mut *ur, &mut *vr, &mut *swr]);
+        }
+    }
+    for &(a, b) in d.shared {
+        let span = a as usize..b as usize;
+        for ((u, v), s) in ur[span.clone()]
+            .iter_mut()
+            .zip(vr[span.clone()].iter_mut())
+            .zip(&swr[span])
+        {
+            *u /= s;
+            *v /= s;
+        }
+    }
+}
+
+/// Row `y` of [`densify`], every pixel by its sums: the flow sums `ur`, `vr`
+/// and the weight sums `swr` over the patches covering it, then the
+/// weighted averages (the plain form of [`densify_row`]).
+#[inline(always)]
+fn densify_row_sums(d: &DenseRows, y: usize, [ur, vr, swr]: [&mut [f32]; 3]) {
     ur.fill(0.0);
     vr.fill(0.0);
     swr.fill(0.0);
-    let r0 = &i0[y * w..][..w];
-    for i in ilo[y] as usize..=ihi[y] as usize {
-        for j in 0..ws {
-            let (pu, pv) = (sx[i * ws + j], sy[i * ws + j]);
-            let x0 = px[j] as usize;
-            let fx = x0 as f32 + pu;
-            let fy = y as f32 + pv;
-            let (ixf, iyf) = (fast_floor(fx), fast_floor(fy));
-            let inside = fx.is_finite()
-                && fy.is_finite()
-                && ixf >= 0.0
-                && iyf >= 0.0
-                && ixf + (psz as f32) < w as f32
-                && iyf + 1.0 < h as f32;
-            let ref_row = &r0[x0..][..psz];
-            let (u_acc, v_acc) = (&mut ur[x0..][..psz], &mut vr[x0..][..psz]);
-            let w_acc = &mut swr[x0..][..psz];
-            if inside {
-                let (ax, ay) = (fx - ixf, fy - iyf);
-                // In range (checked above): the i32 conversion is one
-                // instruction, the saturating f32 -> usize one is not.
-                let o = iyf as i32 as usize * w + ixf as i32 as usize;
-                let rows = [&i1[o..][..psz + 1], &i1[o + w..][..psz + 1]];
-                let acc = [u_acc, v_acc, w_acc];
-                if psz == 8 {
-                    densify_patch_row8(rows, ref_row, [ax, ay], [pu, pv], acc);
-                } else {
-                    densify_patch_row(psz, rows, ref_row, [ax, ay], [pu, pv], acc);
-                }
-            } else {
-                for c in 0..psz {
-                    let s = pyramid::sample_clamped(i1, w, h, (x0 + c) as f32 + pu, fy);
-                    let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
-                    u_acc[c] += wgt * pu;
-                    v_acc[c] += wgt * pv;
-                    w_acc[c] += wgt;
-                }
-            }
+    for i in d.ilo[y] as usize..=d.ihi[y] as usize {
+        for j in 0..d.ws {
+            densify_patch(d, y, i, j, [&mut *ur, &mut *vr, &mut *swr]);
         }
     }
     for ((u, v), s) in ur.iter_mut().zip(vr.iter_mut()).zip(swr.iter()) {
         *u /= s;
         *v /= s;
+    }
+}
+
+/// The offset in the current image of a patch row's first sample and its
+/// bilinear fractions `[ax, ay]`.
+type RowWindow = (usize, [f32; 2]);
+
+/// Where patch `(i, j)`'s row `y` samples the current image: its vector,
+/// first column, and, when its `psz + 1` samples of rows `iy` and `iy + 1`
+/// lie inside, the offset of the first and the bilinear fractions.
+#[inline(always)]
+fn patch_row_window(
+    d: &DenseRows,
+    y: usize,
+    i: usize,
+    j: usize,
+) -> ([f32; 2], usize, Option<RowWindow>) {
+    let (w, h, psz) = (d.w, d.h, d.psz);
+    let (pu, pv) = (d.sx[i * d.ws + j], d.sy[i * d.ws + j]);
+    let x0 = d.px[j] as usize;
+    let fx = x0 as f32 + pu;
+    let fy = y as f32 + pv;
+    let (ixf, iyf) = (fast_floor(fx), fast_floor(fy));
+    let inside = fx.is_finite()
+        && fy.is_finite()
+        && ixf >= 0.0
+        && iyf >= 0.0
+        && ixf + (psz as f32) < w as f32
+        && iyf + 1.0 < h as f32;
+    let win = inside.then(|| {
+        // In range (checked above): the i32 conversion is one
+        // instruction, the saturating f32 -> usize one is not.
+        let o = iyf as i32 as usize * w + ixf as i32 as usize;
+        (o, [fx - ixf, fy - iyf])
+    });
+    ([pu, pv], x0, win)
+}
+
+/// Patch `(i, j)`'s contribution to the sums of row `y`.
+#[inline(always)]
+fn densify_patch(d: &DenseRows, y: usize, i: usize, j: usize, [ur, vr, swr]: [&mut [f32]; 3]) {
+    let (w, h, psz, i1) = (d.w, d.h, d.psz, d.i1);
+    let ([pu, pv], x0, win) = patch_row_window(d, y, i, j);
+    let ref_row = &d.i0[y * w + x0..][..psz];
+    let (u_acc, v_acc) = (&mut ur[x0..][..psz], &mut vr[x0..][..psz]);
+    let w_acc = &mut swr[x0..][..psz];
+    if let Some((o, wts)) = win {
+        let rows = [&i1[o..][..psz + 1], &i1[o + w..][..psz + 1]];
+        let acc = [u_acc, v_acc, w_acc];
+        if psz == 8 {
+            densify_patch_row8(rows, ref_row, wts, [pu, pv], acc);
+        } else {
+            densify_patch_row(psz, rows, ref_row, wts, [pu, pv], acc);
+        }
+    } else {
+        let fy = y as f32 + pv;
+        for c in 0..psz {
+            let s = pyramid::sample_clamped(i1, w, h, (x0 + c) as f32 + pu, fy);
+            let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
+            u_acc[c] += wgt * pu;
+            v_acc[c] += wgt * pv;
+            w_acc[c] += wgt;
+        }
+    }
+}
+
+/// The flow of row `y` on the pixels of patch `(i, j)`, which no other
+/// patch covers: [`densify_patch`] into zero sums, then the quotients,
+/// in one step (the same operations, so the same values bit for bit).
+#[inline(always)]
+fn densify_patch_solo(d: &DenseRows, y: usize, i: usize, j: usize, [ur, vr]: [&mut [f32]; 2]) {
+    let (w, h, psz, i1) = (d.w, d.h, d.psz, d.i1);
+    let ([pu, pv], x0, win) = patch_row_window(d, y, i, j);
+    let ref_row = &d.i0[y * w + x0..][..psz];
+    let (u_out, v_out) = (&mut ur[x0..][..psz], &mut vr[x0..][..psz]);
+    match win {
+        Some((o, wts)) if psz == 8 => {
+            let rows = [&i1[o..][..9], &i1[o + w..][..9]];
+            densify_solo_row8(rows, ref_row, wts, [pu, pv], [u_out, v_out]);
+        }
+        _ => {
+            let fy = y as f32 + pv;
+            for c in 0..psz {
+                let s = match win {
+                    Some((o, [ax, ay])) => {
+                        let (top, bot) = (&i1[o..], &i1[o + w..]);
+                        let t = top[c] + ax * (top[c + 1] - top[c]);
+                        let b = bot[c] + ax * (bot[c + 1] - bot[c]);
+                        t + ay * (b - t)
+                    }
+                    None => pyramid::sample_clamped(i1, w, h, (x0 + c) as f32 + pu, fy),
+                };
+                let wgt = 1.0 / (s - ref_row[c]).abs().max(1.0);
+                let sw = 0.0 + wgt;
+                u_out[c] = (0.0 + wgt * pu) / sw;
+                v_out[c] = (0.0 + wgt * pv) / sw;
+            }
+        }
+    }
+}
+
+/// [`densify_patch_solo`]'s 8-pixel form, vectorised as
+/// [`densify_patch_row8`] is: each pixel's flow straight from its one
+/// weight, `(0 + wgt pu) / (0 + wgt)` (the sums' first additions kept: `0 +
+/// -0.0` is `+0.0`).
+#[inline(always)]
+fn densify_solo_row8(
+    [top, bot]: [&[f32]; 2],
+    ref_row: &[f32],
+    [ax, ay]: [f32; 2],
+    [pu, pv]: [f32; 2],
+    [u_out, v_out]: [&mut [f32]; 2],
+) {
+    let top: &[f32; 9] = top[..9].try_into().expect("9 values");
+    let bot: &[f32; 9] = bot[..9].try_into().expect("9 values");
+    let ref_row: &[f32; 8] = ref_row[..8].try_into().expect("8 values");
+    let wgt: [f32; 8] = std::array::from_fn(|c| {
+        let t = top[c] + ax * (top[c + 1] - top[c]);
+        let b = bot[c] + ax * (bot[c + 1] - bot[c]);
+        let s = t + ay * (b - t);
+        1.0 / (s - ref_row[c]).abs().max(1.0)
+    });
+    let sw: [f32; 8] = std::array::from_fn(|c| 0.0 + wgt[c]);
+    let u_out: &mut [f32; 8] = (&mut u_out[..8]).try_into().expect("8 values");
+    let v_out: &mut [f32; 8] = (&mut v_out[..8]).try_into().expect("8 values");
+    quotient8(u_out, &wgt, &sw, pu);
+    quotient8(v_out, &wgt, &sw, pv);
+}
+
+/// `out = (0 + s wgt) / sw` element-wise (separate so that each output
+/// vectorises as a whole array, as in [`add_scaled8`]).
+#[inline(always)]
+fn quotient8(out: &mut [f32; 8], wgt: &[f32; 8], sw: &[f32; 8], s: f32) {
+    for c in 0..8 {
+        out[c] = (0.0 + wgt[c] * s) / sw[c];
     }
 }
 
@@ -2263,49 +2430,122 @@ mod tests {
     }
 
     #[test]
-    fn dispatched_densify_row_matches_the_baseline_row_bit_for_bit() {
-        // `densify_row` called directly is compiled for the baseline target; through
-        // `simd_arch` it runs in the detected instruction set, through `Arch::Scalar`
-        // on the fallback path. Vectors up to +-10 px: patches inside and outside.
+    fn solo_columns_mark_the_pixels_one_patch_covers() {
+        // Stride = patch on an exact width: all alone; on a ragged width the
+        // last two columns share pixels; a smaller stride shares them all.
+        let (solo, shared) = solo_columns(&patch_corners(32, 8, 8), 8);
+        assert!(solo.iter().all(|&s| s) && shared.is_empty());
+        let (solo, shared) = solo_columns(&patch_corners(36, 8, 8), 8);
+        assert_eq!(solo, [true, true, true, false, false]);
+        assert_eq!(shared, [(24, 36)]);
+        let (solo, shared) = solo_columns(&patch_corners(36, 8, 4), 8);
+        assert!(solo.iter().all(|&s| !s));
+        assert_eq!(shared, [(0, 36)]);
+        // The oracle: a column is alone when no pixel of it has another.
+        for (n, p, s) in [(45, 8, 3), (45, 8, 8), (40, 8, 8), (23, 4, 4), (50, 5, 7)] {
+            let px = patch_corners(n, p, s);
+            let (solo, shared) = solo_columns(&px, p);
+            let count = |x: usize| {
+                px.iter()
+                    .filter(|&&c| c as usize <= x && x < c as usize + p)
+                    .count()
+            };
+            for (j, &c) in px.iter().enumerate() {
+                let alone = (c as usize..c as usize + p).all(|x| count(x) == 1);
+                assert_eq!(solo[j], alone, "{n} {p} {s} column {j}");
+            }
+            for x in 0..n {
+                let in_shared = shared
+                    .iter()
+                    .any(|&(a, b)| a as usize <= x && x < b as usize);
+                assert_eq!(
+                    in_shared,
+                    count(x) > 1
+                        || px
+                            .iter()
+                            .enumerate()
+                            .any(|(j, &c)| !solo[j] && c as usize <= x && x < c as usize + p),
+                    "{n} {p} {s} pixel {x}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn densify_row_matches_the_summed_row_bit_for_bit() {
+        // `densify_row` (pixels of a lone patch straight to their value)
+        // against `densify_row_sums`, its plain twin, called directly
+        // (compiled for the baseline target), through `simd_arch` (the
+        // detected instruction set) and through `Arch::Scalar` (the fallback
+        // path). Strides equal to the patch (lone patches, exact and ragged
+        // sizes) and smaller (shared pixels); vectors up to +-10 px, patches
+        // inside and outside, some exactly zero or -0.0.
         let mut rnd = crate::flow::unit_stream(0x5851_f42d_4c95_7f2du64);
-        let (w, h, psz) = (45usize, 23usize, 8usize);
-        let px = patch_corners(w, psz, 3);
-        let py = patch_corners(h, psz, 3);
-        let (ilo, ihi) = coverage(h, psz, &py);
-        let ws = px.len();
-        let i0: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
-        let i1: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
-        let sx: Vec<f32> = (0..ws * py.len()).map(|_| 20.0 * rnd() - 10.0).collect();
-        let sy: Vec<f32> = (0..ws * py.len()).map(|_| 20.0 * rnd() - 10.0).collect();
-        let d = DenseRows {
-            w,
-            h,
-            ws,
-            psz,
-            i0: &i0,
-            i1: &i1,
-            sx: &sx,
-            sy: &sy,
-            px: &px,
-            ilo: &ilo,
-            ihi: &ihi,
-        };
-        let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        for y in 0..h {
-            let mut want: Vec<Vec<f32>> = (0..3).map(|_| vec![0.0f32; w]).collect();
-            let [a, b, c] = want.get_disjoint_mut([0, 1, 2]).expect("distinct");
-            densify_row(&d, y, [a, b, c]);
-            assert!(want[2].iter().all(|&s| s > 0.0), "every pixel covered");
-            for arch in [super::super::simd_arch(), pulp::Arch::Scalar] {
-                let mut got: Vec<Vec<f32>> = (0..3).map(|_| vec![0.0f32; w]).collect();
-                let [a, b, c] = got.get_disjoint_mut([0, 1, 2]).expect("distinct");
-                arch.dispatch(DensifyRowOp {
-                    d: &d,
-                    y,
-                    out: [a, b, c],
-                });
-                for k in 0..3 {
-                    assert_eq!(bits(&got[k]), bits(&want[k]), "row {y}, plane {k}");
+        for (w, h, psz, stride) in [
+            (45usize, 23usize, 8usize, 3usize),
+            (48, 24, 8, 8),
+            (45, 23, 8, 8),
+            (37, 21, 5, 5),
+            (30, 19, 4, 3),
+        ] {
+            let px = patch_corners(w, psz, stride);
+            let py = patch_corners(h, psz, stride);
+            let (ilo, ihi) = coverage(h, psz, &py);
+            let (solo, shared) = solo_columns(&px, psz);
+            let ws = px.len();
+            let i0: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+            let i1: Vec<f32> = (0..w * h).map(|_| 255.0 * rnd()).collect();
+            let vector = |r: f32, q: f32| match (4.0 * q) as usize {
+                0 => 0.0,
+                1 => -0.0,
+                _ => 20.0 * r - 10.0,
+            };
+            let sx: Vec<f32> = (0..ws * py.len()).map(|_| vector(rnd(), rnd())).collect();
+            let sy: Vec<f32> = (0..ws * py.len()).map(|_| vector(rnd(), rnd())).collect();
+            let d = DenseRows {
+                w,
+                h,
+                ws,
+                psz,
+                i0: &i0,
+                i1: &i1,
+                sx: &sx,
+                sy: &sy,
+                px: &px,
+                ilo: &ilo,
+                ihi: &ihi,
+                solo: &solo,
+                shared: &shared,
+            };
+            let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            for y in 0..h {
+                let mut want: Vec<Vec<f32>> = (0..3).map(|_| vec![0.0f32; w]).collect();
+                let [a, b, c] = want.get_disjoint_mut([0, 1, 2]).expect("distinct");
+                densify_row_sums(&d, y, [a, b, c]);
+                assert!(want[2].iter().all(|&s| s > 0.0), "every pixel covered");
+                // Garbage in the buffers: the row must not read what it did
+                // not write.
+                let mut direct: Vec<Vec<f32>> = (0..3).map(|_| vec![f32::NAN; w]).collect();
+                let [a, b, c] = direct.get_disjoint_mut([0, 1, 2]).expect("distinct");
+                densify_row(&d, y, [a, b, c]);
+                for k in 0..2 {
+                    assert_eq!(
+                        bits(&direct[k]),
+                        bits(&want[k]),
+                        "{w}x{h} row {y}, plane {k}"
+                    );
+                }
+                for arch in [super::super::simd_arch(), pulp::Arch::Scalar] {
+                    let mut got: Vec<Vec<f32>> = (0..3).map(|_| vec![7.0f32; w]).collect();
+                    let [a, b, c] = got.get_disjoint_mut([0, 1, 2]).expect("distinct");
+                    arch.dispatch(DensifyRowOp {
+                        d: &d,
+                        y,
+                        out: [a, b, c],
+                    });
+                    for k in 0..2 {
+                        assert_eq!(bits(&got[k]), bits(&want[k]), "{w}x{h} row {y}, plane {k}");
+                    }
                 }
             }
         }

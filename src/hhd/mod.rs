@@ -494,22 +494,45 @@ fn check_input<T>(
 }
 
 /// `src` as f64 into `dst` (same shape); errors at the first non-finite
-/// value, naming it `what`.
+/// value, naming it `what`. Row by row over slices when the rows are
+/// contiguous (the patches' windows of a flow are): every value is
+/// copied, and the first bad one is looked for only when a row holds one.
 fn copy_finite<T: HhdScalar>(
     what: &str,
     src: ArrayView2<'_, T>,
     dst: &mut Array2<f64>,
 ) -> Result<()> {
-    for ((row, col), &x) in src.indexed_iter() {
-        let x: f64 = x.into();
-        if !x.is_finite() {
-            return Err(Error::NonFinite {
-                what: what.into(),
-                row,
-                col,
-            });
+    let bad = |row: usize, col: usize| Error::NonFinite {
+        what: what.into(),
+        row,
+        col,
+    };
+    for (r, (s, mut d)) in src.rows().into_iter().zip(dst.rows_mut()).enumerate() {
+        match (s.as_slice(), d.as_slice_mut()) {
+            (Some(s), Some(d)) => {
+                // `0 x` is 0 for a finite value and NaN otherwise: summed,
+                // one test per row (no early exit, so the loop vectorises).
+                let mut acc = 0.0f64;
+                for (o, &x) in d.iter_mut().zip(s) {
+                    let x: f64 = x.into();
+                    *o = x;
+                    acc += 0.0 * x;
+                }
+                if acc != 0.0 {
+                    let c = d.iter().position(|x| !x.is_finite()).unwrap_or(0);
+                    return Err(bad(r, c));
+                }
+            }
+            _ => {
+                for (c, (o, &x)) in d.iter_mut().zip(s.iter()).enumerate() {
+                    let x: f64 = x.into();
+                    if !x.is_finite() {
+                        return Err(bad(r, c));
+                    }
+                    *o = x;
+                }
+            }
         }
-        dst[[row, col]] = x;
     }
     Ok(())
 }
@@ -664,6 +687,73 @@ fn gradient_y_slices(f: &[f64], ny: usize, nx: usize, dy: f64, gy: &mut [f64]) {
 mod tests {
     use super::*;
     use ndarray::array;
+
+    /// The plain twin of [`copy_finite`]: element by element.
+    fn copy_finite_plain<T: HhdScalar>(
+        what: &str,
+        src: ArrayView2<'_, T>,
+        dst: &mut Array2<f64>,
+    ) -> Result<()> {
+        for ((row, col), &x) in src.indexed_iter() {
+            let x: f64 = x.into();
+            if !x.is_finite() {
+                return Err(Error::NonFinite {
+                    what: what.into(),
+                    row,
+                    col,
+                });
+            }
+            dst[[row, col]] = x;
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn copy_finite_matches_the_plain_copy() {
+        // Contiguous rows (a window of a wider array) and strided ones (a
+        // transposed view); all finite, or a NaN or an infinity somewhere
+        // (the same first bad value named, the rows before it copied).
+        let big =
+            Array2::from_shape_fn((9, 13), |(i, j)| (i as f32 - 4.0) * 0.37 + j as f32 * -0.11);
+        for bad in [
+            None,
+            Some((3usize, 5usize, f32::NAN)),
+            Some((0, 0, f32::INFINITY)),
+            Some((6, 9, f32::NEG_INFINITY)),
+        ] {
+            let mut src = big.clone();
+            if let Some((i, j, x)) = bad {
+                src[[i, j]] = x;
+                src[[i + 1, 2]] = f32::NAN;
+            }
+            for view in [
+                src.slice(ndarray::s![1..8, 2..12]),
+                src.t().slice_move(ndarray::s![.., ..]),
+            ] {
+                let (mut a, mut b) = (
+                    Array2::from_elem(view.dim(), 7.0),
+                    Array2::from_elem(view.dim(), 7.0),
+                );
+                let (ra, rb) = (
+                    copy_finite("x", view, &mut a),
+                    copy_finite_plain("x", view, &mut b),
+                );
+                assert_eq!(format!("{ra:?}"), format!("{rb:?}"));
+                if ra.is_ok() {
+                    assert_eq!(a, b);
+                } else {
+                    // The rows before the bad value's are copied alike.
+                    let Err(Error::NonFinite { row, .. }) = ra else {
+                        unreachable!()
+                    };
+                    assert_eq!(
+                        a.slice(ndarray::s![..row, ..]),
+                        b.slice(ndarray::s![..row, ..])
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn gradient_matches_numpy_on_a_small_example() {

@@ -709,7 +709,7 @@ impl Segmenter {
                 .dilate(&self.eroded, &mut self.mask, &st.dilate, 1)?;
             self.contours.external_boxes(&self.mask, &mut self.boxes);
             for b in &self.boxes {
-                if box_sum_where(flow, b, observable) >= st.sum {
+                if box_sum_where_reaches(flow, b, observable, st.sum) {
                     self.seen.push(*b);
                 }
             }
@@ -1171,8 +1171,32 @@ fn check_flow(flow: &FlowField) -> Result<()> {
 
 /// Sum of `|flow|` over a box: per row in f32 with eight lanes (vectorises),
 /// rows accumulated in f64. A row whose f32 squares overflow is redone in f64.
+/// Whether [`box_sum_where`] of `b` reaches `limit` (`>=`): the same sum
+/// in the same order, stopped at the end of the first row where it has
+/// reached it. Every term is non-negative, and adding a non-negative
+/// number never lowers a floating-point sum, so the whole sum would reach
+/// it too: the same answer, and a large patch stops after a few rows.
+fn box_sum_where_reaches(flow: &FlowField, b: &BoundingBox, mask: &Mask, limit: f64) -> bool {
+    let mut sum = 0.0f64;
+    if sum >= limit {
+        return true;
+    }
+    for y in b.y..b.y_end() {
+        for x in b.x..b.x_end() {
+            if mask.get(x, y) {
+                sum += f64::from(flow.u[[y, x]]).hypot(f64::from(flow.v[[y, x]]));
+            }
+        }
+        if sum >= limit {
+            return true;
+        }
+    }
+    false
+}
+
 /// Summed `|flow|` over the pixels of box `b` set in `mask` (the slow,
 /// plain sum: it runs only on the few contours of the observable part).
+#[cfg(test)]
 fn box_sum_where(flow: &FlowField, b: &BoundingBox, mask: &Mask) -> f64 {
     let mut sum = 0.0f64;
     for y in b.y..b.y_end() {
@@ -1280,6 +1304,55 @@ fn max_window_sum(flow: &FlowField, k: usize, integral: &mut Vec<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_stopped_masked_sum_answers_as_the_whole_sum() {
+        // Random flows, masks and boxes; limits at the whole sum, one ulp
+        // either side of it, at a partial row sum, 0, negative and NaN.
+        let mut rnd = crate::flow::unit_stream(0x1f83_d9ab_fb41_bd6bu64);
+        for round in 0..80 {
+            let (w, h) = (3 + (20.0 * rnd()) as usize, 2 + (12.0 * rnd()) as usize);
+            let mut f = FlowField::zeros(w, h);
+            for y in 0..h {
+                for x in 0..w {
+                    f.u[[y, x]] = 4.0 * rnd() - 2.0;
+                    f.v[[y, x]] = if rnd() < 0.1 { -0.0 } else { 4.0 * rnd() - 2.0 };
+                }
+            }
+            let density = rnd();
+            let mask = Mask::from_fn(w, h, |_, _| rnd() < density);
+            let (x0, y0) = ((w as f32 * rnd()) as usize, (h as f32 * rnd()) as usize);
+            let b = BoundingBox::new(
+                x0,
+                y0,
+                1 + ((w - x0 - 1) as f32 * rnd()) as usize,
+                1 + ((h - y0 - 1) as f32 * rnd()) as usize,
+            );
+            let whole = box_sum_where(&f, &b, &mask);
+            let first_row = box_sum_where(&f, &BoundingBox::new(b.x, b.y, b.width, 1), &mask);
+            let limits = [
+                whole,
+                f64::from_bits(whole.to_bits() + 1),
+                if whole > 0.0 {
+                    f64::from_bits(whole.to_bits() - 1)
+                } else {
+                    -1.0
+                },
+                first_row,
+                0.0,
+                -3.0,
+                f64::NAN,
+                whole * 0.5,
+            ];
+            for limit in limits {
+                assert_eq!(
+                    box_sum_where_reaches(&f, &b, &mask, limit),
+                    whole >= limit,
+                    "round {round}, limit {limit}, sum {whole}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn odd_sizes() {
