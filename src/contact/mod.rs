@@ -220,37 +220,13 @@ fn parabola_offset(a: f64, b: f64, c: f64) -> f64 {
 /// `area_px`, `bbox` and `strength` are left for the caller (the segmentation
 /// knows them). Errors on mismatched shapes or an empty patch.
 pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> Result<RawContact> {
-    let shape = f.u.dim();
-    for (what, dim) in [
-        ("v", f.v.dim()),
-        ("D", f.potential_d.dim()),
-        ("d.u", f.d_u.dim()),
-        ("d.v", f.d_v.dim()),
-    ] {
-        if dim != shape {
-            return Err(Error::shape(
-                format!("patch field {what} against u"),
-                (shape.1, shape.0),
-                (dim.1, dim.0),
-            ));
-        }
-    }
-    let (h, w) = shape;
-    if h == 0 || w == 0 {
-        return Err(Error::TooSmall {
-            what: "contact patch".into(),
-            width: w,
-            height: h,
-            min_w: 1,
-            min_h: 1,
-        });
-    }
+    let (h, w) = patch_shape(f)?;
     let d = &f.potential_d;
     // One pass over the five fields: the minimum and maximum of D, the
-    // largest |(u, v)| and the three sums, each in row-major order as the plain twin (in the tests)
-    // takes them one field at a time, so the same values bit for bit; side
-    // by side, the five chains of dependent operations overlap. Each sum
-    // starts where `Iterator::sum` starts.
+    // largest |(u, v)| and the three sums, each in row-major order as the
+    // plain twin (in the tests) takes them one field at a time, so the same
+    // values bit for bit; side by side, the five chains of dependent
+    // operations overlap. Each sum starts where `Iterator::sum` starts.
     let zero: f64 = std::iter::empty::<f64>().sum();
     let (mut best, mut lo, mut hi) = ((0, 0), f64::INFINITY, f64::NEG_INFINITY);
     let (mut su, mut sv, mut dn) = (zero, zero, zero);
@@ -299,6 +275,62 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
             }
         }
     }
+    let (x_px, y_px) = minimum_point(d, best, (lo, hi), grid, subpixel)?;
+    let area = grid.scale * grid.scale;
+    Ok(RawContact {
+        peak_px: f64::from(peak2.sqrt()),
+        x_px,
+        y_px,
+        ds1: su * area,
+        ds2: sv * area,
+        dn: dn * area,
+        d_pf: hi - lo,
+        ..Default::default()
+    })
+}
+
+/// The common shape `(h, w)` of a patch's fields; errors on mismatched
+/// shapes or an empty patch.
+fn patch_shape(f: &PatchFields<'_>) -> Result<(usize, usize)> {
+    let shape = f.u.dim();
+    for (what, dim) in [
+        ("v", f.v.dim()),
+        ("D", f.potential_d.dim()),
+        ("d.u", f.d_u.dim()),
+        ("d.v", f.d_v.dim()),
+    ] {
+        if dim != shape {
+            return Err(Error::shape(
+                format!("patch field {what} against u"),
+                (shape.1, shape.0),
+                (dim.1, dim.0),
+            ));
+        }
+    }
+    let (h, w) = shape;
+    if h == 0 || w == 0 {
+        return Err(Error::TooSmall {
+            what: "contact patch".into(),
+            width: w,
+            height: h,
+            min_w: 1,
+            min_h: 1,
+        });
+    }
+    Ok((h, w))
+}
+
+/// The contact point, full-resolution pixels, of the minimum of `d` at cell
+/// `best` (refined to sub-pixel by a parabola through its neighbours along
+/// each axis when `subpixel`, interior minima only), given D's extremes
+/// `(lo, hi)`: an error if they are not finite.
+fn minimum_point(
+    d: &ArrayView2<'_, f64>,
+    best: (usize, usize),
+    (lo, hi): (f64, f64),
+    grid: PatchGrid,
+    subpixel: bool,
+) -> Result<(f64, f64)> {
     if !(lo.is_finite() && hi.is_finite()) {
         return Err(Error::NonFinite {
             what: "divergence potential".into(),
@@ -306,6 +338,7 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
             col: best.1,
         });
     }
+    let (h, w) = d.dim();
     let (i, j) = best;
     let (mut oi, mut oj) = (0.0, 0.0);
     if subpixel {
@@ -317,17 +350,10 @@ pub fn raw_quantities(f: &PatchFields<'_>, grid: PatchGrid, subpixel: bool) -> R
         }
     }
     let s = grid.scale;
-    let area = s * s;
-    Ok(RawContact {
-        peak_px: f64::from(peak2.sqrt()),
-        x_px: (grid.x0 as f64 + j as f64 + oj + 0.5) * s - 0.5,
-        y_px: (grid.y0 as f64 + i as f64 + oi + 0.5) * s - 0.5,
-        ds1: su * area,
-        ds2: sv * area,
-        dn: dn * area,
-        d_pf: hi - lo,
-        ..Default::default()
-    })
+    Ok((
+        (grid.x0 as f64 + j as f64 + oj + 0.5) * s - 0.5,
+        (grid.y0 as f64 + i as f64 + oi + 0.5) * s - 0.5,
+    ))
 }
 
 /// Mean-shift centroid of `w` (non-negative weights per grid column) with a
@@ -876,31 +902,7 @@ mod tests {
         grid: PatchGrid,
         subpixel: bool,
     ) -> Result<RawContact> {
-        let shape = f.u.dim();
-        for (what, dim) in [
-            ("v", f.v.dim()),
-            ("D", f.potential_d.dim()),
-            ("d.u", f.d_u.dim()),
-            ("d.v", f.d_v.dim()),
-        ] {
-            if dim != shape {
-                return Err(Error::shape(
-                    format!("patch field {what} against u"),
-                    (shape.1, shape.0),
-                    (dim.1, dim.0),
-                ));
-            }
-        }
-        let (h, w) = shape;
-        if h == 0 || w == 0 {
-            return Err(Error::TooSmall {
-                what: "contact patch".into(),
-                width: w,
-                height: h,
-                min_w: 1,
-                min_h: 1,
-            });
-        }
+        patch_shape(f)?;
         let d = &f.potential_d;
         let (mut best, mut lo, mut hi) = ((0, 0), f64::INFINITY, f64::NEG_INFINITY);
         for ((i, j), &x) in d.indexed_iter() {
@@ -910,25 +912,8 @@ mod tests {
             }
             hi = hi.max(x);
         }
-        if !(lo.is_finite() && hi.is_finite()) {
-            return Err(Error::NonFinite {
-                what: "divergence potential".into(),
-                row: best.0,
-                col: best.1,
-            });
-        }
-        let (i, j) = best;
-        let (mut oi, mut oj) = (0.0, 0.0);
-        if subpixel {
-            if i > 0 && i + 1 < h {
-                oi = parabola_offset(d[[i - 1, j]], d[[i, j]], d[[i + 1, j]]);
-            }
-            if j > 0 && j + 1 < w {
-                oj = parabola_offset(d[[i, j - 1]], d[[i, j]], d[[i, j + 1]]);
-            }
-        }
-        let s = grid.scale;
-        let area = s * s;
+        let (x_px, y_px) = minimum_point(d, best, (lo, hi), grid, subpixel)?;
+        let area = grid.scale * grid.scale;
         let sum = |a: &ArrayView2<'_, f32>| a.iter().map(|&x| x as f64).sum::<f64>() * area;
         // |d| as sqrt(a^2 + b^2): within an ulp of `hypot`, which guards
         // against overflow that displacements of a few pixels never reach, at
@@ -948,8 +933,8 @@ mod tests {
         );
         Ok(RawContact {
             peak_px,
-            x_px: (grid.x0 as f64 + j as f64 + oj + 0.5) * s - 0.5,
-            y_px: (grid.y0 as f64 + i as f64 + oi + 0.5) * s - 0.5,
+            x_px,
+            y_px,
             ds1: sum(&f.u),
             ds2: sum(&f.v),
             dn,
