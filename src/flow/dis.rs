@@ -2209,20 +2209,29 @@ fn densify_solo_row8(
     [pu, pv]: [f32; 2],
     [u_out, v_out]: [&mut [f32]; 2],
 ) {
-    let top: &[f32; 9] = top[..9].try_into().expect("9 values");
-    let bot: &[f32; 9] = bot[..9].try_into().expect("9 values");
-    let ref_row: &[f32; 8] = ref_row[..8].try_into().expect("8 values");
-    let wgt: [f32; 8] = std::array::from_fn(|c| {
-        let t = top[c] + ax * (top[c + 1] - top[c]);
-        let b = bot[c] + ax * (bot[c + 1] - bot[c]);
-        let s = t + ay * (b - t);
-        1.0 / (s - ref_row[c]).abs().max(1.0)
-    });
+    let wgt = weights8([top, bot], ref_row, [ax, ay]);
     let sw: [f32; 8] = std::array::from_fn(|c| 0.0 + wgt[c]);
     let u_out: &mut [f32; 8] = (&mut u_out[..8]).try_into().expect("8 values");
     let v_out: &mut [f32; 8] = (&mut v_out[..8]).try_into().expect("8 values");
     quotient8(u_out, &wgt, &sw, pu);
     quotient8(v_out, &wgt, &sw, pv);
+}
+
+/// The densification weights of an 8-pixel patch row:
+/// `1 / max(1, |warped current - reference|)`, the current image sampled
+/// bilinearly at fractions `(ax, ay)` between rows `top` and `bot` (9 values
+/// each), computed into an array before anything is written.
+#[inline(always)]
+fn weights8([top, bot]: [&[f32]; 2], ref_row: &[f32], [ax, ay]: [f32; 2]) -> [f32; 8] {
+    let top: &[f32; 9] = top[..9].try_into().expect("9 values");
+    let bot: &[f32; 9] = bot[..9].try_into().expect("9 values");
+    let ref_row: &[f32; 8] = ref_row[..8].try_into().expect("8 values");
+    std::array::from_fn(|c| {
+        let t = top[c] + ax * (top[c + 1] - top[c]);
+        let b = bot[c] + ax * (bot[c + 1] - bot[c]);
+        let s = t + ay * (b - t);
+        1.0 / (s - ref_row[c]).abs().max(1.0)
+    })
 }
 
 /// `out = (0 + s wgt) / sw` element-wise (separate so that each output
@@ -2249,15 +2258,7 @@ fn densify_patch_row8(
     [pu, pv]: [f32; 2],
     [u_acc, v_acc, w_acc]: [&mut [f32]; 3],
 ) {
-    let top: &[f32; 9] = top[..9].try_into().expect("9 values");
-    let bot: &[f32; 9] = bot[..9].try_into().expect("9 values");
-    let ref_row: &[f32; 8] = ref_row[..8].try_into().expect("8 values");
-    let wgt: [f32; 8] = std::array::from_fn(|c| {
-        let t = top[c] + ax * (top[c + 1] - top[c]);
-        let b = bot[c] + ax * (bot[c + 1] - bot[c]);
-        let s = t + ay * (b - t);
-        1.0 / (s - ref_row[c]).abs().max(1.0)
-    });
+    let wgt = weights8([top, bot], ref_row, [ax, ay]);
     let u_acc: &mut [f32; 8] = (&mut u_acc[..8]).try_into().expect("8 values");
     let v_acc: &mut [f32; 8] = (&mut v_acc[..8]).try_into().expect("8 values");
     let w_acc: &mut [f32; 8] = (&mut w_acc[..8]).try_into().expect("8 values");
