@@ -502,6 +502,11 @@ pub struct CharacterizationArgs {
     /// Load-cell noise per axis, N.
     #[arg(long = "load-cell-noise", value_name = "F", default_value_t = Characterization::default().load_cell_noise_n)]
     pub load_cell_noise_n: f64,
+    /// Arc-length step of the two sweeps written to sweeps.csv, mm; 0: no
+    /// sweeps [default: 0.5 for the whole strip protocol; none with
+    /// --subset or on the fingertip sensor].
+    #[arg(long = "sweep-step-mm", value_name = "MM")]
+    pub sweep_step_mm: Option<f64>,
 }
 
 /// `perches`' options.
@@ -667,6 +672,7 @@ impl Command {
                         Characterization::default().repeats
                     }),
                     load_cell_noise_n: o.load_cell_noise_n,
+                    sweep_step_mm: o.sweep_step_mm,
                 }),
                 &common,
                 false,

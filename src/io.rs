@@ -899,6 +899,133 @@ pub fn write_tests_csv(path: impl AsRef<Path>, rows: &[TestRow]) -> Result<()> {
     std::fs::write(path, s).map_err(|e| Error::io(path, e))
 }
 
+/// One row of a characterization dataset's `sweeps.csv` (docs/formats.md):
+/// one image of a sweep, a constant load moved along the skin in small
+/// steps, from which `calibrate` learns how the readings vary with the
+/// marker pattern under the contact ([`crate::calibration::correction`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepRow {
+    /// Which sweep the image belongs to (any number; rows of one sweep share it).
+    pub sweep: u32,
+    /// Loaded frame, relative to the CSV's directory.
+    pub frame: String,
+    /// Unloaded reference frame, relative to the CSV's directory.
+    pub reference: String,
+    /// Indenter diameter, mm.
+    pub indenter_mm: f64,
+    /// Commanded force magnitude, N.
+    pub force_n: f64,
+    /// True contact location along the chord, mm.
+    pub x_mm: f64,
+    /// True contact location across, mm.
+    pub y_mm: f64,
+    /// True force along x, N.
+    pub fx_n: f64,
+    /// True force along y, N.
+    pub fy_n: f64,
+    /// True force along z, N.
+    pub fz_n: f64,
+}
+
+impl SweepRow {
+    /// The row as a test of the dataset (point 0, no tilt, `train` split;
+    /// `test` is the row's index), so that the pipeline that extracts tests
+    /// extracts it.
+    pub fn as_test(&self, index: usize) -> TestRow {
+        TestRow {
+            test: index,
+            frame: self.frame.clone(),
+            reference: self.reference.clone(),
+            point: 0,
+            indenter_mm: self.indenter_mm,
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+            repeat: self.sweep,
+            force_n: self.force_n,
+            split: Split::Train,
+            x_mm: self.x_mm,
+            y_mm: self.y_mm,
+            fx_n: self.fx_n,
+            fy_n: self.fy_n,
+            fz_n: self.fz_n,
+        }
+    }
+}
+
+const SWEEP_COLUMNS: [&str; 10] = [
+    "sweep",
+    "frame",
+    "reference",
+    "indenter_mm",
+    "force_n",
+    "x_mm",
+    "y_mm",
+    "fx_n",
+    "fy_n",
+    "fz_n",
+];
+
+/// Reads a characterization dataset's `sweeps.csv`, with the rules of
+/// [`read_tests_csv`] (columns by name, extra columns ignored, errors
+/// naming the file and line, at most [`MAX_CSV_BYTES`]); `force_n` must be
+/// positive.
+pub fn read_sweeps_csv(path: impl AsRef<Path>) -> Result<Vec<SweepRow>> {
+    let csv = Csv::read(path.as_ref())?;
+    let mut c = [0usize; 10];
+    for (k, name) in SWEEP_COLUMNS.iter().enumerate() {
+        c[k] = csv.col(name)?;
+    }
+    let mut out = Vec::with_capacity(csv.rows.len());
+    for (line, r) in &csv.rows {
+        let line = *line;
+        let force_n = csv.finite(line, r, c[4])?;
+        if force_n <= 0.0 {
+            return Err(Error::format(
+                &csv.path,
+                Some(line),
+                format!("column `force_n`: must be > 0, got {force_n}"),
+            ));
+        }
+        out.push(SweepRow {
+            sweep: csv.parse(line, r, c[0])?,
+            frame: r[c[1]].clone(),
+            reference: r[c[2]].clone(),
+            indenter_mm: csv.finite(line, r, c[3])?,
+            force_n,
+            x_mm: csv.finite(line, r, c[5])?,
+            y_mm: csv.finite(line, r, c[6])?,
+            fx_n: csv.finite(line, r, c[7])?,
+            fy_n: csv.finite(line, r, c[8])?,
+            fz_n: csv.finite(line, r, c[9])?,
+        });
+    }
+    Ok(out)
+}
+
+/// Writes a characterization dataset's `sweeps.csv`.
+pub fn write_sweeps_csv(path: impl AsRef<Path>, rows: &[SweepRow]) -> Result<()> {
+    let path = path.as_ref();
+    let mut s = SWEEP_COLUMNS.join(",");
+    s.push('\n');
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{},{},{}",
+            r.sweep,
+            r.frame,
+            r.reference,
+            r.indenter_mm,
+            r.force_n,
+            r.x_mm,
+            r.y_mm,
+            r.fx_n,
+            r.fy_n,
+            r.fz_n
+        );
+    }
+    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+}
+
 /// One row of `poses.csv`: the body pose in the world frame at a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseRow {

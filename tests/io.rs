@@ -296,3 +296,59 @@ fn poses_csv_round_trip() {
             .contains("qz")
     );
 }
+
+#[test]
+fn sweeps_csv_round_trip_and_its_errors() {
+    let dir = scratch("sweeps");
+    let p = dir.join("sweeps.csv");
+    let rows: Vec<io::SweepRow> = (0..3)
+        .map(|i| io::SweepRow {
+            sweep: i / 2,
+            frame: format!("sweeps/s0_{i:05}.png"),
+            reference: "sweeps/s0_ref.png".into(),
+            indenter_mm: 10.0,
+            force_n: 2.0,
+            x_mm: -114.1 + 0.5 * i as f64,
+            y_mm: 0.0,
+            fx_n: 0.001,
+            fy_n: -0.002,
+            fz_n: -2.003,
+        })
+        .collect();
+    io::write_sweeps_csv(&p, &rows).unwrap();
+    assert_eq!(io::read_sweeps_csv(&p).unwrap(), rows);
+    // As a test of the pipeline: point 0, no tilt, the sweep as `repeat`.
+    let t = rows[2].as_test(7);
+    assert_eq!(
+        (t.test, t.point, t.repeat, t.yaw_deg, t.pitch_deg),
+        (7, 0, 1, 0.0, 0.0)
+    );
+    assert_eq!(
+        (t.x_mm, t.fz_n, &t.frame),
+        (rows[2].x_mm, rows[2].fz_n, &rows[2].frame)
+    );
+    let head = "sweep,frame,reference,indenter_mm,force_n,x_mm,y_mm,fx_n,fy_n,fz_n\n";
+    let good = "0,a.png,r.png,10,2,-114.1,0,0,0,-2\n";
+    let cases = [
+        (
+            format!("{head}{good}0,a.png,r.png,10,0,-114.1,0,0,0,-2\n"),
+            "sweeps.csv:3: column `force_n`: must be > 0",
+        ),
+        (
+            format!("{head}{good}0,a.png,r.png,10,2,NaN,0,0,0,-2\n"),
+            "sweeps.csv:3: column `x_mm`",
+        ),
+        (
+            format!("{head}-1,a.png,r.png,10,2,0,0,0,0,-2\n"),
+            "sweeps.csv:2: column `sweep`",
+        ),
+        (format!("{head}0,a.png\n"), "sweeps.csv:2: 2 fields"),
+        (head.replace(",fz_n", ""), "missing column `fz_n`"),
+        (String::new(), "empty file"),
+    ];
+    for (text, want) in cases {
+        std::fs::write(&p, &text).unwrap();
+        let e = io::read_sweeps_csv(&p).unwrap_err().to_string();
+        assert!(e.contains(want), "`{e}` should contain `{want}`");
+    }
+}

@@ -206,7 +206,15 @@ fn scenario_options(
             } else {
                 scenario::Characterization::default()
             };
-            set_fields!(kw, s, name, subset, repeats, load_cell_noise_n);
+            set_fields!(
+                kw,
+                s,
+                name,
+                subset,
+                repeats,
+                load_cell_noise_n,
+                sweep_step_mm
+            );
             Scenario::Characterization(s)
         }
         "perches" => {

@@ -140,3 +140,20 @@ def test_simulated_fingertip_sensor(tmp_path):
         ot.simulate("presses", tmp_path / "x", sensor="cylinder")
     with pytest.raises(ValueError, match="x_max_mm"):
         ot.simulate("presses", tmp_path / "x", sensor="fingertip", x_max_mm=5.0)
+
+
+def test_characterization_writes_sweeps(tmp_path):
+    # Sweeps every 60 mm of arc from point 2 to point 14: 5 images per sweep,
+    # two sweeps, beside two tests of the protocol.
+    ot.simulate("characterization", tmp_path / "c", subset=2, sweep_step_mm=60.0)
+    lines = (tmp_path / "c" / "sweeps.csv").read_text().splitlines()
+    assert lines[0] == "sweep,frame,reference,indenter_mm,force_n,x_mm,y_mm,fx_n,fy_n,fz_n"
+    rows = [line.split(",") for line in lines[1:]]
+    assert len(rows) == 10
+    assert sorted({r[0] for r in rows}) == ["0", "1"]
+    assert all((tmp_path / "c" / r[1]).exists() for r in rows)
+    # A subset alone writes none; a negative step is refused.
+    ot.simulate("characterization", tmp_path / "d", subset=2)
+    assert not (tmp_path / "d" / "sweeps.csv").exists()
+    with pytest.raises(ValueError, match="sweep_step_mm"):
+        ot.simulate("characterization", tmp_path / "e", subset=1, sweep_step_mm=-1.0)

@@ -167,7 +167,27 @@ pub struct Characterization {
     /// is the resolution class of a small 6-axis F/T sensor (an ATI Nano17
     /// resolves 1/320 N); see [`LOAD_CELL_NOISE_N`].
     pub load_cell_noise_n: f64,
+    /// Arc-length step of the sweeps ([`SWEEPS`]) written beside the
+    /// tests (`sweeps.csv`), mm; `None`: [`SWEEP_STEP_MM`] for the whole
+    /// strip protocol, no sweeps with a `subset` or on a flat sensor;
+    /// `Some(0.0)`: no sweeps; a negative or non-finite step is an error.
+    pub sweep_step_mm: Option<f64>,
 }
+
+/// The sweeps of the strip's protocol, `(indenter_mm, force_n)`: each
+/// presses the rod straight down with this force at every
+/// [`SWEEP_STEP_MM`] of arc between the outermost training points, one
+/// image per position against one unloaded reference per sweep. They
+/// sample the skin densely, which the 13 marked points cannot: how the
+/// readings vary with the marker pattern under the contact
+/// (`optical_tactile::calibration::correction`).
+pub const SWEEPS: [(f64, f64); 2] = [(10.0, 2.0), (5.0, 2.0)];
+/// Default arc-length step of the sweeps, mm (457 images per sweep on
+/// the default strip).
+pub const SWEEP_STEP_MM: f64 = 0.5;
+/// Largest number of images of one sweep (a step too small for the skin
+/// is an error, not a huge dataset).
+pub const MAX_SWEEP_FRAMES: usize = 20_000;
 
 /// Default load-cell noise of the characterization protocol, N (standard
 /// deviation per axis): a good rig's load cell, about 1/320 N.
@@ -187,6 +207,7 @@ impl Default for Characterization {
             subset: None,
             repeats: 5,
             load_cell_noise_n: LOAD_CELL_NOISE_N,
+            sweep_step_mm: None,
         }
     }
 }
@@ -1328,10 +1349,91 @@ fn characterization(
         })
         .collect::<Result<_>>()?;
     io::write_tests_csv(c.out.join("tests.csv"), &rows)?;
+    let step = match o.sweep_step_mm {
+        Some(s) => s,
+        None if flat || o.subset.is_some() => 0.0,
+        None => SWEEP_STEP_MM,
+    };
+    let swept = if flat || step == 0.0 {
+        0
+    } else {
+        sweeps(sensor, c, o, step, all.len(), progress)?
+    };
     Ok(Summary {
         out: c.out.clone(),
-        frames: 2 * rows.len(),
+        frames: 2 * rows.len() + swept,
     })
+}
+
+/// Writes the strip protocol's sweeps ([`SWEEPS`]) and `sweeps.csv`; frame
+/// indices start after the tests' (`first_id`), so that every image has
+/// its own noise. Returns the number of images written.
+fn sweeps(
+    sensor: &SyntheticSensor,
+    c: &Common,
+    o: &Characterization,
+    step_mm: f64,
+    first_id: usize,
+    progress: Progress<'_>,
+) -> Result<usize> {
+    if !(step_mm.is_finite() && step_mm > 0.0) {
+        return Err(Error::param(
+            "sweep_step_mm",
+            format!("must be > 0 and finite, got {step_mm}"),
+        ));
+    }
+    let skin = &c.config.skin;
+    let (first, last) = (TRAIN_POINTS[0], TRAIN_POINTS[TRAIN_POINTS.len() - 1]);
+    let (s0, s1) = ((first as f64 - 8.0) * 20.0, (last as f64 - 8.0) * 20.0);
+    let n = ((s1 - s0) / step_mm).floor() as usize + 1;
+    if n > MAX_SWEEP_FRAMES {
+        return Err(Error::param(
+            "sweep_step_mm",
+            format!("{step_mm} mm makes {n} images per sweep, more than {MAX_SWEEP_FRAMES}"),
+        ));
+    }
+    create_dir(&c.out.join("sweeps"))?;
+    let mut rows = Vec::with_capacity(n * SWEEPS.len());
+    let mut id = 2 * first_id;
+    let total = n * SWEEPS.len();
+    let done = AtomicUsize::new(0);
+    for (k, &(indenter, force)) in SWEEPS.iter().enumerate() {
+        let refname = format!("sweeps/s{k}_ref.png");
+        let reference = sensor.render_indexed(id as u64, &[], false)?;
+        io::write_gray_png(c.out.join(&refname), &reference.frame)?;
+        id += 1;
+        let f = [0.0, 0.0, -force];
+        let part: Vec<io::SweepRow> = (0..n)
+            .into_par_iter()
+            .map(|i| -> Result<io::SweepRow> {
+                let x = skin.arc_to_chord(s0 + i as f64 * step_mm);
+                let index = (id + i) as u64;
+                let loaded = sensor.render_indexed(index, &[Press::rod(x, f, indenter)], false)?;
+                let frame = format!("sweeps/s{k}_{i:05}.png");
+                io::write_gray_png(c.out.join(&frame), &loaded.frame)?;
+                let mut cell = SplitMix64::new(mix64(c.seed ^ mix64(index ^ 0x5EEE_70AD)));
+                let noisy = f.map(|v| v + o.load_cell_noise_n * cell.normal());
+                let done = done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress("sweeps", done, total);
+                Ok(io::SweepRow {
+                    sweep: k as u32,
+                    frame,
+                    reference: refname.clone(),
+                    indenter_mm: indenter,
+                    force_n: force,
+                    x_mm: x,
+                    y_mm: 0.0,
+                    fx_n: noisy[0],
+                    fy_n: noisy[1],
+                    fz_n: noisy[2],
+                })
+            })
+            .collect::<Result<_>>()?;
+        id += n;
+        rows.extend(part);
+    }
+    io::write_sweeps_csv(c.out.join("sweeps.csv"), &rows)?;
+    Ok(rows.len() + SWEEPS.len())
 }
 
 #[derive(Serialize)]

@@ -488,6 +488,59 @@ fn characterization_subset_follows_the_protocol() {
 }
 
 #[test]
+fn characterization_writes_sweeps_along_the_training_points() {
+    let out = tmp("char_sweeps");
+    let mut c = Common::new(&out);
+    c.flow = false;
+    let o = scenario::Characterization {
+        subset: Some(2),
+        sweep_step_mm: Some(40.0),
+        ..Default::default()
+    };
+    let summary = scenario::run(&Scenario::Characterization(o), &c).unwrap();
+    let rows = io::read_sweeps_csv(out.join("sweeps.csv")).unwrap();
+    // Arc -120..120 mm every 40 mm: 7 images per sweep, and one reference each.
+    assert_eq!(rows.len(), 7 * scenario::SWEEPS.len());
+    assert_eq!(summary.frames, 2 * 2 + rows.len() + scenario::SWEEPS.len());
+    for (k, &(indenter, force)) in scenario::SWEEPS.iter().enumerate() {
+        let sweep: Vec<_> = rows.iter().filter(|r| r.sweep == k as u32).collect();
+        assert_eq!(sweep.len(), 7);
+        for (i, r) in sweep.iter().enumerate() {
+            let s = -120.0 + 40.0 * i as f64;
+            assert!((r.x_mm - 220.0 * (s / 220.0).sin()).abs() < 1e-9);
+            assert_eq!((r.indenter_mm, r.force_n, r.y_mm), (indenter, force, 0.0));
+            // Straight down, with the load cell's noise.
+            assert!(
+                (r.fz_n + force).abs() < 0.02 && r.fx_n.abs() < 0.02,
+                "{r:?}"
+            );
+            assert!(out.join(&r.frame).exists() && out.join(&r.reference).exists());
+        }
+    }
+    // A subset alone writes none; a step of 0 none either; a tiny step is refused.
+    let bare = tmp("char_no_sweeps");
+    c.out = bare.clone();
+    let o = scenario::Characterization {
+        subset: Some(2),
+        ..Default::default()
+    };
+    scenario::run(&Scenario::Characterization(o), &c).unwrap();
+    assert!(!bare.join("sweeps.csv").exists());
+    let tiny = tmp("char_tiny_sweeps");
+    c.out = tiny.clone();
+    let o = scenario::Characterization {
+        subset: Some(1),
+        sweep_step_mm: Some(1e-6),
+        ..Default::default()
+    };
+    let e = scenario::run(&Scenario::Characterization(o), &c).unwrap_err();
+    assert!(e.to_string().contains("sweep_step_mm"), "{e}");
+    for d in [out, bare, tiny] {
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+}
+
+#[test]
 fn presses_land_anywhere_in_range_each_against_the_reference() {
     let out = tmp("presses");
     let mut c = Common::new(&out);
