@@ -59,9 +59,10 @@ use std::time::Instant;
 use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::Sample;
+use optical_tactile::calibration::correction::ColumnCorrection;
 use optical_tactile::calibration::fit::{
-    DatasetFit, Extraction, extract_dataset, fit_dataset, load_cell_spread, read_dataset,
-    read_dataset_geometry,
+    DatasetFit, Extraction, extract_dataset, extract_sweeps, fit_dataset_with_sweeps,
+    load_cell_spread, read_dataset, read_dataset_geometry, read_dataset_sweeps,
 };
 use optical_tactile::calibration::fit::{FitOptions, GuardOptions};
 use optical_tactile::calibration::report::{self, ThresholdRow};
@@ -138,6 +139,10 @@ struct Cli {
     /// carries noise).
     #[arg(long)]
     force_y2d: bool,
+    /// Ignore the dataset's sweeps.csv (fit without the per-column
+    /// corrections it gives).
+    #[arg(long)]
+    no_sweeps: bool,
     /// DIS flow preset [default: fine, the sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
@@ -176,11 +181,33 @@ struct Args {
     shear_force_order: Option<u32>,
     guard: Option<GuardOptions>,
     force_y2d: bool,
+    no_sweeps: bool,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     crop: Option<Roi>,
     predictions: Option<TextOut>,
     quiet: bool,
+}
+
+/// One line on a fitted column correction: how many sweep images, how large
+/// its location offsets and how far its force gains stray from 1, over the
+/// columns the sweeps reached.
+fn correction_summary(c: &ColumnCorrection, images: usize, misses: usize) -> String {
+    let reached: Vec<usize> = (0..c.location_mm.len())
+        .filter(|&i| c.location_mm[i] != 0.0 || c.force_gain[i] != 1.0)
+        .collect();
+    let rms = |v: &mut dyn Iterator<Item = f64>| {
+        let (n, s) = v.fold((0usize, 0.0), |(n, s), x| (n + 1, s + x * x));
+        (s / n.max(1) as f64).sqrt()
+    };
+    let loc = rms(&mut reached.iter().map(|&i| c.location_mm[i]));
+    let gain = rms(&mut reached.iter().map(|&i| c.force_gain[i] - 1.0));
+    format!(
+        "sweeps: {images} images ({misses} not read as a press); corrections over {} columns: \
+         location offset {loc:.3} mm rms, force gain {:.1}% rms",
+        reached.len(),
+        100.0 * gain
+    )
 }
 
 /// `slope[:SIGMA]`, `centroid[:HALF]` or `argmin`.
@@ -292,6 +319,7 @@ impl Cli {
                 ..GuardOptions::default()
             }),
             force_y2d: self.force_y2d,
+            no_sweeps: self.no_sweeps,
             flow: self.preset,
             crop: self.crop,
             predictions: self.predictions,
@@ -349,10 +377,16 @@ fn run(args: Args) -> Result<(), Failure> {
             Roi::full(img.ncols(), img.nrows())
         }
     };
+    let sweeps = if args.no_sweeps {
+        Vec::new()
+    } else {
+        read_dataset_sweeps(&args.dir).map_err(err)?
+    };
     let threads = rayon::current_num_threads();
     eprintln!(
-        "{} tests in {}, {} threads, {} geometry",
+        "{} tests and {} sweep images in {}, {} threads, {} geometry",
         rows.len(),
+        sweeps.len(),
         args.dir.display(),
         threads,
         geometry.kind()
@@ -381,6 +415,28 @@ fn run(args: Args) -> Result<(), Failure> {
         );
         bar.finish();
         let ex = ex.map_err(err)?;
+        let swept = if sweeps.is_empty() {
+            Vec::new()
+        } else {
+            let bar = cli_support::progress_bar(
+                &format!("[{preset}] sweeps"),
+                sweeps.len() as u64,
+                args.quiet,
+            );
+            let progress = |done: usize, _total: usize| {
+                bar.set_position((done as u64).max(bar.position()));
+            };
+            let swept = extract_sweeps(
+                &args.dir,
+                &sweeps,
+                &config,
+                contact_point,
+                args.crop,
+                &progress,
+            );
+            bar.finish();
+            swept.map_err(err)?
+        };
         let options = FitOptions {
             location_shear_order: args.shear_order,
             displacement_max_order: args.force_order,
@@ -390,8 +446,16 @@ fn run(args: Args) -> Result<(), Failure> {
             force_use_y2d: args.force_y2d || two_d,
             ..FitOptions::for_geometry(&geometry)
         };
-        let fit =
-            fit_dataset(&ex, &config, contact_point, crop, geometry, &options).map_err(err)?;
+        let fit = fit_dataset_with_sweeps(
+            &ex,
+            &swept,
+            &config,
+            contact_point,
+            crop,
+            geometry,
+            &options,
+        )
+        .map_err(err)?;
         eprintln!(
             "[{preset}] fitted in {:.1} s; misses train/val/test: {}/{}/{}",
             t0.elapsed().as_secs_f64(),
@@ -399,6 +463,12 @@ fn run(args: Args) -> Result<(), Failure> {
             fit.misses[1],
             fit.misses[2]
         );
+        if let Some(c) = &fit.calibration.column_correction {
+            eprintln!(
+                "[{preset}] {}",
+                correction_summary(c, swept.len(), fit.sweep_misses)
+            );
+        }
         if let Some(g) = &fit.calibration.guard {
             let test: Vec<_> = fit
                 .samples

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use optical_tactile::Error;
+use optical_tactile::calibration::correction::ColumnCorrection;
 use optical_tactile::calibration::fit::{
     self, FitOptions, GuardOptions, force_spec, load_cell_spread,
 };
@@ -768,8 +769,15 @@ fn the_shipped_fixture_loads_with_its_settings() {
     let t = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
     // The figures docs/results.md reports for this file.
     assert!(
-        t.n > 1300 && t.x_mm < 0.2 && t.fx < 0.0151 && t.fy < 0.0085 && t.fz < 0.0452,
+        t.n > 1300 && t.x_mm < 0.16 && t.fx < 0.0125 && t.fy < 0.0040 && t.fz < 0.0490,
         "{t:?}"
+    );
+    // So are the sweeps' corrections, across the strip.
+    let c = cal.column_correction.as_ref().expect("a column correction");
+    assert!(c.images > 900 && c.location_mm.len() == cal.setup.crop.w);
+    assert!(
+        c.force_gain.iter().all(|g| (0.7..1.3).contains(g)),
+        "gains out of range"
     );
     // The force guard and the press test are in the file.
     let g = cal.guard.as_ref().expect("a force guard");
@@ -1315,4 +1323,56 @@ fn errors_per_indenter_and_force_match_a_direct_count() {
         .collect();
     let e = evaluate_by_load(&cal, rows.iter().zip(&train_only), Split::Test).unwrap_err();
     assert!(e.to_string().contains("no `test` sample"), "{e}");
+}
+
+/// A hand-made calibration (see `valid_text`) with a column correction.
+fn corrected(location_mm: Vec<f64>, force_gain: Vec<f64>) -> Calibration {
+    let mut cal = Calibration::from_json_str(&valid_text()).unwrap();
+    cal.column_correction = Some(ColumnCorrection {
+        start_px: 700.0,
+        step_px: 1.0,
+        location_mm,
+        force_gain,
+        smoothing_px: 2.0,
+        images: 10,
+    });
+    cal
+}
+
+#[test]
+fn a_column_correction_moves_the_location_and_survives_the_file() {
+    // Offsets of 0.0, 0.1, ... 0.9 mm at columns 700..709.
+    let offsets: Vec<f64> = (0..10).map(|i| 0.1 * i as f64).collect();
+    let cal = corrected(offsets, vec![1.0; 10]);
+    let plain = Calibration::from_json_str(&valid_text()).unwrap();
+    let moved =
+        |x2d: f64| cal.location(x2d, 100.0).unwrap()[0] - plain.location(x2d, 100.0).unwrap()[0];
+    assert!((moved(703.0) - 0.3).abs() < 1e-12);
+    assert!((moved(703.5) - 0.35).abs() < 1e-12);
+    // Outside the correction's columns: no offset.
+    assert_eq!(moved(650.0), 0.0);
+    assert_eq!(moved(800.0), 0.0);
+    // The file keeps it, bit for bit.
+    let path = tmp("corrected.json");
+    cal.save(&path).unwrap();
+    let back = Calibration::load(&path).unwrap();
+    assert_eq!(back.column_correction, cal.column_correction);
+    assert_eq!(back, cal);
+    // A file without one (older files) loads with none.
+    assert!(plain.column_correction.is_none());
+}
+
+#[test]
+fn a_bad_column_correction_in_a_file_is_refused() {
+    let good = corrected(vec![0.0; 10], vec![1.0; 10]).to_json_string();
+    let gain = good.replacen("\"force_gain\": [1.0, 1.0", "\"force_gain\": [7.0, 1.0", 1);
+    assert_ne!(gain, good);
+    let e = load_text("bad_gain.json", &gain);
+    assert!(e.to_string().contains("force_gain"), "{e}");
+    let short = good.replacen("\"force_gain\": [1.0, 1.0, ", "\"force_gain\": [", 1);
+    let e = load_text("short_gain.json", &short);
+    assert!(e.to_string().contains("same length"), "{e}");
+    let step = good.replacen("\"step_px\": 1.0", "\"step_px\": 0.0", 1);
+    let e = load_text("zero_step.json", &step);
+    assert!(e.to_string().contains("step_px"), "{e}");
 }

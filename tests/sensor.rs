@@ -503,3 +503,40 @@ fn raw_quantities_equal_the_whole_decomposition_path() {
     // Two rods in each press frame, one patch for the heavy press.
     assert!(checked >= 5, "{checked} patches checked");
 }
+
+#[test]
+fn the_sensor_applies_the_calibrations_column_correction() {
+    let plain = optical_tactile::Calibration::load("fixtures/calibration.json").unwrap();
+    // The bundled calibration's gains, times 1.25 everywhere.
+    let mut gained = plain.clone();
+    let c = gained
+        .column_correction
+        .as_mut()
+        .expect("a column correction");
+    for g in &mut c.force_gain {
+        *g *= 1.25;
+    }
+    let run = |cal: optical_tactile::Calibration| {
+        let mut s = TactileSensor::from_calibration(cal).unwrap();
+        let frames = frames();
+        s.set_reference(&frames[0].image).unwrap();
+        let mut out = Vec::new();
+        for f in &frames[1..] {
+            out.extend(s.process(&f.image, f.t_s).unwrap().iter().map(|c| c.raw));
+        }
+        out
+    };
+    let (a, b) = (run(plain), run(gained));
+    assert!(!a.is_empty());
+    assert_eq!(a.len(), b.len());
+    for (a, b) in a.iter().zip(&b) {
+        let (fa, fb) = (a.local_force.unwrap(), b.local_force.unwrap());
+        assert_eq!(a.x_px, b.x_px);
+        assert_eq!(fa[0], fb[0]);
+        assert_eq!(fa[1], fb[1]);
+        assert!(
+            (fb[2] - 1.25 * fa[2]).abs() <= 1e-12 * fa[2].abs(),
+            "{fa:?} {fb:?}"
+        );
+    }
+}

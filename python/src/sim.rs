@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
 use optical_tactile::calibration::fit::{
-    FitOptions, extract_dataset, fit_dataset, read_dataset, read_dataset_geometry,
+    FitOptions, extract_dataset, extract_sweeps, fit_dataset_with_sweeps, read_dataset,
+    read_dataset_geometry, read_dataset_sweeps,
 };
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::frame::Roi;
@@ -431,8 +432,10 @@ impl SyntheticSensor {
 /// `thresholds`: a preset name or a dict; `preset`: the flow preset
 /// (default: the library's); `crop`: `(x, y, w, h)` of the frames (default:
 /// the whole frame). The sensor's geometry is the dataset's `geometry.json`
-/// (a flat sensor's: contacts located in 2-D), else the curved strip. The
-/// result's `test_mae` has the test split's errors.
+/// (a flat sensor's: contacts located in 2-D), else the curved strip. With
+/// a `sweeps.csv` beside `tests.csv` (the strip), the calibration also
+/// learns per-column location offsets and force gains from the sweeps
+/// (docs/calibration.md). The result's `test_mae` has the test split's errors.
 #[pyfunction]
 #[pyo3(signature = (dataset_dir, *, thresholds=None, preset=None, crop=None))]
 pub fn calibrate(
@@ -470,8 +473,12 @@ pub fn calibrate(
         let geometry = read_dataset_geometry(&dataset_dir)?.unwrap_or_default();
         let point = ContactPointMethod::for_geometry(&geometry);
         let ex = extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?;
-        let fit = fit_dataset(
+        // The dataset's sweeps.csv, if any, gives the per-column corrections.
+        let sweeps = read_dataset_sweeps(&dataset_dir)?;
+        let swept = extract_sweeps(&dataset_dir, &sweeps, &config, point, crop, &|_, _| {})?;
+        let fit = fit_dataset_with_sweeps(
             &ex,
+            &swept,
             &config,
             point,
             full,

@@ -17,6 +17,7 @@ use ndarray::{Array1, Array2};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::correction::{ColumnCorrection, DEFAULT_SMOOTHING_PX, GAIN_RANGE, smooth_on_grid};
 use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
 use super::report::{self, DetectionLimit, PointTable, evaluate};
 use super::{
@@ -665,6 +666,9 @@ pub struct DatasetFit {
     pub samples: Vec<Option<Sample>>,
     /// Tests with no detected contact, per split.
     pub misses: [usize; 3],
+    /// Sweep images not read as a press (no contact, or one that failed
+    /// the press test); 0 without sweeps.
+    pub sweep_misses: usize,
     /// The minimum detectable force (smallest commanded force from which on
     /// at least 95% of the tests at each force are detected).
     pub min_force: DetectionLimit,
@@ -724,8 +728,8 @@ fn trusted(ex: &[Extraction], s: &[Option<Sample>]) -> Vec<Sample> {
         .collect()
 }
 
-/// Fits a calibration from the extractions (see the module docs).
-///
+/// Fits a calibration from the extractions (see the module docs), without
+/// sweeps: [`fit_dataset_with_sweeps`] with none.
 pub fn fit_dataset(
     extractions: &[Extraction],
     config: &ExtractorConfig,
@@ -734,6 +738,44 @@ pub fn fit_dataset(
     geometry: SensorGeometry,
     options: &FitOptions,
 ) -> Result<DatasetFit> {
+    fit_dataset_with_sweeps(
+        extractions,
+        &[],
+        config,
+        contact_point,
+        crop,
+        geometry,
+        options,
+    )
+}
+
+/// Fits a calibration from the tests' extractions and, when there are
+/// sweeps ([`extract_sweeps`]), the [`ColumnCorrection`] of the sweeps'
+/// images ([`super::correction`]):
+///
+/// - the location offsets once the location maps are fitted, so that the
+///   profile model is matched, and the force maps are fitted, at the
+///   corrected locations, as a sensor will match them;
+/// - the force gains once the force maps are fitted: per sweep, the true
+///   normal force over the calibrated one, divided by the sweep's median.
+///
+/// Sweeps need a sensor that locates along x (the strip): on one that
+/// locates in 2-D they are an error.
+pub fn fit_dataset_with_sweeps(
+    extractions: &[Extraction],
+    sweeps: &[Extraction],
+    config: &ExtractorConfig,
+    contact_point: ContactPointMethod,
+    crop: Roi,
+    geometry: SensorGeometry,
+    options: &FitOptions,
+) -> Result<DatasetFit> {
+    if !sweeps.is_empty() && geometry.locates_in_2d() {
+        return Err(Error::param(
+            "sweeps",
+            "sweeps correct the location along x only: not for a sensor that locates in 2-D",
+        ));
+    }
     let setup = SensorSetup {
         geometry,
         crop,
@@ -757,7 +799,9 @@ pub fn fit_dataset(
         extractions,
         &samples(extractions, &geometry, &[], |_, _| Ok(0.0))?,
     );
-    let pass1 = fit(&first, &setup, options)?;
+    let mut pass1 = fit(&first, &setup, options)?;
+    let location_fix = location_correction(sweeps, &pass1, crop)?;
+    pass1.column_correction = location_fix.clone();
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
     // then every detected test's local force is matched with it.
@@ -770,6 +814,23 @@ pub fn fit_dataset(
             })?;
             (Some(model), local)
         }
+    };
+    // The force gains of the sweeps, on the profile-matched normal force:
+    // applied to every test's matched force, so that the force maps are
+    // fitted on corrected inputs, as a sensor will give them.
+    let mut local = local;
+    let (correction, sweep_local) = match (location_fix, &profile) {
+        (Some(fix), Some(model)) => {
+            let (fix, sweep_local) = normal_gain(sweeps, &pass1, model, fix)?;
+            for (e, f) in extractions.iter().zip(local.iter_mut()) {
+                if let (Some(raw), Some(f)) = (&e.raw, f.as_mut()) {
+                    let column = match_position(model, e, raw, &pass1)?.1;
+                    *f = fix.correct_local_force(column, *f);
+                }
+            }
+            (Some(fix), sweep_local)
+        }
+        (fix, _) => (fix, Vec::new()),
     };
     // Pass 2: rotate at the predicted location (the true one for the
     // training tests of an anchored profile model, see `match_position`),
@@ -791,6 +852,12 @@ pub fn fit_dataset(
     let mut cal = fit(&trusted(extractions, &second), &setup, options)?;
     cal.profile = profile;
     cal.min_normal_n = min_normal_n;
+    cal.column_correction = correction;
+    let sweep_misses = sweeps
+        .iter()
+        .zip(sweep_local.iter().chain(std::iter::repeat(&None)))
+        .filter(|(e, f)| e.raw.is_none() || !super::passes_press_test(min_normal_n, **f))
+        .count();
     let mut misses = [0usize; 3];
     let mut detections = Vec::with_capacity(extractions.len());
     for (e, s) in extractions.iter().zip(&second) {
@@ -802,13 +869,161 @@ pub fn fit_dataset(
     }
     let min_force = report::min_detectable_force(&detections, 0.95)?;
     let test_table = report::evaluate(&cal, &detected(&second), Split::Test)?;
+    // The report's errors were taken before the column correction was set.
+    if let Some(r) = cal.report.as_mut() {
+        r.test = Some(test_table.clone());
+    }
     Ok(DatasetFit {
         calibration: cal,
         samples: second,
         misses,
+        sweep_misses,
         min_force,
         test_table,
     })
+}
+
+/// The location half of the sweeps' [`ColumnCorrection`] for `cal` (gains
+/// all 1): at each detected sweep image's measured column, the true chord
+/// position minus `cal`'s. `None` without sweeps; an error if no sweep
+/// image was detected.
+fn location_correction(
+    sweeps: &[Extraction],
+    cal: &Calibration,
+    crop: Roi,
+) -> Result<Option<ColumnCorrection>> {
+    if sweeps.is_empty() {
+        return Ok(None);
+    }
+    let mut columns = Vec::with_capacity(sweeps.len());
+    let mut offsets = Vec::with_capacity(sweeps.len());
+    for e in sweeps {
+        if let Some(raw) = &e.raw {
+            columns.push(raw.x_px);
+            offsets.push(e.row.x_mm - cal.location_of(raw)?[0]);
+        }
+    }
+    if columns.is_empty() {
+        return Err(Error::param(
+            "sweeps",
+            "no contact found in any sweep image",
+        ));
+    }
+    let n = crop.w;
+    let location_mm = smooth_on_grid(&columns, &offsets, 0.0, DEFAULT_SMOOTHING_PX, 0.0, 1.0, n)?;
+    Ok(Some(ColumnCorrection {
+        start_px: 0.0,
+        step_px: 1.0,
+        force_gain: vec![1.0; location_mm.len()],
+        location_mm,
+        smoothing_px: DEFAULT_SMOOTHING_PX,
+        images: columns.len(),
+    }))
+}
+
+/// The smallest commanded force of a sweep image whose gain is measured,
+/// N: the ratio of two small forces is mostly noise.
+const MIN_GAIN_FORCE_N: f64 = 0.3;
+
+/// `fix` with its force gains, and each sweep image's matched local force
+/// with the gain applied. Each detected sweep image is matched by `model`
+/// as a sensor matches it (at `cal`'s column, `cal` holding the location
+/// offsets of `fix`); its gain, at that column, is its true normal force
+/// in the local frame over the matched one, divided by the median of its
+/// sweep. Images whose
+/// ratio leaves [`GAIN_RANGE`] or whose commanded force is below
+/// [`MIN_GAIN_FORCE_N`] are left out.
+fn normal_gain(
+    sweeps: &[Extraction],
+    cal: &Calibration,
+    model: &ProfileModel,
+    fix: ColumnCorrection,
+) -> Result<(ColumnCorrection, Vec<Option<[f64; 3]>>)> {
+    let geometry = cal.setup.geometry;
+    let mut local = match_forces(model, sweeps, |_, raw| cal.match_column(model, raw))?;
+    let columns_of = sweeps
+        .iter()
+        .map(|e| e.raw.map(|raw| cal.match_column(model, &raw)).transpose())
+        .collect::<Result<Vec<_>>>()?;
+    // Per sweep: (match column, ratio) of each usable image.
+    let mut per_sweep: std::collections::BTreeMap<u32, Vec<(f64, f64)>> = Default::default();
+    let (lo, hi) = GAIN_RANGE;
+    for ((e, f), column) in sweeps.iter().zip(&local).zip(&columns_of) {
+        let (Some(f), Some(column)) = (f, column) else {
+            continue;
+        };
+        let r = &e.row;
+        let truth = geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]);
+        let ratio = truth[2] / f[2];
+        if r.force_n >= MIN_GAIN_FORCE_N && ratio.is_finite() && (lo..=hi).contains(&ratio) {
+            per_sweep
+                .entry(r.repeat)
+                .or_default()
+                .push((*column, ratio));
+        }
+    }
+    let mut columns = Vec::new();
+    let mut gains = Vec::new();
+    for images in per_sweep.values() {
+        let mut ratios: Vec<f64> = images.iter().map(|i| i.1).collect();
+        ratios.sort_by(f64::total_cmp);
+        let median = ratios[ratios.len() / 2];
+        for &(c, r) in images {
+            columns.push(c);
+            gains.push(r / median);
+        }
+    }
+    let mut force_gain = smooth_on_grid(
+        &columns,
+        &gains,
+        1.0,
+        fix.smoothing_px,
+        fix.start_px,
+        fix.step_px,
+        fix.location_mm.len(),
+    )?;
+    for g in &mut force_gain {
+        *g = g.clamp(lo, hi);
+    }
+    let fix = ColumnCorrection { force_gain, ..fix };
+    for (f, column) in local.iter_mut().zip(&columns_of) {
+        if let (Some(f), Some(column)) = (f.as_mut(), column) {
+            *f = fix.correct_local_force(*column, *f);
+        }
+    }
+    Ok((fix, local))
+}
+
+/// The name of the optional file beside `tests.csv` that lists the sweeps
+/// (docs/formats.md).
+pub const SWEEPS_FILE: &str = "sweeps.csv";
+
+/// Reads a dataset's `sweeps.csv`: empty when the dataset has none.
+pub fn read_dataset_sweeps(dir: impl AsRef<Path>) -> Result<Vec<io::SweepRow>> {
+    let path = dir.as_ref().join(SWEEPS_FILE);
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    io::read_sweeps_csv(path)
+}
+
+/// Runs the pipeline on every sweep image, as [`extract_dataset`] does on
+/// tests (each row as [`io::SweepRow::as_test`]: the sweep number is the
+/// test's `repeat`).
+pub fn extract_sweeps(
+    dir: impl AsRef<Path>,
+    sweeps: &[io::SweepRow],
+    config: &ExtractorConfig,
+    contact_point: ContactPointMethod,
+    crop: Option<Roi>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<Extraction>> {
+    let rows: Vec<TestRow> = sweeps
+        .iter()
+        .enumerate()
+        .map(|(i, r)| r.as_test(i))
+        .collect();
+    extract_dataset(dir, &rows, config, contact_point, crop, progress)
 }
 
 /// Fraction of the weakest training presses' matched normal force below
@@ -1106,6 +1321,132 @@ pub fn preset_name(config: &ExtractorConfig) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::segment::{Shape, Thresholds};
+
+    /// A calibration whose location is `x = (x2d - 800) / 5` mm, with no shear input.
+    fn linear_location() -> Calibration {
+        let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-160.0, 0.2]).unwrap();
+        let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
+        let f =
+            || Polynomial::raw(&FORCE_VARIABLES, vec![vec![0, 0, 1, 0, 0, 0]], vec![1.0]).unwrap();
+        let setup = SensorSetup {
+            geometry: SensorGeometry::default(),
+            crop: Roi::new(0, 0, 1600, 200),
+            thresholds: Thresholds {
+                magnitude: 1.5,
+                sum: 400.0,
+                erode: 5,
+                dilate: 9,
+                shape: Shape::Rect,
+            },
+            pipeline: None,
+        };
+        Calibration::new(setup, [g1, g2, f(), f(), f()], None).unwrap()
+    }
+
+    /// A sweep image at the true chord position `x_mm` whose contact
+    /// column was measured at `x_px` (or not at all).
+    fn sweep_image(x_mm: f64, x_px: Option<f64>) -> Extraction {
+        let row = io::SweepRow {
+            sweep: 0,
+            frame: String::new(),
+            reference: String::new(),
+            indenter_mm: 5.0,
+            force_n: 2.0,
+            x_mm,
+            y_mm: 0.0,
+            fx_n: 0.0,
+            fy_n: 0.0,
+            fz_n: -2.0,
+        };
+        Extraction {
+            row: row.as_test(0),
+            raw: x_px.map(|x_px| RawContact {
+                x_px,
+                y_px: 100.0,
+                dn: 1.0,
+                ..Default::default()
+            }),
+            patches: usize::from(x_px.is_some()),
+            profiles: [Vec::new(), Vec::new()],
+            scale: 1.0,
+            beyond_markers: false,
+        }
+    }
+
+    #[test]
+    fn sweeps_teach_the_location_what_the_marker_pattern_does() {
+        let mut cal = linear_location();
+        // The measured column lags the truth by a pattern that changes every
+        // ~30 px (6 mm), as the flow's steepest rise sticks to the markers.
+        let lag = |x_px: f64| 4.0 * (x_px / 9.0).sin();
+        let truth_px = |x_mm: f64| 800.0 + 5.0 * x_mm;
+        // One sweep image every 0.5 mm from -40 to 40 mm, and a few misses.
+        let sweeps: Vec<Extraction> = (0..=160)
+            .map(|i| {
+                let x = -40.0 + 0.5 * i as f64;
+                let seen = i % 37 != 5;
+                sweep_image(x, seen.then(|| truth_px(x) + lag(truth_px(x))))
+            })
+            .collect();
+        let before: Vec<f64> = (0..100)
+            .map(|i| {
+                let x = -35.0 + 0.7 * i as f64 + 0.13;
+                (cal.location(truth_px(x) + lag(truth_px(x)), 100.0).unwrap()[0] - x).abs()
+            })
+            .collect();
+        let fix = location_correction(&sweeps, &cal, cal.setup.crop)
+            .unwrap()
+            .unwrap();
+        assert_eq!(fix.images, 161 - 5);
+        assert!(fix.force_gain.iter().all(|g| *g == 1.0));
+        // No sweep near column 100 (x = -140 mm): no offset there.
+        assert_eq!(fix.location_mm_at(100.0), 0.0);
+        cal.column_correction = Some(fix);
+        // At positions between the sweep's images, the location error falls
+        // to a small part of what it was.
+        let after: Vec<f64> = (0..100)
+            .map(|i| {
+                let x = -35.0 + 0.7 * i as f64 + 0.13;
+                (cal.location(truth_px(x) + lag(truth_px(x)), 100.0).unwrap()[0] - x).abs()
+            })
+            .collect();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        assert!(mean(&before) > 0.4, "{}", mean(&before));
+        assert!(
+            mean(&after) < mean(&before) / 3.0,
+            "{} -> {}",
+            mean(&before),
+            mean(&after)
+        );
+        // Without sweeps nothing is fitted; with no detected image it is an error.
+        assert!(
+            location_correction(&[], &cal, cal.setup.crop)
+                .unwrap()
+                .is_none()
+        );
+        let blind = vec![sweep_image(0.0, None); 3];
+        assert!(location_correction(&blind, &cal, cal.setup.crop).is_err());
+    }
+
+    #[test]
+    fn sweeps_on_a_sensor_that_locates_in_2d_are_an_error() {
+        let flat = SensorGeometry::Flat(crate::geometry::FlatSurface {
+            length_mm: 24.0,
+            width_mm: 18.0,
+        });
+        let e = fit_dataset_with_sweeps(
+            &[],
+            &[sweep_image(0.0, Some(800.0))],
+            &ExtractorConfig::default(),
+            ContactPointMethod::DEFAULT,
+            Roi::new(0, 0, 320, 240),
+            flat,
+            &FitOptions::default(),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("2-D"), "{e}");
+    }
 
     #[test]
     fn the_press_threshold_is_half_the_weakest_presses_normal() {

@@ -96,6 +96,7 @@ impl Calibration {
             profile: self.profile.as_ref(),
             guard: self.guard.as_ref(),
             min_normal_n: self.min_normal_n,
+            column_correction: self.column_correction.as_ref(),
         }
     }
 
@@ -208,6 +209,7 @@ impl Calibration {
             profile: repr.profile,
             guard: repr.guard,
             min_normal_n: repr.min_normal_n,
+            column_correction: repr.column_correction,
         };
         c.check().map_err(err)?;
         Ok(c)
@@ -245,6 +247,8 @@ struct CalibrationRef<'a> {
     guard: Option<&'a ForceGuard>,
     #[serde(skip_serializing_if = "Option::is_none")]
     min_normal_n: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    column_correction: Option<&'a ColumnCorrection>,
 }
 
 #[derive(Deserialize)]
@@ -269,6 +273,8 @@ struct CalibrationOwned {
     guard: Option<ForceGuard>,
     #[serde(default)]
     min_normal_n: Option<f64>,
+    #[serde(default)]
+    column_correction: Option<ColumnCorrection>,
 }
 
 /// Rewrites pretty JSON so that arrays holding only scalars sit on one line

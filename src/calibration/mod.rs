@@ -54,6 +54,7 @@
 //! # Ok::<(), optical_tactile::Error>(())
 //! ```
 
+pub mod correction;
 pub mod fit;
 mod format;
 pub mod poly;
@@ -70,6 +71,7 @@ use crate::geometry::SensorGeometry;
 use crate::io::{Split, TestRow};
 use crate::segment::morphology::Shape;
 use crate::segment::{ThresholdPreset, Thresholds};
+use correction::ColumnCorrection;
 use fit::FitOptions;
 use format::thresholds_format;
 use poly::{FitReport, Polynomial};
@@ -346,6 +348,9 @@ pub struct Calibration {
     /// Smallest profile-matched normal force, N, of a patch reported as a
     /// contact ([`Calibration::is_press`]); `None`: every patch is.
     pub min_normal_n: Option<f64>,
+    /// Location offsets and force gains per image column, learned from
+    /// sweeps ([`correction`]); `None` (no sweeps, older files): none.
+    pub column_correction: Option<ColumnCorrection>,
 }
 
 /// The press test of [`Calibration::is_press`] for a threshold `min_normal_n`
@@ -519,6 +524,7 @@ impl Calibration {
             profile: None,
             guard: None,
             min_normal_n: None,
+            column_correction: None,
         };
         c.check().map_err(in_memory)?;
         Ok(c)
@@ -556,6 +562,12 @@ impl Calibration {
         }
         if let Some(g) = &self.guard {
             g.validate()?;
+        }
+        if let Some(c) = &self.column_correction {
+            if self.setup.geometry.locates_in_2d() {
+                return Err("column_correction: only for a sensor that locates along x".into());
+            }
+            c.validate().map_err(|e| e.to_string())?;
         }
         if let Some(m) = self.min_normal_n
             && !(m.is_finite() && m >= 0.0)
@@ -611,8 +623,12 @@ impl Calibration {
     /// and both shear-to-normal ratios, `[ds1 / dn, ds2 / dn]`
     /// ([`RawContact::shear_ratio`], [`RawContact::shear_ratio_y`]): each map
     /// takes the ones among its variables.
+    /// With a [`ColumnCorrection`], its offset at `x2d` is added to `x`.
     pub fn location_with_shear(&self, x2d: f64, y2d: f64, shear: [f64; 2]) -> Result<[f64; 3]> {
-        let x = evaluate_location(&self.g1, x2d, y2d, shear)?;
+        let mut x = evaluate_location(&self.g1, x2d, y2d, shear)?;
+        if let Some(c) = &self.column_correction {
+            x += c.location_mm_at(x2d);
+        }
         let y = evaluate_location(&self.g2, x2d, y2d, shear)?;
         Ok(self.setup.geometry.point_at(x, y))
     }
@@ -727,8 +743,10 @@ impl Calibration {
     /// [`RawContact::local_force`] from the frame's flow (`u`, `v` on a grid
     /// of `scale` full-resolution pixels per cell), all contacts at once;
     /// without one, does nothing. Each contact is matched at
-    /// [`Calibration::match_column`]. A sensor calls this once the contact
-    /// columns are measured the calibration's way.
+    /// [`Calibration::match_column`]; with a [`ColumnCorrection`], its
+    /// matched normal force is then multiplied by the correction's gain at
+    /// that column ([`ColumnCorrection::correct_local_force`]). A sensor
+    /// calls this once the contact columns are measured the calibration's way.
     pub fn match_forces_with(
         &self,
         matcher: &mut ForceMatcher,
@@ -739,8 +757,18 @@ impl Calibration {
     ) -> Result<()> {
         match &self.profile {
             Some(model) if !raws.is_empty() => {
-                matcher
-                    .measure_contacts_at(model, raws, u, v, scale, |r| self.match_column(model, r))
+                matcher.measure_contacts_at(model, raws, u, v, scale, |r| {
+                    self.match_column(model, r)
+                })?;
+                if let Some(c) = &self.column_correction {
+                    for r in raws.iter_mut() {
+                        if let Some(f) = r.local_force {
+                            let column = self.match_column(model, r)?;
+                            r.local_force = Some(c.correct_local_force(column, f));
+                        }
+                    }
+                }
+                Ok(())
             }
             _ => Ok(()),
         }
