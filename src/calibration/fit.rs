@@ -753,11 +753,13 @@ pub fn fit_dataset(
 /// sweeps ([`extract_sweeps`]), the [`ColumnCorrection`] of the sweeps'
 /// images ([`super::correction`]):
 ///
-/// - the location offsets once the location maps are fitted, so that the
-///   profile model is matched, and the force maps are fitted, at the
-///   corrected locations, as a sensor will match them;
-/// - the force gains once the force maps are fitted: per sweep, the true
-///   normal force over the calibrated one, divided by the sweep's median.
+/// - the location offsets once the location maps are fitted (the first
+///   pass), so that the profile model is matched at the corrected
+///   locations, as a sensor will match it;
+/// - the gains of the matched normal force once the profile model is
+///   fitted: per sweep, the true normal force over the matched one,
+///   divided by the sweep's median. Every test's matched force is
+///   corrected by them before the force maps are fitted.
 ///
 /// Sweeps need a sensor that locates along x (the strip): on one that
 /// locates in 2-D they are an error.
@@ -930,9 +932,8 @@ const MIN_GAIN_FORCE_N: f64 = 0.3;
 /// as a sensor matches it (at `cal`'s column, `cal` holding the location
 /// offsets of `fix`); its gain, at that column, is its true normal force
 /// in the local frame over the matched one, divided by the median of its
-/// sweep. Images whose
-/// ratio leaves [`GAIN_RANGE`] or whose commanded force is below
-/// [`MIN_GAIN_FORCE_N`] are left out.
+/// sweep. Images whose ratio leaves [`GAIN_RANGE`] or whose commanded
+/// force is below [`MIN_GAIN_FORCE_N`] are left out.
 fn normal_gain(
     sweeps: &[Extraction],
     cal: &Calibration,
