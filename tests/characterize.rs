@@ -147,3 +147,36 @@ fn too_few_rows_to_fit_is_a_clear_error() {
         "{msg}"
     );
 }
+
+#[test]
+fn a_missing_sweep_image_is_an_error_naming_sweeps_csv_and_the_file() {
+    use optical_tactile::calibration::fit::{extract_sweeps, read_dataset_sweeps};
+    let d = scratch("sweeps");
+    let src = fixture();
+    let rows = read_dataset(&src).unwrap();
+    for name in [&rows[0].frame, &rows[0].reference] {
+        std::fs::copy(src.join(name), d.join(name)).unwrap();
+    }
+    // No sweeps.csv: no sweeps.
+    assert!(read_dataset_sweeps(&d).unwrap().is_empty());
+    let (f, r) = (&rows[0].frame, &rows[0].reference);
+    let text = format!(
+        "sweep,frame,reference,indenter_mm,force_n,x_mm,y_mm,fx_n,fy_n,fz_n\n\
+         0,{f},{r},10,2,-100,0,0,0,-2\n\
+         0,frames/gone.png,{r},10,2,-99.5,0,0,0,-2\n"
+    );
+    std::fs::write(d.join("sweeps.csv"), text).unwrap();
+    let sweeps = read_dataset_sweeps(&d).unwrap();
+    assert_eq!(sweeps.len(), 2);
+    let e = extract_sweeps(
+        &d,
+        &sweeps,
+        &config(),
+        ContactPointMethod::DEFAULT,
+        None,
+        &|_, _| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("sweeps.csv") && e.contains("gone.png"), "{e}");
+}

@@ -1010,7 +1010,8 @@ pub fn read_dataset_sweeps(dir: impl AsRef<Path>) -> Result<Vec<io::SweepRow>> {
 
 /// Runs the pipeline on every sweep image, as [`extract_dataset`] does on
 /// tests (each row as [`io::SweepRow::as_test`]: the sweep number is the
-/// test's `repeat`).
+/// test's `repeat`). An image that cannot be read stops the run with an
+/// error naming `sweeps.csv`, the row (as `test N`, from 0) and its frames.
 pub fn extract_sweeps(
     dir: impl AsRef<Path>,
     sweeps: &[io::SweepRow],
@@ -1025,6 +1026,7 @@ pub fn extract_sweeps(
         .map(|(i, r)| r.as_test(i))
         .collect();
     extract_dataset(dir, &rows, config, contact_point, crop, progress)
+        .map_err(|e| e.context(format!("{SWEEPS_FILE}, rows counted from 0")))
 }
 
 /// Fraction of the weakest training presses' matched normal force below
