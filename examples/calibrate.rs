@@ -189,6 +189,23 @@ struct Args {
     quiet: bool,
 }
 
+/// Runs one extraction pass over `n` images (`run` with its progress
+/// callback) behind a progress bar labelled `label`.
+fn extract_with_bar(
+    label: &str,
+    n: usize,
+    quiet: bool,
+    run: impl FnOnce(&(dyn Fn(usize, usize) + Sync)) -> optical_tactile::Result<Vec<Extraction>>,
+) -> Result<Vec<Extraction>, String> {
+    let bar = cli_support::progress_bar(label, n as u64, quiet);
+    let progress = |done: usize, _total: usize| {
+        bar.set_position((done as u64).max(bar.position()));
+    };
+    let out = run(&progress);
+    bar.finish();
+    out.map_err(|e| e.to_string())
+}
+
 /// One line on a fitted column correction: how many sweep images, how large
 /// its location offsets and how far its force gains stray from 1, over the
 /// columns the sweeps reached.
@@ -400,42 +417,18 @@ fn run(args: Args) -> Result<(), Failure> {
             config.flow = DisParams::preset(p);
         }
         let t0 = Instant::now();
-        let bar =
-            cli_support::progress_bar(&format!("[{preset}] tests"), rows.len() as u64, args.quiet);
-        let progress = |done: usize, _total: usize| {
-            bar.set_position((done as u64).max(bar.position()));
-        };
-        let ex = extract_dataset(
-            &args.dir,
-            &rows,
-            &config,
-            contact_point,
-            args.crop,
-            &progress,
-        );
-        bar.finish();
-        let ex = ex.map_err(err)?;
+        let ex = extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {
+            extract_dataset(&args.dir, &rows, &config, contact_point, args.crop, p)
+        })?;
         let swept = if sweeps.is_empty() {
             Vec::new()
         } else {
-            let bar = cli_support::progress_bar(
+            extract_with_bar(
                 &format!("[{preset}] sweeps"),
-                sweeps.len() as u64,
+                sweeps.len(),
                 args.quiet,
-            );
-            let progress = |done: usize, _total: usize| {
-                bar.set_position((done as u64).max(bar.position()));
-            };
-            let swept = extract_sweeps(
-                &args.dir,
-                &sweeps,
-                &config,
-                contact_point,
-                args.crop,
-                &progress,
-            );
-            bar.finish();
-            swept.map_err(err)?
+                |p| extract_sweeps(&args.dir, &sweeps, &config, contact_point, args.crop, p),
+            )?
         };
         let options = FitOptions {
             location_shear_order: args.shear_order,

@@ -911,16 +911,34 @@ fn location_correction(
             "no contact found in any sweep image",
         ));
     }
-    let n = crop.w;
-    let location_mm = smooth_on_grid(&columns, &offsets, 0.0, DEFAULT_SMOOTHING_PX, 0.0, 1.0, n)?;
+    let sigma = smoothing_for(&columns);
+    let location_mm = smooth_on_grid(&columns, &offsets, 0.0, sigma, 0.0, 1.0, crop.w)?;
     Ok(Some(ColumnCorrection {
         start_px: 0.0,
         step_px: 1.0,
         force_gain: vec![1.0; location_mm.len()],
         location_mm,
-        smoothing_px: DEFAULT_SMOOTHING_PX,
+        smoothing_px: sigma,
         images: columns.len(),
     }))
+}
+
+/// The smoothing of a correction fitted at `columns`: [`DEFAULT_SMOOTHING_PX`],
+/// or half the median spacing of the columns if that is wider. Sweeps in coarse
+/// steps then give a correction that varies smoothly between their images
+/// instead of one that is back at none halfway between them. Columns less
+/// than a pixel apart (several sweeps over the same positions) count once.
+fn smoothing_for(columns: &[f64]) -> f64 {
+    let mut sorted: Vec<f64> = columns.iter().copied().filter(|c| c.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let mut gaps: Vec<f64> = sorted
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|gap| *gap >= 1.0)
+        .collect();
+    gaps.sort_by(f64::total_cmp);
+    let spacing = gaps.get(gaps.len() / 2).copied().unwrap_or(0.0);
+    (0.5 * spacing).max(DEFAULT_SMOOTHING_PX)
 }
 
 /// The smallest commanded force of a sweep image whose gain is measured,
@@ -1402,6 +1420,7 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!(fix.images, 161 - 5);
+        assert_eq!(fix.smoothing_px, DEFAULT_SMOOTHING_PX);
         assert!(fix.force_gain.iter().all(|g| *g == 1.0));
         // No sweep near column 100 (x = -140 mm): no offset there.
         assert_eq!(fix.location_mm_at(100.0), 0.0);
@@ -1421,6 +1440,24 @@ mod tests {
             "{} -> {}",
             mean(&before),
             mean(&after)
+        );
+        // Coarse sweeps (two over the same positions every 5 mm, 25 px) are
+        // smoothed over their spacing: between their images the correction
+        // is not back at zero.
+        let coarse: Vec<Extraction> = (0..=33)
+            .map(|i| {
+                let i = i % 17;
+                let x = -40.0 + 5.0 * i as f64;
+                sweep_image(x, Some(truth_px(x) + lag(truth_px(x))))
+            })
+            .collect();
+        let wide = location_correction(&coarse, &linear_location(), cal.setup.crop)
+            .unwrap()
+            .unwrap();
+        assert!(wide.smoothing_px > 10.0, "{}", wide.smoothing_px);
+        let between = truth_px(2.5);
+        assert!(
+            wide.location_mm_at(between).abs() > 0.1 * wide.location_mm_at(truth_px(0.0)).abs()
         );
         // Without sweeps nothing is fitted; with no detected image it is an error.
         assert!(
