@@ -64,7 +64,7 @@ use optical_tactile::calibration::fit::{
     DatasetFit, Extraction, extract_dataset, extract_sweeps, fit_dataset_with_sweeps,
     load_cell_spread, read_dataset, read_dataset_geometry, read_dataset_sweeps,
 };
-use optical_tactile::calibration::fit::{FitOptions, GuardOptions};
+use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileFitOptions};
 use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
@@ -143,6 +143,10 @@ struct Cli {
     /// corrections it gives).
     #[arg(long)]
     no_sweeps: bool,
+    /// Fit the profile model without its indenter-size kernels (one normal
+    /// kernel for every indenter; docs/calibration.md).
+    #[arg(long)]
+    no_size_term: bool,
     /// DIS flow preset [default: fine, the sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
@@ -182,6 +186,7 @@ struct Args {
     guard: Option<GuardOptions>,
     force_y2d: bool,
     no_sweeps: bool,
+    no_size_term: bool,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     crop: Option<Roi>,
@@ -337,6 +342,7 @@ impl Cli {
             }),
             force_y2d: self.force_y2d,
             no_sweeps: self.no_sweeps,
+            no_size_term: self.no_size_term,
             flow: self.preset,
             crop: self.crop,
             predictions: self.predictions,
@@ -430,6 +436,7 @@ fn run(args: Args) -> Result<(), Failure> {
                 |p| extract_sweeps(&args.dir, &sweeps, &config, contact_point, args.crop, p),
             )?
         };
+        let base = FitOptions::for_geometry(&geometry);
         let options = FitOptions {
             location_shear_order: args.shear_order,
             displacement_max_order: args.force_order,
@@ -437,7 +444,11 @@ fn run(args: Args) -> Result<(), Failure> {
             shear_max_order: args.shear_force_order,
             guard: args.guard,
             force_use_y2d: args.force_y2d || two_d,
-            ..FitOptions::for_geometry(&geometry)
+            profile: base.profile.map(|p| ProfileFitOptions {
+                size_term: p.size_term && !args.no_size_term,
+                ..p
+            }),
+            ..base
         };
         let fit = fit_dataset_with_sweeps(
             &ex,

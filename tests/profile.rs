@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, DVector};
 use optical_tactile::Error;
 use optical_tactile::contact::profile::{
-    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
+    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, SizeTerm, column_profile_into,
 };
 use optical_tactile_sim::rng::SplitMix64;
 
@@ -82,6 +82,7 @@ fn samples(set: &[Training], force: Option<[f64; 3]>) -> Vec<ProfileSample<'_>> 
             profile_v: &p[1],
             scale: SCALE,
             local_force: force.unwrap_or(*f),
+            size_mm: None,
         })
         .collect()
 }
@@ -142,6 +143,7 @@ fn two_close_contacts_share_out_their_overlapping_motion() {
 /// (every cell within reach of a contact, both channels) and solve it by SVD.
 fn oracle(model: &ProfileModel, cols: &[f64], p: &[Vec<f64>; 2]) -> Vec<f64> {
     let reach = model.half_width as f64 * model.step_px;
+    let comps = model.kernels[0].len() / (model.degree + 1);
     let mut rows = Vec::new();
     let mut rhs = Vec::new();
     for (ch, prof) in p.iter().enumerate() {
@@ -152,7 +154,7 @@ fn oracle(model: &ProfileModel, cols: &[f64], p: &[Vec<f64>; 2]) -> Vec<f64> {
             }
             let mut r = Vec::new();
             for &c in cols {
-                for k in 0..3 {
+                for k in 0..comps {
                     r.push(kernel_value(model, ch, c, x - c, k));
                 }
             }
@@ -160,13 +162,14 @@ fn oracle(model: &ProfileModel, cols: &[f64], p: &[Vec<f64>; 2]) -> Vec<f64> {
             rhs.push(y);
         }
     }
-    let a = DMatrix::from_fn(rows.len(), 3 * cols.len(), |i, j| rows[i][j]);
+    let a = DMatrix::from_fn(rows.len(), comps * cols.len(), |i, j| rows[i][j]);
     let b = DVector::from_vec(rhs);
-    a.svd(true, true)
-        .solve(&b, 1e-12)
-        .unwrap()
-        .as_slice()
-        .to_vec()
+    let x = a.svd(true, true).solve(&b, 1e-12).unwrap();
+    // The forces of each contact (the size term's unknown, if any, dropped).
+    x.as_slice()
+        .chunks_exact(comps)
+        .flat_map(|c| c[..3].to_vec())
+        .collect()
 }
 
 /// Kernel value straight from the stored samples (linear between them).
@@ -200,8 +203,21 @@ proptest::proptest! {
         c1 in 100.0f64..700.0,
         gap in 20.0f64..300.0,
         noise in proptest::collection::vec(-1.0f64..1.0, 2 * N),
+        sized in proptest::bool::ANY,
     ) {
-        let model = fit(&training_set(3), 2);
+        let set = training_set(3);
+        let model = if sized {
+            // The same data with made-up sizes: the size kernels are then
+            // mostly noise, but the matcher must still solve the same system.
+            let mut s = samples(&set, None);
+            for (i, x) in s.iter_mut().enumerate() {
+                x.size_mm = Some([2.0, 5.0, 10.0][i % 3]);
+            }
+            let term = SizeTerm::for_sizes(s.iter().filter_map(|x| x.size_mm)).unwrap();
+            ProfileModel::fit_with_size(&s, SCALE, 200.0, 2, CENTRE, SPAN, Some(term)).unwrap()
+        } else {
+            fit(&set, 2)
+        };
         let cols = [c1, (c1 + gap).min(790.0)];
         let mut p = profiles(&cols, &[[0.2, 0.01, -1.0], [0.0, -0.02, -0.7]]);
         for (i, e) in noise.iter().enumerate() {
@@ -396,6 +412,7 @@ fn anchored_kernels_are_not_smeared_by_a_shear_dependent_column() {
                 profile_v: &p[1],
                 scale: SCALE,
                 local_force: *f,
+                size_mm: None,
             })
             .collect();
         ProfileModel::fit(&samples, SCALE, 200.0, 1, CENTRE, SPAN).unwrap()
@@ -439,4 +456,127 @@ fn anchored_kernels_are_not_smeared_by_a_shear_dependent_column() {
         err_smeared > 3.0 * err_anchored,
         "smeared {err_smeared} vs anchored {err_anchored}"
     );
+}
+
+/// Extra normal response of an indenter of `size_mm` against one of 6 mm:
+/// a wider press spreads its motion further out (an odd shape, broader
+/// than the normal kernel), linear in the size.
+fn widening(ch: usize, size_mm: f64, t: f64) -> f64 {
+    let w = 45.0 + 3.0 * ch as f64;
+    let g = (-(t / w).powi(2)).exp();
+    0.15 * (size_mm - 6.0) * (t / w).powi(3) * g * if ch == 0 { 1.0 } else { 0.4 }
+}
+
+/// A training contact pressed by an indenter of known size: column, local
+/// force, size (mm), profiles (u, v).
+type SizedTraining = (f64, [f64; 3], f64, [Vec<f64>; 2]);
+
+/// Profiles of one contact at `c` with local force `f`, pressed by an
+/// indenter of `size_mm`.
+fn sized_profiles(c: f64, f: [f64; 3], size_mm: f64) -> [Vec<f64>; 2] {
+    let mut p = profiles(&[c], &[f]);
+    for (ch, prof) in p.iter_mut().enumerate() {
+        for (j, v) in prof.iter_mut().enumerate() {
+            *v += f[2] * widening(ch, size_mm, cell(j) - c);
+        }
+    }
+    p
+}
+
+/// Why the size term: with indenters of 2, 5 and 10 mm, one normal kernel
+/// fits their mean footprint and reads the others' normal force off by
+/// several percent; with the size term the match recovers the normal force
+/// of any size, one it was not trained on included.
+#[test]
+fn the_size_term_reads_the_normal_force_of_any_indenter() {
+    let mut rng = SplitMix64::new(21);
+    let set: Vec<SizedTraining> = (0..150)
+        .map(|i| {
+            let c = cell(75 + (250.0 * rng.next_f64()) as usize);
+            let f = [
+                rng.next_f64() - 0.5,
+                0.2 * (rng.next_f64() - 0.5),
+                -0.5 - 2.5 * rng.next_f64(),
+            ];
+            let size = [2.0, 5.0, 10.0][i % 3];
+            (c, f, size, sized_profiles(c, f, size))
+        })
+        .collect();
+    let samples: Vec<ProfileSample<'_>> = set
+        .iter()
+        .map(|(c, f, size, p)| ProfileSample {
+            column_px: *c,
+            profile_u: &p[0],
+            profile_v: &p[1],
+            scale: SCALE,
+            local_force: *f,
+            size_mm: Some(*size),
+        })
+        .collect();
+    let term = SizeTerm::for_sizes(set.iter().map(|s| s.2)).unwrap();
+    assert!(
+        (term.centre_mm - 17.0 / 3.0).abs() < 0.1 && term.scale_mm == 4.0,
+        "{term:?}"
+    );
+    let sized =
+        ProfileModel::fit_with_size(&samples, SCALE, 200.0, 1, CENTRE, SPAN, Some(term)).unwrap();
+    let plain = ProfileModel::fit(&samples, SCALE, 200.0, 1, CENTRE, SPAN).unwrap();
+    assert_eq!(sized.kernels[0].len(), 4 * 2);
+    assert_eq!(plain.kernels[0].len(), 3 * 2);
+    let mut m = ForceMatcher::new();
+    let mut out = Vec::new();
+    let (mut worst_sized, mut worst_plain) = (0.0f64, 0.0f64);
+    for (c, size) in [
+        (cell(140), 2.0),
+        (cell(260), 10.0),
+        (cell(201), 3.5),
+        (cell(177), 8.0),
+    ] {
+        let f = [0.25, -0.03, -2.4];
+        let p = sized_profiles(c, f, size);
+        m.measure(&sized, &[c], &p[0], &p[1], SCALE, &mut out)
+            .unwrap();
+        worst_sized = worst_sized.max((out[0][2] - f[2]).abs());
+        m.measure(&plain, &[c], &p[0], &p[1], SCALE, &mut out)
+            .unwrap();
+        worst_plain = worst_plain.max((out[0][2] - f[2]).abs());
+    }
+    assert!(
+        worst_sized < 1e-6,
+        "with the size term: {worst_sized} N off"
+    );
+    assert!(worst_plain > 0.05, "without it: only {worst_plain} N off");
+    // The term survives a file round trip; older files have none.
+    let back: ProfileModel = serde_json::from_str(&serde_json::to_string(&sized).unwrap()).unwrap();
+    assert_eq!(back.size, Some(term));
+    assert!(!serde_json::to_string(&plain).unwrap().contains("size"));
+    // A term without its kernels, or with a bad scale, is refused on load.
+    let mut broken = plain.clone();
+    broken.size = Some(term);
+    assert!(broken.validate().is_err());
+    let mut bad_scale = sized.clone();
+    bad_scale.size = Some(SizeTerm {
+        centre_mm: 5.0,
+        scale_mm: 0.0,
+    });
+    assert!(bad_scale.validate().is_err());
+}
+
+#[test]
+fn the_size_term_needs_sizes_that_vary_and_every_sample_sized() {
+    assert_eq!(SizeTerm::for_sizes([5.0, 5.0, 5.0]), None);
+    assert_eq!(SizeTerm::for_sizes([]), None);
+    assert_eq!(SizeTerm::for_sizes([2.0, f64::NAN]), None);
+    assert_eq!(SizeTerm::for_sizes([2.0, -1.0]), None);
+    let set = training_set(5);
+    let unsized_samples = samples(&set, None);
+    let term = SizeTerm {
+        centre_mm: 5.0,
+        scale_mm: 3.0,
+    };
+    let err =
+        ProfileModel::fit_with_size(&unsized_samples, SCALE, 200.0, 1, CENTRE, SPAN, Some(term))
+            .unwrap_err();
+    assert!(matches!(err, Error::InvalidParameter { .. }), "{err}");
+    assert!(err.to_string().contains("size"), "{err}");
 }

@@ -25,7 +25,7 @@ use super::{
     PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
-    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, column_profile_into,
+    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, SizeTerm, column_profile_into,
 };
 use crate::contact::{ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
@@ -219,6 +219,12 @@ pub struct ProfileFitOptions {
     /// from before the anchor map).
     #[serde(default)]
     pub anchor_max_degree: usize,
+    /// Fit the indenter-size term
+    /// ([`crate::contact::profile::SizeTerm`]) when the training tests
+    /// were pressed by indenters of more than one size. Off in files from
+    /// before the term.
+    #[serde(default)]
+    pub size_term: bool,
 }
 
 impl Default for ProfileFitOptions {
@@ -232,6 +238,7 @@ impl Default for ProfileFitOptions {
             half_width_px: 300.0,
             degree: 2,
             anchor_max_degree: 5,
+            size_term: true,
         }
     }
 }
@@ -1210,18 +1217,25 @@ fn fit_profile_at(
                 profile_v: &e.profiles[1],
                 scale: e.scale,
                 local_force: geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]),
+                size_mm: Some(r.indenter_mm),
             })
         })
         .collect();
+    let size = if options.size_term {
+        SizeTerm::for_sizes(samples.iter().filter_map(|s| s.size_mm))
+    } else {
+        None
+    };
     // The position polynomial's variable runs over -1..1 across the crop.
     let half = 0.5 * crop.w as f64;
-    let mut model = ProfileModel::fit(
+    let mut model = ProfileModel::fit_with_size(
         &samples,
         train.first().map_or(1.0, |e| e.scale),
         options.half_width_px,
         options.degree,
         half - 0.5,
         half.max(1.0),
+        size,
     )?;
     model.anchor = anchor;
     Ok(model)

@@ -68,6 +68,27 @@ pub struct ProfileSample<'a> {
     /// True force in the local frame at the contact: tangential, across,
     /// normal (outward; a press is negative), N.
     pub local_force: [f64; 3],
+    /// Size of the indenter that pressed, mm: needed when the model is
+    /// fitted with a [`SizeTerm`], ignored otherwise.
+    pub size_mm: Option<f64>,
+}
+
+/// The indenter-size term of a [`ProfileModel`]: a fourth response kernel,
+/// to the normal force times `(size_mm - centre_mm) / scale_mm`.
+///
+/// Why: one set of kernels for every indenter fits the mean footprint. A
+/// wider indenter spreads its motion wider, and matched against the mean
+/// kernel its normal force reads low; by more the harder it presses, as its
+/// footprint grows with the load. With the size kernel the match has a
+/// second shape to explain the width with, and the normal force no longer
+/// depends on which indenter pressed. At run time the size is not known: it
+/// is one more unknown per contact, solved with the forces.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SizeTerm {
+    /// Size the term is centred on (the training indenters' mean), mm.
+    pub centre_mm: f64,
+    /// Size scale (half the training indenters' range), mm.
+    pub scale_mm: f64,
 }
 
 /// Response kernels of the motion profile to a unit local force, as smooth
@@ -99,6 +120,11 @@ pub struct ProfileModel {
     /// [`ColumnMap`] for why); `None` (older files): at the measured column.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub anchor: Option<ColumnMap>,
+    /// The indenter-size term: with it, `kernels[c]` holds a fourth
+    /// component's `degree + 1` kernels after the three forces' ([`SizeTerm`]).
+    /// `None` (older files): three components.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<SizeTerm>,
 }
 
 /// A smooth map from a contact's chord position (mm) to the image column
@@ -212,6 +238,9 @@ impl ColumnMap {
 /// Force components per contact.
 const COMPONENTS: usize = 3;
 
+/// Unknowns per contact at most: the three forces and the size term.
+const MAX_UNKNOWNS: usize = COMPONENTS + 1;
+
 /// Largest degree of a [`ProfileModel`]'s position polynomial (and of a
 /// [`ColumnMap`]): 6.
 pub const MAX_PROFILE_DEGREE: usize = 6;
@@ -243,6 +272,41 @@ impl ProfileModel {
         centre_px: f64,
         span_px: f64,
     ) -> Result<Self> {
+        Self::fit_with_size(
+            samples,
+            step_px,
+            half_width_px,
+            degree,
+            centre_px,
+            span_px,
+            None,
+        )
+    }
+
+    /// [`ProfileModel::fit`] with an indenter-size term ([`SizeTerm`]) when
+    /// `size` is given: every sample must then carry its finite
+    /// [`ProfileSample::size_mm`], and the sizes must vary.
+    pub fn fit_with_size(
+        samples: &[ProfileSample<'_>],
+        step_px: f64,
+        half_width_px: f64,
+        degree: usize,
+        centre_px: f64,
+        span_px: f64,
+        size: Option<SizeTerm>,
+    ) -> Result<Self> {
+        if let Some(t) = size {
+            t.validate()?;
+            if samples
+                .iter()
+                .any(|s| !s.size_mm.is_some_and(|x| x.is_finite()))
+            {
+                return Err(Error::param(
+                    "size_mm",
+                    "every sample needs a finite indenter size for the size term",
+                ));
+            }
+        }
         for (name, x) in [
             ("step_px", step_px),
             ("half_width_px", half_width_px),
@@ -280,7 +344,8 @@ impl ProfileModel {
             ));
         }
         let half_width = samples_per_side as usize;
-        let unknowns = COMPONENTS * (degree + 1);
+        let components = COMPONENTS + usize::from(size.is_some());
+        let unknowns = components * (degree + 1);
         if samples.len() < 2 * unknowns {
             return Err(calibration_error(format!(
                 "profile model: {} samples for {unknowns} unknowns per offset; need at least {}",
@@ -296,6 +361,7 @@ impl ProfileModel {
             degree,
             kernels: vec![vec![vec![0.0; 2 * half_width + 1]; unknowns]; 2],
             anchor: None,
+            size,
         };
         let mut design = vec![0.0; unknowns];
         let mut ata = vec![0.0; unknowns * unknowns];
@@ -311,7 +377,8 @@ impl ProfileModel {
                     let Some(y) = sample_profile(prof, s.scale, s.column_px + t) else {
                         continue;
                     };
-                    model.design_row(s.column_px, s.local_force, &mut design);
+                    let unknowns = model.unknowns(s.local_force, s.size_mm.unwrap_or(0.0));
+                    model.design_row(s.column_px, &unknowns[..components], &mut design);
                     accumulate(&mut ata, &mut atb, &design, y);
                     rows += 1;
                 }
@@ -323,7 +390,8 @@ impl ProfileModel {
                 let k = solve(&mut ata, &mut atb, unknowns).ok_or_else(|| {
                     calibration_error(
                         "profile model: the training forces do not separate the \
-                         tangential, across and normal responses (singular system)"
+                         tangential, across and normal responses (or the sizes' \
+                         from the normal one: singular system)"
                             .into(),
                     )
                 })?;
@@ -362,7 +430,10 @@ impl ProfileModel {
         }
         // Cannot overflow: both are bounded above.
         let n = 2 * self.half_width + 1;
-        let unknowns = COMPONENTS * (self.degree + 1);
+        if let Some(t) = &self.size {
+            t.validate()?;
+        }
+        let unknowns = self.components() * (self.degree + 1);
         if self.kernels.len() != 2
             || self
                 .kernels
@@ -389,12 +460,26 @@ impl ProfileModel {
         Ok(())
     }
 
-    /// The position polynomial's terms times a force: one design row.
-    fn design_row(&self, column_px: f64, force: [f64; 3], out: &mut [f64]) {
+    /// Unknowns per contact: 3, or 4 with the size term.
+    fn components(&self) -> usize {
+        COMPONENTS + usize::from(self.size.is_some())
+    }
+
+    /// A contact's unknowns for a local force and indenter size: the force,
+    /// then (with the size term) the normal force times the scaled size.
+    fn unknowns(&self, force: [f64; 3], size_mm: f64) -> [f64; MAX_UNKNOWNS] {
+        let extra = self
+            .size
+            .map_or(0.0, |t| force[2] * (size_mm - t.centre_mm) / t.scale_mm);
+        [force[0], force[1], force[2], extra]
+    }
+
+    /// The position polynomial's terms times the unknowns: one design row.
+    fn design_row(&self, column_px: f64, unknowns: &[f64], out: &mut [f64]) {
         let z = (column_px - self.centre_px) / self.span_px;
         let mut p = 1.0;
         for m in 0..=self.degree {
-            for (k, f) in force.iter().enumerate() {
+            for (k, f) in unknowns.iter().enumerate() {
                 out[k * (self.degree + 1) + m] = f * p;
             }
             p *= z;
@@ -402,8 +487,8 @@ impl ProfileModel {
     }
 
     /// Kernels of channel `ch` for a contact at `column_px`, at offset `t_px`:
-    /// one value per force component.
-    fn kernel(&self, ch: usize, column_px: f64, t_px: f64) -> Option<[f64; 3]> {
+    /// one value per unknown ([`ProfileModel::components`] of them; the rest 0).
+    fn kernel(&self, ch: usize, column_px: f64, t_px: f64) -> Option<[f64; MAX_UNKNOWNS]> {
         let idx = t_px / self.step_px + self.half_width as f64;
         let last = (2 * self.half_width) as f64;
         if !(0.0..=last).contains(&idx) {
@@ -413,8 +498,8 @@ impl ProfileModel {
         let i1 = (i0 + 1).min(2 * self.half_width);
         let a = idx - i0 as f64;
         let z = (column_px - self.centre_px) / self.span_px;
-        let mut out = [0.0; 3];
-        for (k, o) in out.iter_mut().enumerate() {
+        let mut out = [0.0; MAX_UNKNOWNS];
+        for (k, o) in out.iter_mut().take(self.components()).enumerate() {
             let mut p = 1.0;
             for m in 0..=self.degree {
                 let kern = &self.kernels[ch][k * (self.degree + 1) + m];
@@ -428,6 +513,40 @@ impl ProfileModel {
     /// How far each side of a contact the kernels reach, pixels.
     pub fn reach_px(&self) -> f64 {
         self.half_width as f64 * self.step_px
+    }
+}
+
+impl SizeTerm {
+    /// The term for training indenters of these sizes: centred on their
+    /// mean, scaled by half their range. `None` when fewer than two sizes
+    /// (the term would not be identifiable) or a size is not finite and > 0.
+    pub fn for_sizes(sizes: impl IntoIterator<Item = f64>) -> Option<Self> {
+        let (mut lo, mut hi, mut sum, mut n) = (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0usize);
+        for s in sizes {
+            if !(s > 0.0 && s.is_finite()) {
+                return None;
+            }
+            lo = lo.min(s);
+            hi = hi.max(s);
+            sum += s;
+            n += 1;
+        }
+        (n > 0 && hi > lo).then(|| SizeTerm {
+            centre_mm: sum / n as f64,
+            scale_mm: 0.5 * (hi - lo),
+        })
+    }
+
+    /// Checks a loaded term: finite centre, scale > 0.
+    pub fn validate(&self) -> Result<()> {
+        if self.centre_mm.is_finite() && self.scale_mm > 0.0 && self.scale_mm.is_finite() {
+            Ok(())
+        } else {
+            Err(calibration_error(format!(
+                "profile model: the size term needs a finite centre_mm and scale_mm > 0, got {} and {}",
+                self.centre_mm, self.scale_mm
+            )))
+        }
     }
 }
 
@@ -645,7 +764,8 @@ impl NormalEquations {
         if k == 0 {
             return Ok(());
         }
-        let n = COMPONENTS * k;
+        let comps = model.components();
+        let n = comps * k;
         self.ata.clear();
         self.ata.resize(n * n, 0.0);
         self.atb.clear();
@@ -660,8 +780,8 @@ impl NormalEquations {
                     continue;
                 }
                 for (m, &c) in columns_px.iter().enumerate() {
-                    let kv = model.kernel(ch, c, x - c).unwrap_or([0.0; 3]);
-                    self.row[COMPONENTS * m..COMPONENTS * (m + 1)].copy_from_slice(&kv);
+                    let kv = model.kernel(ch, c, x - c).unwrap_or([0.0; MAX_UNKNOWNS]);
+                    self.row[comps * m..comps * (m + 1)].copy_from_slice(&kv[..comps]);
                 }
                 if !y.is_finite() {
                     return Err(Error::NonFinite {
@@ -698,11 +818,7 @@ impl NormalEquations {
                 });
             }
         }
-        out.extend(
-            self.work_b
-                .chunks_exact(COMPONENTS)
-                .map(|c| [c[0], c[1], c[2]]),
-        );
+        out.extend(self.work_b.chunks_exact(comps).map(|c| [c[0], c[1], c[2]]));
         Ok(())
     }
 }
