@@ -116,19 +116,19 @@ struct Cli {
     #[arg(long, value_name = "N", default_value_t = FitOptions::default().location_shear_order,
           value_parser = clap::value_parser!(u32).range(0..=5))]
     shear_order: u32,
-    /// The force maps' largest displacement order.
-    #[arg(long, value_name = "N", default_value_t = FitOptions::default().displacement_max_order,
-          value_parser = clap::value_parser!(u32).range(1..=6))]
-    force_order: u32,
+    /// The force maps' largest displacement order [default: 4 on the strip,
+    /// 5 on a flat sensor].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=6))]
+    force_order: Option<u32>,
     /// The force maps' largest d_pf order (0 leaves it out).
     #[arg(long, value_name = "N", default_value_t = FitOptions::default().d_pf_max_order,
           value_parser = clap::value_parser!(u32).range(0..=4))]
     dpf_order: u32,
     /// Caps the shear displacements dx, dy at order N inside the force maps
-    /// (0: no cap, one displacement group).
-    #[arg(long, value_name = "N", default_value_t = FitOptions::default().shear_max_order.unwrap_or(0),
-          value_parser = clap::value_parser!(u32).range(0..=6))]
-    shear_order_force: u32,
+    /// (0: no cap, one displacement group) [default: 2 on the strip, 0 on a
+    /// flat sensor].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=6))]
+    shear_order_force: Option<u32>,
     /// Shear order of the fallback force maps that take over where the full
     /// maps are not trusted (0: no guard).
     #[arg(long, value_name = "N",
@@ -180,8 +180,10 @@ struct Args {
     contact_point: Option<ContactPointMethod>,
     geometry: Option<SensorGeometry>,
     shear_order: u32,
-    force_order: u32,
+    /// `--force-order`; `None`: the geometry's default.
+    force_order: Option<u32>,
     dpf_order: u32,
+    /// `--shear-order-force`; `None`: the geometry's default, `Some(0)`: no cap.
     shear_force_order: Option<u32>,
     guard: Option<GuardOptions>,
     force_y2d: bool,
@@ -335,7 +337,7 @@ impl Cli {
             shear_order: self.shear_order,
             force_order: self.force_order,
             dpf_order: self.dpf_order,
-            shear_force_order: (self.shear_order_force > 0).then_some(self.shear_order_force),
+            shear_force_order: self.shear_order_force,
             guard: (self.guard_shear_order > 0).then(|| GuardOptions {
                 shear_order: self.guard_shear_order,
                 ..GuardOptions::default()
@@ -439,9 +441,13 @@ fn run(args: Args) -> Result<(), Failure> {
         let base = FitOptions::for_geometry(&geometry);
         let options = FitOptions {
             location_shear_order: args.shear_order,
-            displacement_max_order: args.force_order,
+            displacement_max_order: args.force_order.unwrap_or(base.displacement_max_order),
             d_pf_max_order: args.dpf_order,
-            shear_max_order: args.shear_force_order,
+            shear_max_order: match args.shear_force_order {
+                None => base.shear_max_order,
+                Some(0) => None,
+                Some(n) => Some(n),
+            },
             guard: args.guard,
             force_use_y2d: args.force_y2d || two_d,
             profile: base.profile.map(|p| ProfileFitOptions {

@@ -236,11 +236,8 @@ fn characterization(
             None,
             &|d, n| stages.update(&stage, d, n),
         )?;
-        // As `calibrate` does by default: y2d out of the force maps.
-        let options = FitOptions {
-            force_use_y2d: false,
-            ..FitOptions::default()
-        };
+        // As `calibrate` does by default on the strip.
+        let options = FitOptions::for_geometry(&SensorGeometry::default());
         let fit = fit_dataset(
             &ex,
             &config,

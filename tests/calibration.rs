@@ -763,20 +763,32 @@ fn the_shipped_fixture_loads_with_its_settings() {
     assert_eq!(cal.contact_window_px(), 0);
     let profile = cal.profile.as_ref().expect("a profile model");
     assert_eq!((profile.degree, profile.step_px), (2, 1.0));
+    // With the size kernel of the protocol's 2, 5 and 10 mm rods.
+    let size = profile.size.expect("a size kernel");
+    assert!(
+        (size.centre_mm - 17.0 / 3.0).abs() < 0.01 && size.scale_mm == 4.0,
+        "{size:?}"
+    );
     assert_eq!(cal.setup.thresholds.magnitude, 0.2);
     assert_eq!(cal.setup.thresholds.sum, 600.0);
     assert_eq!(cal.g1().variables(), ["x2d", "shear"]);
     let t = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
     // The figures docs/results.md reports for this file.
     assert!(
-        t.n > 1300 && t.x_mm < 0.16 && t.fx < 0.0125 && t.fy < 0.0040 && t.fz < 0.0490,
+        t.n > 1300 && t.x_mm < 0.16 && t.fx < 0.0170 && t.fy < 0.0040 && t.fz < 0.0600,
         "{t:?}"
     );
     // So are the sweeps' corrections, across the strip.
     let c = cal.column_correction.as_ref().expect("a column correction");
     assert!(c.images > 900 && c.location_mm.len() == cal.setup.crop.w);
+    // A few per cent up or down along the skin; up to 30% at its ends,
+    // where the kernels are cut by the image's edge.
+    let rms = (c.force_gain.iter().map(|g| (g - 1.0).powi(2)).sum::<f64>()
+        / c.force_gain.len() as f64)
+        .sqrt();
+    assert!(rms < 0.08, "gains {rms} rms");
     assert!(
-        c.force_gain.iter().all(|g| (0.7..1.3).contains(g)),
+        c.force_gain.iter().all(|g| (0.7..1.35).contains(g)),
         "gains out of range"
     );
     // The force guard and the press test are in the file.
