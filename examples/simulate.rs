@@ -418,6 +418,10 @@ pub struct PressesArgs {
     /// for the fingertip sensor's spheres and punches].
     #[arg(long, value_name = "T")]
     pub max_tilt_deg: Option<f64>,
+    /// Seed of the presses' places, forces, tilts and rods [default: --seed];
+    /// another value gives other presses on the same sensor (the strip).
+    #[arg(long, value_name = "N")]
+    pub press_seed: Option<u64>,
     /// Rod diameters drawn from, mm (the strip).
     #[arg(long, value_name = "D,D,...", default_value_t = Numbers(Presses::default().indenters_mm))]
     pub indenters_mm: Numbers,
@@ -645,6 +649,7 @@ impl Command {
                     force_max_n: o.force_max_n,
                     max_tilt_deg: o.max_tilt_deg.unwrap_or(Presses::default().max_tilt_deg),
                     indenters_mm: o.indenters_mm.0,
+                    press_seed: o.press_seed,
                 }),
                 &common,
                 true,

@@ -178,7 +178,8 @@ fn scenario_options(
                 force_min_n,
                 force_max_n,
                 max_tilt_deg,
-                indenters_mm
+                indenters_mm,
+                press_seed
             );
             Scenario::Presses(s)
         }

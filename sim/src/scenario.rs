@@ -244,6 +244,11 @@ pub struct Presses {
     pub max_tilt_deg: f64,
     /// Rod diameters drawn from, mm (even odds).
     pub indenters_mm: Vec<f64>,
+    /// Seed of the draws (places, forces, tilts, rods); `None`: the
+    /// sensor's seed ([`Common::seed`]). Another press seed gives other
+    /// presses on the same sensor (same markers), so that a calibration can
+    /// be checked on several sets of presses.
+    pub press_seed: Option<u64>,
 }
 
 impl Default for Presses {
@@ -255,6 +260,7 @@ impl Default for Presses {
             force_max_n: 3.0,
             max_tilt_deg: 15.0,
             indenters_mm: vec![2.0, 5.0, 10.0],
+            press_seed: None,
         }
     }
 }
@@ -826,7 +832,8 @@ fn presses(
 ) -> Result<Summary> {
     // All draws first, from their own stream, so that the presses depend on
     // the seed alone; every rod is checked before anything is written.
-    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7072_6573_7365_7321));
+    let seed = o.press_seed.unwrap_or(c.seed);
+    let mut rng = SplitMix64::new(mix64(seed ^ 0x7072_6573_7365_7321));
     let mut plan = Vec::with_capacity(o.presses);
     for _ in 0..o.presses {
         let x = rng.uniform(-o.x_max_mm, o.x_max_mm);

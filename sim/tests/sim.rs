@@ -552,6 +552,7 @@ fn presses_land_anywhere_in_range_each_against_the_reference() {
         force_max_n: 2.0,
         max_tilt_deg: 10.0,
         indenters_mm: vec![2.0, 10.0],
+        press_seed: None,
     };
     let sum = scenario::run(&Scenario::Presses(o.clone()), &c).unwrap();
     assert_eq!(sum.frames, 7);
@@ -592,6 +593,21 @@ fn presses_land_anywhere_in_range_each_against_the_reference() {
     scenario::run(&Scenario::Presses(o.clone()), &c).unwrap();
     let truth2: Vec<FrameRecord> = io::read_jsonl(again.join("truth.jsonl")).unwrap();
     assert_eq!(truth, truth2);
+    // Another press seed: other presses on the same sensor (the same
+    // reference frame, so the same markers).
+    let other = tmp("presses3");
+    c.out = other.clone();
+    let o3 = Presses {
+        press_seed: Some(c.seed + 1),
+        ..o.clone()
+    };
+    scenario::run(&Scenario::Presses(o3), &c).unwrap();
+    let truth3: Vec<FrameRecord> = io::read_jsonl(other.join("truth.jsonl")).unwrap();
+    assert_eq!(truth3.len(), 7);
+    assert_ne!(truth3[1..], truth[1..]);
+    let reference = |d: &std::path::Path| std::fs::read(d.join(&truth[0].frame)).unwrap();
+    assert_eq!(reference(&out), reference(&other));
+    std::fs::remove_dir_all(&other).unwrap();
     std::fs::remove_dir_all(&out).unwrap();
     std::fs::remove_dir_all(&again).unwrap();
     // Bad options fail before anything is written.
