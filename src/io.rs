@@ -700,6 +700,15 @@ impl Csv {
         })
     }
 
+    /// Indices of required columns, in the order of `names`.
+    fn cols<const N: usize>(&self, names: &[&str; N]) -> Result<[usize; N]> {
+        let mut c = [0usize; N];
+        for (k, name) in names.iter().enumerate() {
+            c[k] = self.col(name)?;
+        }
+        Ok(c)
+    }
+
     /// Index of a required column.
     fn col(&self, name: &str) -> Result<usize> {
         self.header.iter().position(|h| h == name).ok_or_else(|| {
@@ -835,10 +844,7 @@ const TEST_COLUMNS: [&str; 15] = [
 /// line. The file must be a regular file of at most [`MAX_CSV_BYTES`].
 pub fn read_tests_csv(path: impl AsRef<Path>) -> Result<Vec<TestRow>> {
     let csv = Csv::read(path.as_ref())?;
-    let mut c = [0usize; 15];
-    for (k, name) in TEST_COLUMNS.iter().enumerate() {
-        c[k] = csv.col(name)?;
-    }
+    let c = csv.cols(&TEST_COLUMNS)?;
     let mut out = Vec::with_capacity(csv.rows.len());
     for (line, r) in &csv.rows {
         let line = *line;
@@ -870,12 +876,25 @@ pub fn read_tests_csv(path: impl AsRef<Path>) -> Result<Vec<TestRow>> {
     Ok(out)
 }
 
-/// Writes a characterization dataset's `tests.csv`.
-pub fn write_tests_csv(path: impl AsRef<Path>, rows: &[TestRow]) -> Result<()> {
-    let path = path.as_ref();
-    let mut s = TEST_COLUMNS.join(",");
+/// Writes a CSV file: the header of `columns`, then one line per row from
+/// `line` (which ends it with a newline).
+fn write_csv<T>(
+    path: &Path,
+    columns: &[&str],
+    rows: &[T],
+    mut line: impl FnMut(&mut String, &T),
+) -> Result<()> {
+    let mut s = columns.join(",");
     s.push('\n');
     for r in rows {
+        line(&mut s, r);
+    }
+    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+}
+
+/// Writes a characterization dataset's `tests.csv`.
+pub fn write_tests_csv(path: impl AsRef<Path>, rows: &[TestRow]) -> Result<()> {
+    write_csv(path.as_ref(), &TEST_COLUMNS, rows, |s, r| {
         let _ = writeln!(
             s,
             "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
@@ -895,8 +914,7 @@ pub fn write_tests_csv(path: impl AsRef<Path>, rows: &[TestRow]) -> Result<()> {
             r.fy_n,
             r.fz_n
         );
-    }
-    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    })
 }
 
 /// One row of a characterization dataset's `sweeps.csv` (docs/formats.md):
@@ -971,10 +989,7 @@ const SWEEP_COLUMNS: [&str; 10] = [
 /// positive.
 pub fn read_sweeps_csv(path: impl AsRef<Path>) -> Result<Vec<SweepRow>> {
     let csv = Csv::read(path.as_ref())?;
-    let mut c = [0usize; 10];
-    for (k, name) in SWEEP_COLUMNS.iter().enumerate() {
-        c[k] = csv.col(name)?;
-    }
+    let c = csv.cols(&SWEEP_COLUMNS)?;
     let mut out = Vec::with_capacity(csv.rows.len());
     for (line, r) in &csv.rows {
         let line = *line;
@@ -1004,10 +1019,7 @@ pub fn read_sweeps_csv(path: impl AsRef<Path>) -> Result<Vec<SweepRow>> {
 
 /// Writes a characterization dataset's `sweeps.csv`.
 pub fn write_sweeps_csv(path: impl AsRef<Path>, rows: &[SweepRow]) -> Result<()> {
-    let path = path.as_ref();
-    let mut s = SWEEP_COLUMNS.join(",");
-    s.push('\n');
-    for r in rows {
+    write_csv(path.as_ref(), &SWEEP_COLUMNS, rows, |s, r| {
         let _ = writeln!(
             s,
             "{},{},{},{},{},{},{},{},{},{}",
@@ -1022,8 +1034,7 @@ pub fn write_sweeps_csv(path: impl AsRef<Path>, rows: &[SweepRow]) -> Result<()>
             r.fy_n,
             r.fz_n
         );
-    }
-    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    })
 }
 
 /// One row of `poses.csv`: the body pose in the world frame at a frame.
@@ -1055,10 +1066,7 @@ const POSE_COLUMNS: [&str; 9] = ["frame", "t_s", "x_m", "y_m", "z_m", "qw", "qx"
 /// number must be finite (a NaN time is an error).
 pub fn read_poses_csv(path: impl AsRef<Path>) -> Result<Vec<PoseRow>> {
     let csv = Csv::read(path.as_ref())?;
-    let mut c = [0usize; 9];
-    for (k, name) in POSE_COLUMNS.iter().enumerate() {
-        c[k] = csv.col(name)?;
-    }
+    let c = csv.cols(&POSE_COLUMNS)?;
     csv.rows
         .iter()
         .map(|(line, r)| {
@@ -1080,15 +1088,11 @@ pub fn read_poses_csv(path: impl AsRef<Path>) -> Result<Vec<PoseRow>> {
 
 /// Writes `poses.csv`.
 pub fn write_poses_csv(path: impl AsRef<Path>, rows: &[PoseRow]) -> Result<()> {
-    let path = path.as_ref();
-    let mut s = POSE_COLUMNS.join(",");
-    s.push('\n');
-    for r in rows {
+    write_csv(path.as_ref(), &POSE_COLUMNS, rows, |s, r| {
         let _ = writeln!(
             s,
             "{},{},{},{},{},{},{},{},{}",
             r.frame, r.t_s, r.x_m, r.y_m, r.z_m, r.qw, r.qx, r.qy, r.qz
         );
-    }
-    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    })
 }
