@@ -34,13 +34,20 @@
 //! spelling of `centroid:PX` (0 = argmin). `--shear-order N` the largest order of the shear ratio in `g1`
 //! (default 2; 0 = the paper's `g1(x2d)`). `y2d` stays out of the force maps
 //! unless `--force-y2d` is given (the rods span the width: it only carries noise).
-//! `--force-order N` is the force maps' largest displacement order (default 5),
-//! `--dpf-order N` their largest `d_pf` order (default 2, 0 leaves it out) and
-//! `--shear-order-force N` caps the shear displacements `dx, dy` at order N
-//! inside that (default 0: no cap; see `FitOptions::shear_max_order`).
+//! `--force-order N` is the force maps' largest displacement order (default 4
+//! on the strip, 5 on a flat sensor), `--dpf-order N` their largest `d_pf`
+//! order (default 2, 0 leaves it out) and `--shear-order-force N` caps the
+//! shear displacements `dx, dy` at order N inside that (default 2 on the
+//! strip, no cap on a flat sensor; 0: no cap; see
+//! `FitOptions::shear_max_order`).
 //! `--guard-shear-order N` is the shear order of the fallback force maps that
 //! take over where the full maps are not trusted (default 2; 0 fits no guard;
 //! see `calibration::ForceGuard`).
+//!
+//! The calibration also gets a per-contact force uncertainty, fitted on the
+//! validation split (`calibration::uncertainty`): one line prints its
+//! coefficients and the fraction of the test split's errors within one
+//! sigma (the aim is 68%).
 //!
 //! `--out -` writes the calibration to stdout and the tables to stderr (not
 //! with `--thresholds all`, which writes one file per preset);
@@ -66,6 +73,7 @@ use optical_tactile::calibration::fit::{
 };
 use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileFitOptions};
 use optical_tactile::calibration::report::{self, ThresholdRow};
+use optical_tactile::calibration::uncertainty::ForceUncertainty;
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
@@ -231,6 +239,37 @@ fn correction_summary(c: &ColumnCorrection, images: usize, misses: usize) -> Str
          location offset {loc:.3} mm rms, force gain {:.1}% rms",
         reached.len(),
         100.0 * gain
+    )
+}
+
+/// One line on the fitted force uncertainty: sigma per axis as
+/// `base + per d_pf + per newton`, and the test split's coverage.
+fn uncertainty_summary(u: &ForceUncertainty) -> String {
+    let axes: Vec<String> = ["Fx", "Fy", "Fz"]
+        .iter()
+        .zip(&u.axes)
+        .map(|(name, a)| {
+            format!(
+                "{name} {:.4} + {:.5} d_pf + {:.4} |F|",
+                a.base_n, a.per_d_pf, a.per_newton
+            )
+        })
+        .collect();
+    let coverage = u.test_coverage.map_or_else(
+        || "no test split".to_string(),
+        |c| {
+            format!(
+                "test errors within one sigma: {:.0}% / {:.0}% / {:.0}% (aim 68%)",
+                100.0 * c[0],
+                100.0 * c[1],
+                100.0 * c[2]
+            )
+        },
+    );
+    format!(
+        "force uncertainty (sigma, N; fitted on {} validation tests): {}; {coverage}",
+        u.samples,
+        axes.join(", ")
     )
 }
 
@@ -498,6 +537,13 @@ fn run(args: Args) -> Result<(), Failure> {
                 test.len()
             );
         }
+        match &fit.calibration.uncertainty {
+            Some(u) => eprintln!("[{preset}] {}", uncertainty_summary(u)),
+            None => eprintln!(
+                "[{preset}] force uncertainty: not fitted (fewer than {} validation tests detected)",
+                optical_tactile::calibration::uncertainty::MIN_SAMPLES
+            ),
+        }
         match &args.out {
             TextOut::Stdout => {
                 let mut stdout = Sink::stdout();
@@ -525,6 +571,11 @@ fn run(args: Args) -> Result<(), Failure> {
                     let mut contacts = Vec::new();
                     if let Some(s) = s {
                         let p = fit.calibration.predict(s).map_err(err)?;
+                        let sigma = fit
+                            .calibration
+                            .uncertainty
+                            .as_ref()
+                            .map(|u| u.sigma_n(s.d_pf, [p.fx, p.fy, p.fz]));
                         contacts.push(io::ContactRecord {
                             x_mm: p.x_mm,
                             y_mm: p.y_mm,
@@ -538,6 +589,9 @@ fn run(args: Args) -> Result<(), Failure> {
                             dx: Some(s.dx),
                             dy: Some(s.dy),
                             dz: Some(s.dz),
+                            fx_sigma_n: sigma.map(|s| s[0]),
+                            fy_sigma_n: sigma.map(|s| s[1]),
+                            fz_sigma_n: sigma.map(|s| s[2]),
                             ..Default::default()
                         });
                     }

@@ -561,6 +561,16 @@ pub struct ContactRecord {
     /// (`Contact::out_of_domain`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_of_domain: Option<bool>,
+    /// Standard deviation of the force error along x, N
+    /// (`Contact::force_sigma_n`; absent without a fitted uncertainty).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fx_sigma_n: Option<f64>,
+    /// Standard deviation of the force error along y, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fy_sigma_n: Option<f64>,
+    /// Standard deviation of the force error along z, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fz_sigma_n: Option<f64>,
 }
 
 /// One patch of an uncalibrated (raw) run: where it is in the cropped image

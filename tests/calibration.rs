@@ -13,9 +13,11 @@ use optical_tactile::calibration::report::{
     DetectionLimit, ThresholdRow, evaluate, evaluate_by_load, min_detectable_force,
     table_i_markdown, table_ii_markdown, table_loads_markdown,
 };
+use optical_tactile::calibration::uncertainty::{self, AxisSpread, ForceUncertainty, SpreadSample};
 use optical_tactile::calibration::{
     self, Calibration, ForceGuard, GUARD_BOX_MARGIN, Sample, SensorSetup,
 };
+use optical_tactile::contact::RawContact;
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::{Split, TestRow};
@@ -800,6 +802,23 @@ fn the_shipped_fixture_loads_with_its_settings() {
     );
     let m = cal.min_normal_n.expect("a press threshold");
     assert!(m > 0.1 && m < 0.25, "{m}");
+    // The force uncertainty, near 68% on the test split (docs/results.md),
+    // growing with the potential's spread: a strong concentrated press is
+    // less certain than a light one.
+    let u = cal.uncertainty.as_ref().expect("a force uncertainty");
+    let coverage = u.test_coverage.expect("scored on the test split");
+    assert!(
+        coverage.iter().all(|c| (0.6..0.76).contains(c)),
+        "{coverage:?}"
+    );
+    let (light, strong) = (
+        u.sigma_n(10.0, [0.0, 0.0, -0.5]),
+        u.sigma_n(80.0, [0.0, 0.0, -3.0]),
+    );
+    assert!(
+        strong[2] > 2.0 * light[2] && light[2] > 0.0,
+        "{light:?} {strong:?}"
+    );
     // A central straight press lands near the centre line.
     let [x, _, z] = cal.location_sheared(799.5, 100.0, 0.0).unwrap();
     assert!(x.abs() < 3.0 && z > 0.0, "{x} {z}");
@@ -1387,4 +1406,121 @@ fn a_bad_column_correction_in_a_file_is_refused() {
     let step = good.replacen("\"step_px\": 1.0", "\"step_px\": 0.0", 1);
     let e = load_text("zero_step.json", &step);
     assert!(e.to_string().contains("step_px"), "{e}");
+}
+
+#[test]
+fn a_fit_carries_a_force_uncertainty_scored_on_the_test_split() {
+    let samples = protocol_samples(0.1, 3);
+    let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
+    let u = cal
+        .uncertainty
+        .as_ref()
+        .expect("fitted on the validation split");
+    let val: Vec<&Sample> = samples.iter().filter(|s| s.split == Split::Val).collect();
+    assert_eq!(u.samples, val.len());
+    let spread = |split: Split| -> Vec<SpreadSample> {
+        samples
+            .iter()
+            .filter(|s| s.split == split)
+            .map(|s| {
+                let p = cal.predict(s).unwrap();
+                SpreadSample {
+                    d_pf: s.d_pf,
+                    force_n: [p.fx, p.fy, p.fz],
+                    error_n: [p.fx - s.fx, p.fy - s.fy, p.fz - s.fz],
+                }
+            })
+            .collect()
+    };
+    // The level puts 68% of the validation errors within one sigma...
+    for c in u.coverage(&spread(Split::Val)).unwrap() {
+        assert!((0.6827..0.70).contains(&c), "validation coverage {c}");
+    }
+    // ...and the test split's coverage is the one reported.
+    let test = u.coverage(&spread(Split::Test)).unwrap();
+    assert_eq!(u.test_coverage, Some(test));
+    for c in test {
+        assert!((0.5..0.85).contains(&c), "test coverage {c}");
+    }
+    // Every contact gets sigmas from it, and the file keeps it.
+    let raw = RawContact {
+        x_px: 800.0,
+        y_px: 100.0,
+        d_sensor: [10.0, 0.0, -200.0],
+        d_pf: 4.0,
+        ..Default::default()
+    };
+    let contact = cal.contact(&raw).unwrap();
+    assert_eq!(contact.force_sigma_n, Some(u.sigma_n(4.0, contact.force_n)));
+    let record = contact.to_record();
+    assert_eq!(
+        [record.fx_sigma_n, record.fy_sigma_n, record.fz_sigma_n],
+        contact.force_sigma_n.unwrap().map(Some)
+    );
+    let path = tmp("uncertain.json");
+    cal.save(&path).unwrap();
+    let back = Calibration::load(&path).unwrap().uncertainty.unwrap();
+    // Plain JSON numbers, read within an ulp.
+    for (a, b) in u.axes.iter().zip(&back.axes) {
+        for (x, y) in [
+            (a.base_n, b.base_n),
+            (a.per_d_pf, b.per_d_pf),
+            (a.per_newton, b.per_newton),
+        ] {
+            assert!((x - y).abs() <= 1e-15 * x.abs(), "{x} {y}");
+        }
+    }
+    assert_eq!(back.samples, u.samples);
+    // A calibration without one: no sigmas, none in the record.
+    let mut plain = cal.clone();
+    plain.uncertainty = None;
+    let c = plain.contact(&raw).unwrap();
+    assert_eq!(c.force_sigma_n, None);
+    assert_eq!(c.to_record().fz_sigma_n, None);
+}
+
+#[test]
+fn too_few_validation_samples_fit_no_uncertainty() {
+    let mut samples = protocol_samples(0.1, 4);
+    let mut kept = 0;
+    samples.retain(|s| {
+        if s.split != Split::Val {
+            return true;
+        }
+        kept += 1;
+        kept < uncertainty::MIN_SAMPLES
+    });
+    let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
+    assert!(cal.uncertainty.is_none());
+}
+
+#[test]
+fn a_bad_force_uncertainty_in_a_file_is_refused() {
+    let mut cal = Calibration::from_json_str(&valid_text()).unwrap();
+    let axis = AxisSpread {
+        base_n: 0.01,
+        per_d_pf: 0.002,
+        per_newton: 0.0,
+    };
+    cal.uncertainty = Some(ForceUncertainty {
+        axes: [axis; 3],
+        samples: 100,
+        test_coverage: Some([0.7, 0.66, 0.69]),
+    });
+    let good = cal.to_json_string();
+    assert_eq!(Calibration::from_json_str(&good).unwrap(), cal);
+    let negative = good.replacen("\"per_d_pf\": 0.002", "\"per_d_pf\": -0.002", 1);
+    assert_ne!(negative, good);
+    let e = load_text("negative_sigma.json", &negative);
+    assert!(e.to_string().contains("per_d_pf"), "{e}");
+    let huge = good.replacen("\"base_n\": 0.01", "\"base_n\": 1e300", 1);
+    let e = load_text("huge_sigma.json", &huge);
+    assert!(e.to_string().contains("base_n"), "{e}");
+    let coverage = good.replacen("0.66", "1.66", 1);
+    let e = load_text("coverage.json", &coverage);
+    assert!(e.to_string().contains("test_coverage"), "{e}");
+    let missing = good.replacen("\"base_n\": 0.01,", "", 1);
+    assert_ne!(missing, good);
+    let e = load_text("missing.json", &missing);
+    assert!(e.to_string().contains("base_n"), "{e}");
 }

@@ -87,7 +87,7 @@ function renderState(s) {
 
 function renderItems(mode, items) {
   const head = mode === "calibrated"
-    ? ["id", "x mm", "y mm", "z mm", "Fx N", "Fy N", "Fz N", "marks"]
+    ? ["id", "x mm", "y mm", "z mm", "Fx N", "Fy N", "Fz N", "\u03c3 Fz N", "marks"]
     : ["k", "x px", "y px", "box x,y,w,h", "strength", "ds1", "ds2", "dn", "d_pf"];
   const headHtml = "<tr>" + head.map((h) => `<th>${h}</th>`).join("") + "</tr>";
   if ($("contacts-head").innerHTML !== headHtml) $("contacts-head").innerHTML = headHtml;
@@ -96,7 +96,9 @@ function renderItems(mode, items) {
     if (mode === "calibrated") {
       const marks = [c.held && "held", c.fallback && "fallback", c.out_of_domain && "out of domain"]
         .filter(Boolean).join(", ");
-      cells = [c.id, ...c.location_mm.map((v) => fmt(v, 2)), ...c.force_n.map((v) => fmt(v, 3)), marks];
+      // One standard deviation of the Fz error, when the calibration has an uncertainty model.
+      const sigma = c.force_sigma_n ? fmt(c.force_sigma_n[2], 3) : "";
+      cells = [c.id, ...c.location_mm.map((v) => fmt(v, 2)), ...c.force_n.map((v) => fmt(v, 3)), sigma, marks];
     } else {
       cells = [k, fmt(c.x_px, 1), fmt(c.y_px, 1), c.box_px.join(","), fmt(c.strength, 0),
         fmt(c.ds1, 1), fmt(c.ds2, 1), fmt(c.dn, 1), fmt(c.d_pf, 2)];

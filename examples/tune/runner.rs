@@ -424,6 +424,7 @@ impl Runner {
                         "id": c.id,
                         "location_mm": c.location_mm,
                         "force_n": c.force_n,
+                        "force_sigma_n": c.force_sigma_n,
                         "held": c.missed > 0,
                         "fallback": c.fallback,
                         "out_of_domain": c.out_of_domain,

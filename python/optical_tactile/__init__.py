@@ -77,7 +77,8 @@ __all__ = [
 
 #: The fields of :func:`as_array`: one row per contact. ``frame`` and
 #: ``t_s`` say which frame it belongs to; location and force are NaN for a
-#: raw sensor's patches.
+#: raw sensor's patches, the force sigmas also for a calibration without an
+#: uncertainty model.
 CONTACT_DTYPE = np.dtype(
     [
         ("frame", np.int64),
@@ -89,6 +90,9 @@ CONTACT_DTYPE = np.dtype(
         ("fx_n", np.float64),
         ("fy_n", np.float64),
         ("fz_n", np.float64),
+        ("fx_sigma_n", np.float64),
+        ("fy_sigma_n", np.float64),
+        ("fz_sigma_n", np.float64),
         ("x_px", np.float64),
         ("y_px", np.float64),
         ("missed", np.uint32),
@@ -123,9 +127,10 @@ def as_array(
         for c in cs:
             loc = c.location_mm if c.location_mm is not None else (np.nan,) * 3
             force = c.force_n if c.force_n is not None else (np.nan,) * 3
+            sigma = c.force_sigma_n if c.force_sigma_n is not None else (np.nan,) * 3
             r = c.raw
             rows.append(
-                (k, t, c.id, *loc, *force, c.x_px, c.y_px, c.missed, c.fallback,
+                (k, t, c.id, *loc, *force, *sigma, c.x_px, c.y_px, c.missed, c.fallback,
                  c.out_of_domain, *r.d_sensor, r.d_pf, r.area_px, r.strength)
             )
     return np.array(rows, dtype=CONTACT_DTYPE)

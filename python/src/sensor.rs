@@ -180,6 +180,10 @@ pub struct Contact {
     /// Force `(Fx, Fy, Fz)`, N, sensor frame; a press has `Fz < 0` (`None`
     /// without calibration).
     pub force_n: Option<(f64, f64, f64)>,
+    /// Standard deviation of the force's error `(Fx, Fy, Fz)`, N: about
+    /// 68% of contacts lie within one sigma of the true force (`None`
+    /// without calibration, or with one that has no uncertainty model).
+    pub force_sigma_n: Option<(f64, f64, f64)>,
     /// Contact point column, px of the cropped image.
     pub x_px: f64,
     /// Contact point row, px of the cropped image.
@@ -202,6 +206,7 @@ impl Contact {
             id: c.id,
             location_mm: Some((x, y, z)),
             force_n: Some((fx, fy, fz)),
+            force_sigma_n: c.force_sigma_n.map(|[x, y, z]| (x, y, z)),
             x_px: c.raw.x_px,
             y_px: c.raw.y_px,
             missed: c.missed,
@@ -216,6 +221,7 @@ impl Contact {
             id: k as u64,
             location_mm: None,
             force_n: None,
+            force_sigma_n: None,
             x_px: r.x_px,
             y_px: r.y_px,
             missed: 0,

@@ -32,7 +32,11 @@ def contact_fields(c: ot.Contact) -> dict:
         "area_px": r.area_px,
         "fallback": c.fallback,
         "out_of_domain": c.out_of_domain,
-    }
+    } | (
+        {}
+        if c.force_sigma_n is None
+        else dict(zip(("fx_sigma_n", "fy_sigma_n", "fz_sigma_n"), c.force_sigma_n))
+    )
 
 
 def read_jsonl(path) -> list:
@@ -190,9 +194,13 @@ def test_as_array_is_a_structured_batch(calibration, press_frames):
     rows = batch[batch["frame"] == len(found) - 1]
     assert list(rows["id"]) == [c.id for c in last]
     assert list(rows["fz_n"]) == [c.force_n[2] for c in last]
+    # The bundled calibration carries a force uncertainty: every contact a sigma.
+    assert list(rows["fz_sigma_n"]) == [c.force_sigma_n[2] for c in last]
+    assert (rows["fz_sigma_n"] > 0).all()
     assert list(rows["t_s"]) == [found[-1][1]] * len(last)
     raw = ot.as_array(track(ot.Sensor.raw(), press_frames)[-1][2])
     assert len(raw) > 0 and np.isnan(raw["x_mm"]).all() and (raw["strength"] > 0).all()
+    assert np.isnan(raw["fz_sigma_n"]).all()
 
 
 def test_calibration_round_trips_and_describes_itself(calibration, tmp_path):

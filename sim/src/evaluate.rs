@@ -62,6 +62,24 @@ pub struct Evaluation {
     /// The errors of the matched predictions not marked out of domain, when
     /// some are marked (`None` when none is, or when all are).
     pub in_domain: Option<DomainErrors>,
+    /// Largest |error| of Fx, Fy and Fz over the matched contacts, N.
+    pub max_force_error_n: [f64; 3],
+    /// How the matched predictions' force sigmas (`fx_sigma_n` ... in the
+    /// contacts file) cover their errors, when some carry them.
+    pub sigma_coverage: Option<SigmaCoverage>,
+}
+
+/// How well the predicted force sigmas describe the errors: the fractions
+/// of errors within one and two sigmas, per axis (a Gaussian error with the
+/// right sigma gives 68% and 95%).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct SigmaCoverage {
+    /// Matched contacts that carry all three sigmas.
+    pub contacts: usize,
+    /// Fraction of |Fx|, |Fy|, |Fz| errors within one sigma.
+    pub within_one: [f64; 3],
+    /// Fraction within two sigmas.
+    pub within_two: [f64; 3],
 }
 
 /// Location and force errors of a subset of the matched contacts.
@@ -124,6 +142,8 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
     // Over the pairs whose prediction is not out of domain: x, y, Fx, Fy, Fz.
     let mut inside = [0.0f64; 5];
     let mut latencies = Vec::new();
+    // Contacts with sigmas; per axis, errors within one and two sigmas.
+    let (mut with_sigma, mut one, mut two) = (0usize, [0usize; 3], [0usize; 3]);
     for p in pred {
         if let Some(l) = p.latency_ms {
             latencies.push(l);
@@ -147,6 +167,17 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
             sums[4] += (a.fx_n - b.fx_n).abs();
             sums[5] += (a.fy_n - b.fy_n).abs();
             sums[6] += (a.fz_n - b.fz_n).abs();
+            let errors = [a.fx_n - b.fx_n, a.fy_n - b.fy_n, a.fz_n - b.fz_n];
+            for (m, err) in e.max_force_error_n.iter_mut().zip(errors) {
+                *m = m.max(err.abs());
+            }
+            if let (Some(sx), Some(sy), Some(sz)) = (a.fx_sigma_n, a.fy_sigma_n, a.fz_sigma_n) {
+                with_sigma += 1;
+                for (k, (err, sigma)) in errors.iter().zip([sx, sy, sz]).enumerate() {
+                    one[k] += usize::from(err.abs() <= sigma);
+                    two[k] += usize::from(err.abs() <= 2.0 * sigma);
+                }
+            }
             if a.out_of_domain == Some(true) {
                 e.matched_out_of_domain += 1;
             } else {
@@ -161,6 +192,14 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
                 }
             }
         }
+    }
+    if with_sigma > 0 {
+        let k = with_sigma as f64;
+        e.sigma_coverage = Some(SigmaCoverage {
+            contacts: with_sigma,
+            within_one: one.map(|c| c as f64 / k),
+            within_two: two.map(|c| c as f64 / k),
+        });
     }
     let kept = e.matched - e.matched_out_of_domain;
     if e.matched_out_of_domain > 0 && kept > 0 {
@@ -232,6 +271,28 @@ impl Evaluation {
         err("MAE Fx (N)", self.mae_fx_n, 4);
         err("MAE Fy (N)", self.mae_fy_n, 4);
         err("MAE Fz (N)", self.mae_fz_n, 4);
+        if scored {
+            let [x, y, z] = self.max_force_error_n;
+            row(
+                "largest error Fx / Fy / Fz (N)",
+                format!("{x:.3} / {y:.3} / {z:.3}"),
+            );
+        }
+        if let Some(c) = &self.sigma_coverage {
+            let pct = |v: [f64; 3]| {
+                format!(
+                    "{:.0}% / {:.0}% / {:.0}%",
+                    100.0 * v[0],
+                    100.0 * v[1],
+                    100.0 * v[2]
+                )
+            };
+            row(
+                "force errors within 1 sigma, Fx / Fy / Fz (aim 68%)",
+                format!("{} ({} contacts)", pct(c.within_one), c.contacts),
+            );
+            row("force errors within 2 sigma (aim 95%)", pct(c.within_two));
+        }
         if self.matched_out_of_domain > 0 {
             row(
                 "matched contacts marked out of domain",
@@ -308,6 +369,55 @@ mod tests {
         // Nothing marked: no separate scores.
         let plain = score(&[f("a", vec![c(0.5, -1.5)], None)], &truth, 5.0);
         assert_eq!((plain.matched_out_of_domain, plain.in_domain), (0, None));
+    }
+
+    #[test]
+    fn sigmas_are_scored_by_how_many_errors_they_cover() {
+        let with = |x: f64, fz: f64, sigma: f64| ContactRecord {
+            fx_sigma_n: Some(sigma),
+            fy_sigma_n: Some(sigma),
+            fz_sigma_n: Some(sigma),
+            ..c(x, fz)
+        };
+        // Fz errors 0.05, 0.15, 0.25, 0.5 against sigmas of 0.1: one within
+        // one sigma, two within two; Fx and Fy errors are 0. A contact
+        // without sigmas is scored but not counted.
+        let truth = vec![f(
+            "a",
+            vec![
+                c(0.0, -1.0),
+                c(20.0, -1.0),
+                c(40.0, -1.0),
+                c(60.0, -1.0),
+                c(80.0, -1.0),
+            ],
+            None,
+        )];
+        let pred = vec![f(
+            "a",
+            vec![
+                with(0.0, -1.05, 0.1),
+                with(20.0, -1.15, 0.1),
+                with(40.0, -0.75, 0.1),
+                with(60.0, -1.5, 0.1),
+                c(80.0, -2.0),
+            ],
+            None,
+        )];
+        let e = score(&pred, &truth, 5.0);
+        let cov = e.sigma_coverage.expect("four contacts carry sigmas");
+        assert_eq!(cov.contacts, 4);
+        assert_eq!(cov.within_one, [1.0, 1.0, 0.25]);
+        assert_eq!(cov.within_two, [1.0, 1.0, 0.5]);
+        assert_eq!(e.max_force_error_n, [0.0, 0.0, 1.0]);
+        let md = e.to_markdown();
+        assert!(md.contains("100% / 100% / 25% (4 contacts)"), "{md}");
+        assert!(
+            md.contains("| largest error Fx / Fy / Fz (N) | 0.000 / 0.000 / 1.000 |"),
+            "{md}"
+        );
+        // Without sigmas there is nothing to score.
+        assert_eq!(score(&truth, &truth, 5.0).sigma_coverage, None);
     }
 
     #[test]

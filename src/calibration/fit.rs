@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::correction::{ColumnCorrection, DEFAULT_SMOOTHING_PX, GAIN_RANGE, smooth_on_grid};
 use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
 use super::report::{self, DetectionLimit, PointTable, evaluate};
+use super::uncertainty::{ForceUncertainty, SpreadSample};
 use super::{
     Calibration, CalibrationReport, FORCE_VARIABLES, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
     PipelineSettings, Sample, SensorSetup, in_memory,
@@ -498,6 +499,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         g.validate().map_err(in_memory)?;
     }
     cal.guard = guard;
+    cal.uncertainty = fit_uncertainty(&cal, &val, &test)?;
     if has_test {
         let table = evaluate(&cal, samples, Split::Test)?;
         if let Some(r) = cal.report.as_mut() {
@@ -505,6 +507,36 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         }
     }
     Ok(cal)
+}
+
+/// The per-contact force uncertainty of `cal` ([`super::uncertainty`]),
+/// fitted on its errors on the validation samples `val` (held out from the
+/// maps' coefficients) and scored on the test samples; `None` with fewer
+/// than [`super::uncertainty::MIN_SAMPLES`] validation samples.
+fn fit_uncertainty(
+    cal: &Calibration,
+    val: &[&Sample],
+    test: &[&Sample],
+) -> Result<Option<ForceUncertainty>> {
+    let spread = |set: &[&Sample]| -> Result<Vec<SpreadSample>> {
+        set.iter()
+            .map(|s| {
+                let p = cal.predict(s)?;
+                Ok(SpreadSample {
+                    d_pf: s.d_pf,
+                    force_n: [p.fx, p.fy, p.fz],
+                    error_n: [p.fx - s.fx, p.fy - s.fy, p.fz - s.fz],
+                })
+            })
+            .collect()
+    };
+    let held_out = spread(val)?;
+    if held_out.len() < super::uncertainty::MIN_SAMPLES {
+        return Ok(None);
+    }
+    let mut model = ForceUncertainty::fit(&held_out)?;
+    model.test_coverage = model.coverage(&spread(test)?);
+    Ok(Some(model))
 }
 
 /// The guard of the full force maps `full` with fallback maps `safe`: the box

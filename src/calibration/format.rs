@@ -97,6 +97,7 @@ impl Calibration {
             guard: self.guard.as_ref(),
             min_normal_n: self.min_normal_n,
             column_correction: self.column_correction.as_ref(),
+            force_uncertainty: self.uncertainty.as_ref(),
         }
     }
 
@@ -210,6 +211,7 @@ impl Calibration {
             guard: repr.guard,
             min_normal_n: repr.min_normal_n,
             column_correction: repr.column_correction,
+            uncertainty: repr.force_uncertainty,
         };
         c.check().map_err(err)?;
         Ok(c)
@@ -249,6 +251,8 @@ struct CalibrationRef<'a> {
     min_normal_n: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     column_correction: Option<&'a ColumnCorrection>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    force_uncertainty: Option<&'a ForceUncertainty>,
 }
 
 #[derive(Deserialize)]
@@ -275,6 +279,8 @@ struct CalibrationOwned {
     min_normal_n: Option<f64>,
     #[serde(default)]
     column_correction: Option<ColumnCorrection>,
+    #[serde(default)]
+    force_uncertainty: Option<ForceUncertainty>,
 }
 
 /// Rewrites pretty JSON so that arrays holding only scalars sit on one line

@@ -59,6 +59,7 @@ pub mod fit;
 mod format;
 pub mod poly;
 pub mod report;
+pub mod uncertainty;
 
 use serde::{Deserialize, Serialize};
 
@@ -76,6 +77,7 @@ use fit::FitOptions;
 use format::thresholds_format;
 use poly::{FitReport, Polynomial};
 use report::PointTable;
+use uncertainty::ForceUncertainty;
 
 /// How far, as a fraction of its width on each side, a force input may leave
 /// the [`ForceGuard`]'s training box before the fallback maps take over.
@@ -351,6 +353,10 @@ pub struct Calibration {
     /// Location offsets and force gains per image column, learned from
     /// sweeps ([`correction`]); `None` (no sweeps, older files): none.
     pub column_correction: Option<ColumnCorrection>,
+    /// The spread of the force error per contact ([`uncertainty`]),
+    /// fitted on the validation split; `None` (hand-made maps, older
+    /// files): contacts carry no force sigma.
+    pub uncertainty: Option<ForceUncertainty>,
 }
 
 /// The press test of [`Calibration::is_press`] for a threshold `min_normal_n`
@@ -525,6 +531,7 @@ impl Calibration {
             guard: None,
             min_normal_n: None,
             column_correction: None,
+            uncertainty: None,
         };
         c.check().map_err(in_memory)?;
         Ok(c)
@@ -568,6 +575,9 @@ impl Calibration {
                 return Err("column_correction: only for a sensor that locates along x".into());
             }
             c.validate().map_err(|e| e.to_string())?;
+        }
+        if let Some(u) = &self.uncertainty {
+            u.validate()?;
         }
         if let Some(m) = self.min_normal_n
             && !(m.is_finite() && m >= 0.0)
@@ -818,6 +828,10 @@ impl Calibration {
             id: 0,
             location_mm,
             force_n,
+            force_sigma_n: self
+                .uncertainty
+                .as_ref()
+                .map(|u| u.sigma_n(raw.d_pf, force_n)),
             raw: *raw,
             missed: 0,
             fallback,

@@ -99,6 +99,15 @@ pub struct Contact {
     pub location_mm: [f64; 3],
     /// Force `(Fx, Fy, Fz)` in N, sensor frame (a press has `Fz < 0`).
     pub force_n: [f64; 3],
+    /// Standard deviation of the force's error per axis, N, sensor frame,
+    /// from the calibration's
+    /// [`ForceUncertainty`](crate::calibration::uncertainty::ForceUncertainty):
+    /// about 68% of contacts like the characterization's lie within one
+    /// sigma of the true force. `None` when the calibration has no
+    /// uncertainty model. It is the calibration's error spread, mostly tied
+    /// to the place and the load, so it does not shrink over frames.
+    #[serde(default)]
+    pub force_sigma_n: Option<[f64; 3]>,
     /// The raw quantities it was computed from.
     pub raw: RawContact,
     /// Frames in a row this contact has been held without a detection (hysteresis).
@@ -159,6 +168,9 @@ impl Contact {
             area_px: Some(r.area_px),
             fallback: Some(self.fallback),
             out_of_domain: Some(self.out_of_domain),
+            fx_sigma_n: self.force_sigma_n.map(|s| s[0]),
+            fy_sigma_n: self.force_sigma_n.map(|s| s[1]),
+            fz_sigma_n: self.force_sigma_n.map(|s| s[2]),
         }
     }
 }

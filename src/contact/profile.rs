@@ -587,7 +587,7 @@ fn accumulate(ata: &mut [f64], atb: &mut [f64], r: &[f64], y: f64) {
 /// Solves the symmetric system `ata x = atb` (row-major, `n` x `n`) in place
 /// by Gaussian elimination with partial pivoting; the solution is left in
 /// `atb`. `None` when singular (relative to the diagonal's scale).
-fn solve(ata: &mut [f64], atb: &mut [f64], n: usize) -> Option<Vec<f64>> {
+pub(crate) fn solve(ata: &mut [f64], atb: &mut [f64], n: usize) -> Option<Vec<f64>> {
     solve_in_place(ata, atb, n)?;
     Some(atb[..n].to_vec())
 }

@@ -191,8 +191,8 @@ async function browserChecks(url, saveDir) {
       null, { timeout: FRAME_WAIT_MS }).then(() => true, () => false);
     check("contacts appear in the table", rows);
     const cells = await page.$$eval("#contacts tr.contact:first-child td", (t) => t.map((c) => c.textContent));
-    check("a contact has an id, location (mm) and force (N)",
-      cells.length === 8 && cells.slice(1, 7).every((c) => /^-?\d+\.\d+$/.test(c)), cells.join(" | "));
+    check("a contact has an id, location (mm), force (N) and the Fz sigma (N)",
+      cells.length === 9 && cells.slice(1, 8).every((c) => /^-?\d+\.\d+$/.test(c)), cells.join(" | "));
     // The loop's first frame is the reference itself (no patch): wait for a press.
     const patches = await until(async () => Number(await page.textContent("#patches")), FRAME_WAIT_MS);
     check("the patch count is shown", patches > 0, patches);
