@@ -39,7 +39,9 @@
 //! order (default 2, 0 leaves it out) and `--shear-order-force N` caps the
 //! shear displacements `dx, dy` at order N inside that (default 2 on the
 //! strip, no cap on a flat sensor; 0: no cap; see
-//! `FitOptions::shear_max_order`).
+//! `FitOptions::shear_max_order`). `--force-frame local|sensor` is the frame
+//! the force maps work in (default `local` on the strip: the local surface
+//! frame, rotated to the sensor frame after; `sensor` is the paper's).
 //! `--guard-shear-order N` is the shear order of the fallback force maps that
 //! take over where the full maps are not trusted (default 2; 0 fits no guard;
 //! see `calibration::ForceGuard`).
@@ -65,7 +67,6 @@ use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
-use optical_tactile::calibration::Sample;
 use optical_tactile::calibration::correction::ColumnCorrection;
 use optical_tactile::calibration::fit::{
     DatasetFit, Extraction, extract_dataset, extract_sweeps, fit_dataset_with_sweeps,
@@ -74,6 +75,7 @@ use optical_tactile::calibration::fit::{
 use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileFitOptions};
 use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::calibration::uncertainty::ForceUncertainty;
+use optical_tactile::calibration::{ForceFrame, Sample};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
@@ -137,6 +139,12 @@ struct Cli {
     /// flat sensor].
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=6))]
     shear_order_force: Option<u32>,
+    /// The frame the force maps work in: `local` (the surface's tangent,
+    /// across and normal; rotated to the sensor frame after) or `sensor`
+    /// (the paper's) [default: local on the strip, sensor on a flat sensor,
+    /// where the two are the same].
+    #[arg(long, value_name = "FRAME", value_parser = parse_force_frame)]
+    force_frame: Option<ForceFrame>,
     /// Shear order of the fallback force maps that take over where the full
     /// maps are not trusted (0: no guard).
     #[arg(long, value_name = "N",
@@ -193,6 +201,8 @@ struct Args {
     dpf_order: u32,
     /// `--shear-order-force`; `None`: the geometry's default, `Some(0)`: no cap.
     shear_force_order: Option<u32>,
+    /// `--force-frame`; `None`: the geometry's default.
+    force_frame: Option<ForceFrame>,
     guard: Option<GuardOptions>,
     force_y2d: bool,
     no_sweeps: bool,
@@ -271,6 +281,15 @@ fn uncertainty_summary(u: &ForceUncertainty) -> String {
         u.samples,
         axes.join(", ")
     )
+}
+
+/// `local` or `sensor`.
+fn parse_force_frame(v: &str) -> Result<ForceFrame, String> {
+    match v {
+        "local" => Ok(ForceFrame::Local),
+        "sensor" => Ok(ForceFrame::Sensor),
+        _ => Err(format!("expected `local` or `sensor`, got `{v}`")),
+    }
 }
 
 /// `slope[:SIGMA]`, `centroid[:HALF]` or `argmin`.
@@ -377,6 +396,7 @@ impl Cli {
             force_order: self.force_order,
             dpf_order: self.dpf_order,
             shear_force_order: self.shear_order_force,
+            force_frame: self.force_frame,
             guard: (self.guard_shear_order > 0).then(|| GuardOptions {
                 shear_order: self.guard_shear_order,
                 ..GuardOptions::default()
@@ -488,6 +508,7 @@ fn run(args: Args) -> Result<(), Failure> {
                 Some(n) => Some(n),
             },
             guard: args.guard,
+            force_frame: args.force_frame.unwrap_or(base.force_frame),
             force_use_y2d: args.force_y2d || two_d,
             profile: base.profile.map(|p| ProfileFitOptions {
                 size_term: p.size_term && !args.no_size_term,
@@ -571,6 +592,15 @@ fn run(args: Args) -> Result<(), Failure> {
                     let mut contacts = Vec::new();
                     if let Some(s) = s {
                         let p = fit.calibration.predict(s).map_err(err)?;
+                        // The record's displacements are in the sensor frame.
+                        let d = match fit.calibration.force_frame() {
+                            ForceFrame::Sensor => [s.dx, s.dy, s.dz],
+                            ForceFrame::Local => fit
+                                .calibration
+                                .setup
+                                .geometry
+                                .local_to_sensor(p.x_mm, [s.dx, s.dy, s.dz]),
+                        };
                         let sigma = fit
                             .calibration
                             .uncertainty
@@ -586,9 +616,9 @@ fn run(args: Args) -> Result<(), Failure> {
                             x_px: Some(s.x2d),
                             y_px: Some(s.y2d),
                             d_pf: Some(s.d_pf),
-                            dx: Some(s.dx),
-                            dy: Some(s.dy),
-                            dz: Some(s.dz),
+                            dx: Some(d[0]),
+                            dy: Some(d[1]),
+                            dz: Some(d[2]),
                             fx_sigma_n: sigma.map(|s| s[0]),
                             fy_sigma_n: sigma.map(|s| s[1]),
                             fz_sigma_n: sigma.map(|s| s[2]),

@@ -22,7 +22,7 @@ use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, Va
 use super::report::{self, DetectionLimit, PointTable, evaluate};
 use super::uncertainty::{ForceUncertainty, SpreadSample};
 use super::{
-    Calibration, CalibrationReport, FORCE_VARIABLES, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
+    Calibration, CalibrationReport, ForceFrame, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
     PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
@@ -98,6 +98,10 @@ pub struct FitOptions {
     /// `None` fits none. Older files, which lack it, had none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub guard: Option<GuardOptions>,
+    /// The frame of the force maps ([`ForceFrame`]; the sensor frame by
+    /// default and in older reports).
+    #[serde(default)]
+    pub force_frame: ForceFrame,
     /// Least-squares options. Rank deficiency is allowed by default: a
     /// variable that does not vary in the dataset (y2d under an indenter that
     /// spans the width) then gets a minimum-norm (zero) coefficient, and the
@@ -116,7 +120,9 @@ impl FitOptions {
     /// size kernel) are already close to the true forces, the force maps
     /// are kept smooth between the protocol's tilts and forces:
     /// displacement order 4 and the shear capped at order 2
-    /// ([`STRIP_DISPLACEMENT_ORDER`], [`STRIP_SHEAR_ORDER`]).
+    /// ([`STRIP_DISPLACEMENT_ORDER`], [`STRIP_SHEAR_ORDER`]), and they work
+    /// in the local surface frame ([`ForceFrame::Local`]; on a flat sensor
+    /// the two frames are the same).
     pub fn for_geometry(geometry: &SensorGeometry) -> Self {
         let two_d = geometry.locates_in_2d();
         let defaults = FitOptions::default();
@@ -132,6 +138,11 @@ impl FitOptions {
                 Some(STRIP_SHEAR_ORDER)
             },
             force_use_y2d: two_d,
+            force_frame: if two_d {
+                ForceFrame::Sensor
+            } else {
+                ForceFrame::Local
+            },
             // The profile model's kernels run along the strip's arc and sum
             // the flow over its height; a 2-D sensor's forces come from the
             // patch sums.
@@ -151,7 +162,9 @@ impl FitOptions {
 /// size kernel): with order 5 and no shear cap the protocol's test Fz MAE
 /// was 0.042 / 0.052 / 0.048 N and the random presses' 0.107 / 0.072 /
 /// 0.074 N; with order 4 and the shear at order 2, 0.059 / 0.065 / 0.053 N
-/// and 0.065 / 0.061 / 0.062 N. The higher orders fit the protocol's five
+/// and 0.065 / 0.061 / 0.062 N (sensor-frame maps; in the local frame
+/// 0.060 / 0.068 / 0.059 N and 0.063 / 0.059 / 0.053 N). The higher orders
+/// fit the protocol's five
 /// tilts and six force levels and swing between them, where a robot
 /// presses.
 pub const STRIP_DISPLACEMENT_ORDER: u32 = 4;
@@ -174,6 +187,7 @@ impl Default for FitOptions {
             cross: CrossTerms::MaxOfGroups,
             profile: Some(ProfileFitOptions::default()),
             guard: Some(GuardOptions::default()),
+            force_frame: ForceFrame::Sensor,
             least_squares: poly::LeastSquares {
                 allow_rank_deficient: true,
                 ..poly::LeastSquares::default()
@@ -285,7 +299,7 @@ impl Default for ProfileFitOptions {
 /// {x2d, y2d}`, `d_pf {d_pf}`; without [`FitOptions::force_use_y2d`] the location
 /// group is `{x2d}` and `y2d` sits alone in a group of order 0 (unused).
 pub fn force_spec(options: &FitOptions) -> Result<PolySpec> {
-    let v = &FORCE_VARIABLES;
+    let v = options.force_frame.variables();
     let mut groups = match options.shear_max_order {
         Some(k) if k < options.displacement_max_order => vec![
             VarGroup::new("shear", &v[..2], k),
@@ -390,11 +404,20 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
             force: Array2::from_shape_fn((n, 6), |(i, j)| set[i].force_inputs()[j]),
             x_mm: set.iter().map(|s| s.x_mm).collect(),
             y_mm: set.iter().map(|s| s.y_mm).collect(),
-            f: [
-                set.iter().map(|s| s.fx).collect(),
-                set.iter().map(|s| s.fy).collect(),
-                set.iter().map(|s| s.fz).collect(),
-            ],
+            f: {
+                // The maps' targets: the true force in their frame, rotated
+                // at the true location for local maps.
+                let target: Vec<[f64; 3]> = set
+                    .iter()
+                    .map(|s| match options.force_frame {
+                        ForceFrame::Sensor => [s.fx, s.fy, s.fz],
+                        ForceFrame::Local => {
+                            setup.geometry.sensor_to_local(s.x_mm, [s.fx, s.fy, s.fz])
+                        }
+                    })
+                    .collect();
+                std::array::from_fn(|k| target.iter().map(|t| t[k]).collect())
+            },
         }
     };
     let (tr, va, te) = (cols(&train), cols(&val), cols(&test));
@@ -758,12 +781,14 @@ fn split_index(s: Split) -> usize {
 }
 
 /// Per extraction, the sample of a detected test, its raw displacements
-/// rotated into the sensor frame at chord position `x_of(extraction, raw)`; with
-/// `local[i]` given, extraction `i`'s profile-matched local force is taken as
-/// its raw displacements ([`sensor_displacements`]).
+/// in `frame`: rotated into the sensor frame at chord position
+/// `x_of(extraction, raw)`, or the local ones; with `local[i]` given,
+/// extraction `i`'s profile-matched local force is taken as its raw
+/// displacements ([`sensor_displacements`], [`ForceFrame::displacements`]).
 fn samples(
     ex: &[Extraction],
     geometry: &SensorGeometry,
+    frame: ForceFrame,
     local: &[Option<[f64; 3]>],
     x_of: impl Fn(&Extraction, &RawContact) -> Result<f64>,
 ) -> Result<Vec<Option<Sample>>> {
@@ -776,7 +801,7 @@ fn samples(
                         raw.local_force = Some(f);
                     }
                     raw.d_sensor = sensor_displacements(geometry, x_of(e, &raw)?, &raw);
-                    Ok(Sample::from_test(&e.row, &raw))
+                    Ok(Sample::from_test_in(&e.row, &raw, frame))
                 })
                 .transpose()
         })
@@ -872,7 +897,9 @@ pub fn fit_dataset_with_sweeps(
     // Pass 1: the location maps (the rotation does not affect them).
     let first = trusted(
         extractions,
-        &samples(extractions, &geometry, &[], |_, _| Ok(0.0))?,
+        &samples(extractions, &geometry, options.force_frame, &[], |_, _| {
+            Ok(0.0)
+        })?,
     );
     let mut pass1 = fit(&first, &setup, options)?;
     let location_fix = location_correction(sweeps, &pass1, crop)?;
@@ -910,10 +937,16 @@ pub fn fit_dataset_with_sweeps(
     // Pass 2: rotate at the predicted location (the true one for the
     // training tests of an anchored profile model, see `match_position`),
     // fit everything.
-    let mut second = samples(extractions, &geometry, &local, |e, raw| match &profile {
-        Some(model) => Ok(match_position(model, e, raw, &pass1)?.0),
-        None => Ok(pass1.location_of(raw)?[0]),
-    })?;
+    let mut second = samples(
+        extractions,
+        &geometry,
+        options.force_frame,
+        &local,
+        |e, raw| match &profile {
+            Some(model) => Ok(match_position(model, e, raw, &pass1)?.0),
+            None => Ok(pass1.location_of(raw)?[0]),
+        },
+    )?;
     // The press test a sensor applies (`Calibration::is_press`): a test
     // whose strongest patch fails it counts as a miss, as it would at run time.
     // Without a profile model nothing was matched (`local` is empty), so
@@ -1428,8 +1461,14 @@ mod tests {
     fn linear_location() -> Calibration {
         let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-160.0, 0.2]).unwrap();
         let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
-        let f =
-            || Polynomial::raw(&FORCE_VARIABLES, vec![vec![0, 0, 1, 0, 0, 0]], vec![1.0]).unwrap();
+        let f = || {
+            Polynomial::raw(
+                &crate::calibration::FORCE_VARIABLES,
+                vec![vec![0, 0, 1, 0, 0, 0]],
+                vec![1.0],
+            )
+            .unwrap()
+        };
         let setup = SensorSetup {
             geometry: SensorGeometry::default(),
             crop: Roi::new(0, 0, 1600, 200),

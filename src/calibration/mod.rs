@@ -104,8 +104,71 @@ pub const G1_2D_VARIABLES: [&str; 3] = ["x2d", "y2d", "shear"];
 /// Variables of `g2` on a sensor that locates in 2-D: column, row and the
 /// shear ratio across ([`RawContact::shear_ratio_y`]).
 pub const G2_2D_VARIABLES: [&str; 3] = ["x2d", "y2d", "shear_y"];
-/// Variables of the force maps `gx, gy, gz`, in evaluation order.
+/// Variables of the force maps `gx, gy, gz` in the sensor frame
+/// ([`ForceFrame::Sensor`]), in evaluation order.
 pub const FORCE_VARIABLES: [&str; 6] = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+/// Variables of the force maps in the local surface frame
+/// ([`ForceFrame::Local`]): the raw displacements along the arc, across
+/// and along the outward normal (negative for a press), then the contact
+/// point and `d_pf`.
+pub const LOCAL_FORCE_VARIABLES: [&str; 6] =
+    ["d_tangent", "d_across", "d_normal", "x2d", "y2d", "d_pf"];
+
+/// The frame the force maps work in; the maps' variable names say which
+/// ([`FORCE_VARIABLES`] or [`LOCAL_FORCE_VARIABLES`]), so a reader that
+/// knows only one refuses a file of the other instead of misreading it.
+///
+/// - `Sensor` (the paper's): the raw displacements are rotated into the
+///   sensor frame at the contact's location, and the maps give the sensor
+///   frame's force.
+/// - `Local`: the maps take the displacements in the local surface frame
+///   (tangent, across, outward normal) and give the force in that frame,
+///   which is rotated into the sensor frame at the contact's calibrated
+///   location. The elastic response is local: a press tilted against the
+///   skin's slope and one tilted with it differ in the sensor frame but
+///   are alike in the local one, so the maps need less freedom for the same
+///   fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ForceFrame {
+    /// Sensor-frame inputs and outputs.
+    #[default]
+    Sensor,
+    /// Local-frame inputs and outputs, rotated to the sensor frame after.
+    Local,
+}
+
+impl ForceFrame {
+    /// The force maps' variables in this frame.
+    pub fn variables(self) -> &'static [&'static str; 6] {
+        match self {
+            ForceFrame::Sensor => &FORCE_VARIABLES,
+            ForceFrame::Local => &LOCAL_FORCE_VARIABLES,
+        }
+    }
+
+    /// The frame whose variables a force map has, if any.
+    pub fn of(map: &Polynomial) -> Option<ForceFrame> {
+        [ForceFrame::Sensor, ForceFrame::Local]
+            .into_iter()
+            .find(|f| {
+                map.variables()
+                    .iter()
+                    .map(String::as_str)
+                    .eq(f.variables().iter().copied())
+            })
+    }
+
+    /// The displacement inputs of a patch in this frame: the sensor-frame
+    /// rotation (`raw.d_sensor`), or the local ones (the profile-matched
+    /// local force when there is one, else `(ds1, ds2, -dn)`).
+    pub fn displacements(self, raw: &RawContact) -> [f64; 3] {
+        match self {
+            ForceFrame::Sensor => raw.d_sensor,
+            ForceFrame::Local => raw.local_force.unwrap_or([raw.ds1, raw.ds2, -raw.dn]),
+        }
+    }
+}
 
 /// The sensor-side settings a calibration belongs to: geometry, crop and
 /// segmentation thresholds (not fitted, recorded with the maps).
@@ -214,11 +277,13 @@ pub struct Sample {
     pub x2d: f64,
     /// Contact point row, pixels (cropped image).
     pub y2d: f64,
-    /// Raw displacement along sensor x.
+    /// Raw displacement along sensor x (along the arc for a fit in the
+    /// local frame, [`ForceFrame::Local`]).
     pub dx: f64,
-    /// Raw displacement along sensor y.
+    /// Raw displacement along sensor y (across, in the local frame).
     pub dy: f64,
-    /// Raw displacement along sensor z.
+    /// Raw displacement along sensor z (along the outward normal, in the
+    /// local frame).
     pub dz: f64,
     /// Potential spread `max D - min D`.
     pub d_pf: f64,
@@ -246,14 +311,21 @@ impl Sample {
     /// The sample of one characterization test: truth, split and point from
     /// its `tests.csv` row, raw quantities from the contact found in its frame.
     pub fn from_test(row: &TestRow, raw: &RawContact) -> Self {
+        Self::from_test_in(row, raw, ForceFrame::Sensor)
+    }
+
+    /// [`Sample::from_test`] with the displacements of `frame`
+    /// ([`ForceFrame::displacements`]); the truth stays in the sensor frame.
+    pub fn from_test_in(row: &TestRow, raw: &RawContact, frame: ForceFrame) -> Self {
+        let [dx, dy, dz] = frame.displacements(raw);
         Sample {
             split: row.split,
             point: row.point,
             x2d: raw.x_px,
             y2d: raw.y_px,
-            dx: raw.d_sensor[0],
-            dy: raw.d_sensor[1],
-            dz: raw.d_sensor[2],
+            dx,
+            dy,
+            dz,
             d_pf: raw.d_pf,
             shear: raw.shear_ratio(),
             shear_y: raw.shear_ratio_y(),
@@ -417,8 +489,9 @@ impl ForceGuard {
     }
 
     fn validate(&self) -> std::result::Result<(), String> {
+        let frame = ForceFrame::of(&self.maps[0]).unwrap_or_default();
         for (name, p) in ["gx", "gy", "gz"].iter().zip(&self.maps) {
-            check_vars(&format!("guard.{name}"), p, &FORCE_VARIABLES)?;
+            check_vars(&format!("guard.{name}"), p, frame.variables())?;
         }
         let finite = |a: &[f64]| a.iter().all(|v| v.is_finite());
         if !finite(&self.input_min) || !finite(&self.input_max) {
@@ -553,9 +626,14 @@ impl Calibration {
             &self.g2,
             &[&G2_VARIABLES, &LOCATION_2D_VARIABLES, &G2_2D_VARIABLES],
         )?;
-        check_vars("gx", &self.gx, &FORCE_VARIABLES)?;
-        check_vars("gy", &self.gy, &FORCE_VARIABLES)?;
-        check_vars("gz", &self.gz, &FORCE_VARIABLES)?;
+        // All force maps (and the guard's) in the frame of `gx`.
+        let frame = self.force_frame();
+        check_vars("gx", &self.gx, frame.variables())?;
+        check_vars("gy", &self.gy, frame.variables())?;
+        check_vars("gz", &self.gz, frame.variables())?;
+        if let Some(g) = &self.guard {
+            check_vars("guard.gx", &g.maps[0], frame.variables())?;
+        }
         self.setup
             .geometry
             .validate()
@@ -649,8 +727,25 @@ impl Calibration {
         self.location_with_shear(raw.x_px, raw.y_px, [raw.shear_ratio(), raw.shear_ratio_y()])
     }
 
-    /// Force `[Fx, Fy, Fz]` in N from the raw displacements rotated into the
-    /// sensor frame, the contact point in pixels and `d_pf`.
+    /// The frame the force maps work in (read from `gx`'s variables;
+    /// [`ForceFrame::Sensor`] when they are neither set).
+    pub fn force_frame(&self) -> ForceFrame {
+        ForceFrame::of(&self.gx).unwrap_or_default()
+    }
+
+    /// The force maps' inputs of a patch ([`Calibration::force_frame`]'s
+    /// displacements, the contact point, `d_pf`): what
+    /// [`Calibration::force_checked`] takes.
+    pub fn force_inputs(&self, raw: &RawContact) -> [f64; 6] {
+        let [a, b, c] = self.force_frame().displacements(raw);
+        [a, b, c, raw.x_px, raw.y_px, raw.d_pf]
+    }
+
+    /// The force maps' output in N, in their frame
+    /// ([`Calibration::force_frame`]: the sensor frame, or the local frame
+    /// for local maps), from their displacement inputs, the contact point in
+    /// pixels and `d_pf`. [`Calibration::contact`] and
+    /// [`Calibration::predict`] give the sensor frame's force in either case.
     /// With a [`ForceGuard`], the fallback maps answer where the full maps
     /// are not trusted (see [`Calibration::force_checked`]).
     pub fn force(
@@ -815,10 +910,10 @@ impl Calibration {
     /// The calibrated contact of a patch's raw quantities (`id` and `missed`
     /// are 0: identity is the tracker's business).
     pub fn contact(&self, raw: &RawContact) -> Result<Contact> {
-        let [dx, dy, dz] = raw.d_sensor;
-        let inputs = [dx, dy, dz, raw.x_px, raw.y_px, raw.d_pf];
+        let inputs = self.force_inputs(raw);
         let (force_n, fallback) = self.force_checked(&inputs)?;
         let location_mm = self.location_of(raw)?;
+        let force_n = self.to_sensor_frame(location_mm[0], force_n);
         let outside_training = self
             .guard
             .as_ref()
@@ -839,10 +934,20 @@ impl Calibration {
         })
     }
 
-    /// Location and force of a sample's raw quantities.
+    /// A force map output in the sensor frame, for a contact at chord
+    /// position `x_mm`: rotated from the local frame for local maps.
+    fn to_sensor_frame(&self, x_mm: f64, f: [f64; 3]) -> [f64; 3] {
+        match self.force_frame() {
+            ForceFrame::Sensor => f,
+            ForceFrame::Local => self.setup.geometry.local_to_sensor(x_mm, f),
+        }
+    }
+
+    /// Location and force (sensor frame) of a sample's raw quantities.
     pub fn predict(&self, s: &Sample) -> Result<Prediction> {
         let [x_mm, y_mm, z_mm] = self.location_with_shear(s.x2d, s.y2d, [s.shear, s.shear_y])?;
-        let [fx, fy, fz] = self.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf)?;
+        let f = self.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf)?;
+        let [fx, fy, fz] = self.to_sensor_frame(x_mm, f);
         Ok(Prediction {
             x_mm,
             y_mm,
