@@ -113,7 +113,7 @@ pub struct ForceUncertainty {
 
 impl ForceUncertainty {
     /// Fits the model on held-out samples (non-finite ones are skipped).
-    /// Errors ([`Error::InvalidParam`]) with fewer than [`MIN_SAMPLES`]
+    /// Errors ([`Error::InvalidParameter`]) with fewer than [`MIN_SAMPLES`]
     /// finite ones.
     pub fn fit(samples: &[SpreadSample]) -> Result<Self> {
         let finite: Vec<&SpreadSample> = samples.iter().filter(|s| s.is_finite()).collect();
