@@ -593,14 +593,11 @@ fn run(args: Args) -> Result<(), Failure> {
                     if let Some(s) = s {
                         let p = fit.calibration.predict(s).map_err(err)?;
                         // The record's displacements are in the sensor frame.
-                        let d = match fit.calibration.force_frame() {
-                            ForceFrame::Sensor => [s.dx, s.dy, s.dz],
-                            ForceFrame::Local => fit
-                                .calibration
-                                .setup
-                                .geometry
-                                .local_to_sensor(p.x_mm, [s.dx, s.dy, s.dz]),
-                        };
+                        let d = fit.calibration.force_frame().to_sensor(
+                            &fit.calibration.setup.geometry,
+                            p.x_mm,
+                            [s.dx, s.dy, s.dz],
+                        );
                         let sigma = fit
                             .calibration
                             .uncertainty

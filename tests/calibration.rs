@@ -1424,14 +1424,7 @@ fn a_fit_carries_a_force_uncertainty_scored_on_the_test_split() {
         samples
             .iter()
             .filter(|s| s.split == split)
-            .map(|s| {
-                let p = cal.predict(s).unwrap();
-                SpreadSample {
-                    d_pf: s.d_pf,
-                    force_n: [p.fx, p.fy, p.fz],
-                    error_n: [p.fx - s.fx, p.fy - s.fy, p.fz - s.fz],
-                }
-            })
+            .map(|s| SpreadSample::of(s, &cal.predict(s).unwrap()))
             .collect()
     };
     // The level puts 68% of the validation errors within one sigma...

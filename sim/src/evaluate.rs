@@ -164,12 +164,10 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
             sums[1] += d[1].abs();
             sums[2] += d[2].abs();
             sums[3] += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            sums[4] += (a.fx_n - b.fx_n).abs();
-            sums[5] += (a.fy_n - b.fy_n).abs();
-            sums[6] += (a.fz_n - b.fz_n).abs();
             let errors = [a.fx_n - b.fx_n, a.fy_n - b.fy_n, a.fz_n - b.fz_n];
-            for (m, err) in e.max_force_error_n.iter_mut().zip(errors) {
-                *m = m.max(err.abs());
+            for (k, err) in errors.iter().enumerate() {
+                sums[4 + k] += err.abs();
+                e.max_force_error_n[k] = e.max_force_error_n[k].max(err.abs());
             }
             if let (Some(sx), Some(sy), Some(sz)) = (a.fx_sigma_n, a.fy_sigma_n, a.fz_sigma_n) {
                 with_sigma += 1;
@@ -181,13 +179,7 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
             if a.out_of_domain == Some(true) {
                 e.matched_out_of_domain += 1;
             } else {
-                for (acc, err) in inside.iter_mut().zip([
-                    d[0],
-                    d[1],
-                    a.fx_n - b.fx_n,
-                    a.fy_n - b.fy_n,
-                    a.fz_n - b.fz_n,
-                ]) {
+                for (acc, err) in inside.iter_mut().zip([d[0], d[1]].iter().chain(&errors)) {
                     *acc += err.abs();
                 }
             }

@@ -409,11 +409,9 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
                 // at the true location for local maps.
                 let target: Vec<[f64; 3]> = set
                     .iter()
-                    .map(|s| match options.force_frame {
-                        ForceFrame::Sensor => [s.fx, s.fy, s.fz],
-                        ForceFrame::Local => {
-                            setup.geometry.sensor_to_local(s.x_mm, [s.fx, s.fy, s.fz])
-                        }
+                    .map(|s| {
+                        let f = [s.fx, s.fy, s.fz];
+                        options.force_frame.from_sensor(&setup.geometry, s.x_mm, f)
                     })
                     .collect();
                 std::array::from_fn(|k| target.iter().map(|t| t[k]).collect())
@@ -543,14 +541,7 @@ fn fit_uncertainty(
 ) -> Result<Option<ForceUncertainty>> {
     let spread = |set: &[&Sample]| -> Result<Vec<SpreadSample>> {
         set.iter()
-            .map(|s| {
-                let p = cal.predict(s)?;
-                Ok(SpreadSample {
-                    d_pf: s.d_pf,
-                    force_n: [p.fx, p.fy, p.fz],
-                    error_n: [p.fx - s.fx, p.fy - s.fy, p.fz - s.fz],
-                })
-            })
+            .map(|s| Ok(SpreadSample::of(s, &cal.predict(s)?)))
             .collect()
     };
     let held_out = spread(val)?;

@@ -159,6 +159,25 @@ impl ForceFrame {
             })
     }
 
+    /// A vector of this frame (a force map's output or displacement inputs)
+    /// in the sensor frame, for a contact at chord position `x_mm` of
+    /// `geometry`: rotated from the local frame, as it is in the sensor one.
+    pub fn to_sensor(self, geometry: &SensorGeometry, x_mm: f64, v: [f64; 3]) -> [f64; 3] {
+        match self {
+            ForceFrame::Sensor => v,
+            ForceFrame::Local => geometry.local_to_sensor(x_mm, v),
+        }
+    }
+
+    /// The inverse of [`ForceFrame::to_sensor`]: a sensor-frame vector (a
+    /// true force) in this frame.
+    pub fn from_sensor(self, geometry: &SensorGeometry, x_mm: f64, v: [f64; 3]) -> [f64; 3] {
+        match self {
+            ForceFrame::Sensor => v,
+            ForceFrame::Local => geometry.sensor_to_local(x_mm, v),
+        }
+    }
+
     /// The displacement inputs of a patch in this frame: the sensor-frame
     /// rotation (`raw.d_sensor`), or the local ones (the profile-matched
     /// local force when there is one, else `(ds1, ds2, -dn)`).
@@ -913,7 +932,9 @@ impl Calibration {
         let inputs = self.force_inputs(raw);
         let (force_n, fallback) = self.force_checked(&inputs)?;
         let location_mm = self.location_of(raw)?;
-        let force_n = self.to_sensor_frame(location_mm[0], force_n);
+        let force_n = self
+            .force_frame()
+            .to_sensor(&self.setup.geometry, location_mm[0], force_n);
         let outside_training = self
             .guard
             .as_ref()
@@ -934,20 +955,11 @@ impl Calibration {
         })
     }
 
-    /// A force map output in the sensor frame, for a contact at chord
-    /// position `x_mm`: rotated from the local frame for local maps.
-    fn to_sensor_frame(&self, x_mm: f64, f: [f64; 3]) -> [f64; 3] {
-        match self.force_frame() {
-            ForceFrame::Sensor => f,
-            ForceFrame::Local => self.setup.geometry.local_to_sensor(x_mm, f),
-        }
-    }
-
     /// Location and force (sensor frame) of a sample's raw quantities.
     pub fn predict(&self, s: &Sample) -> Result<Prediction> {
         let [x_mm, y_mm, z_mm] = self.location_with_shear(s.x2d, s.y2d, [s.shear, s.shear_y])?;
         let f = self.force(s.dx, s.dy, s.dz, s.x2d, s.y2d, s.d_pf)?;
-        let [fx, fy, fz] = self.to_sensor_frame(x_mm, f);
+        let [fx, fy, fz] = self.force_frame().to_sensor(&self.setup.geometry, x_mm, f);
         Ok(Prediction {
             x_mm,
             y_mm,

@@ -28,6 +28,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::{Prediction, Sample};
 use crate::contact::profile::solve;
 use crate::error::{Error, Result};
 
@@ -81,6 +82,17 @@ pub struct SpreadSample {
 }
 
 impl SpreadSample {
+    /// The spread sample of a characterization sample and the calibration's
+    /// prediction for it (sensor frame).
+    pub fn of(sample: &Sample, prediction: &Prediction) -> Self {
+        let p = prediction;
+        SpreadSample {
+            d_pf: sample.d_pf,
+            force_n: [p.fx, p.fy, p.fz],
+            error_n: [p.fx - sample.fx, p.fy - sample.fy, p.fz - sample.fz],
+        }
+    }
+
     fn features(&self) -> [f64; 3] {
         [1.0, self.d_pf, magnitude(self.force_n)]
     }
