@@ -580,3 +580,101 @@ fn the_size_term_needs_sizes_that_vary_and_every_sample_sized() {
     assert!(matches!(err, Error::InvalidParameter { .. }), "{err}");
     assert!(err.to_string().contains("size"), "{err}");
 }
+
+/// A contact's match column searched from a misplaced start: where the
+/// profile's motion is, to the pixel.
+#[test]
+fn relocation_puts_back_a_misplaced_point() {
+    let model = fit(&training_set(4), 1);
+    // Reach 200 px: a search radius of 25 px, moves of 4.2 px or more.
+    let radius = optical_tactile::contact::profile::RELOCATE_RADIUS_OF_REACH * model.reach_px();
+    assert!((radius - 25.0).abs() < 1e-9);
+    let truth = 401.0;
+    let force = [0.5, 0.02, -2.0];
+    let p = profiles(&[truth], &[force]);
+    let mut m = ForceMatcher::new();
+    for start in [truth + 20.0, truth - 17.0, truth + 9.0] {
+        let mut cols = [start];
+        m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
+        assert!((cols[0] - truth).abs() <= 1.0, "{start} -> {}", cols[0]);
+    }
+    // A neighbour at its place stays, while the misplaced one moves.
+    let both = [truth, 640.0];
+    let p = profiles(&both, &[force, [-0.2, 0.0, -1.2]]);
+    let mut cols = [truth + 18.0, 640.0];
+    m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
+    assert!((cols[0] - truth).abs() <= 1.0, "{cols:?}");
+    assert_eq!(cols[1], 640.0);
+}
+
+/// A point at its place, or a few pixels off, is left alone, even on a
+/// noisy profile; a point farther off than the radius is not searched for.
+#[test]
+fn relocation_leaves_a_well_placed_point() {
+    let model = fit(&training_set(5), 1);
+    let truth = 383.0;
+    let mut p = profiles(&[truth], &[[-0.3, 0.0, -1.5]]);
+    let mut rng = SplitMix64::new(9);
+    for x in p.iter_mut().flatten() {
+        *x += 0.02 * (rng.next_f64() - 0.5);
+    }
+    let mut m = ForceMatcher::new();
+    for start in [truth, truth + 3.0, truth - 2.0] {
+        let mut cols = [start];
+        m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
+        assert_eq!(cols[0], start);
+    }
+    // 60 px off: the right column is beyond the search, and no column
+    // within it explains the motion 30% better than the start does.
+    let mut cols = [truth + 60.0];
+    m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
+    assert!((cols[0] - truth).abs() >= 30.0, "{cols:?}");
+}
+
+/// `relocate_contacts` moves the patch's measured point by the column's
+/// move; the forces matched after it are the contact's.
+#[test]
+fn relocated_contacts_then_match_their_forces() {
+    use ndarray::Array2;
+    use optical_tactile::contact::RawContact;
+    let model = fit(&training_set(6), 1);
+    let truth = 421.0;
+    let force = [0.4, 0.0, -1.8];
+    let p = profiles(&[truth], &[force]);
+    // A one-row flow whose column profiles are `p`.
+    let u = Array2::from_shape_fn((1, N), |(_, j)| (p[0][j] / SCALE) as f32);
+    let v = Array2::from_shape_fn((1, N), |(_, j)| (p[1][j] / SCALE) as f32);
+    let mut raws = [RawContact {
+        x_px: truth - 22.0,
+        ..Default::default()
+    }];
+    let mut m = ForceMatcher::new();
+    let moved = m
+        .relocate_contacts(&model, &mut raws, u.view(), v.view(), SCALE, |r| Ok(r.x_px))
+        .unwrap();
+    assert_eq!(moved, 1);
+    assert!((raws[0].x_px - truth).abs() <= 1.0, "{}", raws[0].x_px);
+    m.measure_contacts(&model, &mut raws, u.view(), v.view(), SCALE)
+        .unwrap();
+    let f = raws[0].local_force.unwrap();
+    for k in 0..3 {
+        // f32 profiles and a column within a pixel: within 5% of the load.
+        assert!((f[k] - force[k]).abs() < 0.05 * 1.8, "{f:?} vs {force:?}");
+    }
+    // Bad input is an error, not a panic.
+    let mut cols = [f64::NAN];
+    assert!(m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).is_err());
+    let mut cols = [truth];
+    assert!(
+        m.relocate(&model, &mut cols, &p[0], &p[1][..10], SCALE)
+            .is_err()
+    );
+    assert!(m.relocate(&model, &mut cols, &p[0], &p[1], 0.0).is_err());
+    let short = Array2::<f32>::zeros((1, 3));
+    assert!(
+        m.relocate_contacts(&model, &mut raws, u.view(), short.view(), SCALE, |r| Ok(
+            r.x_px
+        ))
+        .is_err()
+    );
+}

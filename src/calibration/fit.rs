@@ -898,16 +898,22 @@ pub fn fit_dataset_with_sweeps(
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
     // then every detected test's local force is matched with it.
+    // A test whose measured point the model finds clearly elsewhere is
+    // moved there, as a sensor moves it (`Calibration::match_forces_with`).
+    let mut relocated = None;
     let (profile, local) = match options.profile {
         None => (None, Vec::new()),
         Some(p) => {
             let model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
-            let local = match_forces(&model, extractions, |e, raw| {
+            relocated = relocate(&model, extractions, &pass1)?;
+            let moved = relocated.as_deref().unwrap_or(extractions);
+            let local = match_forces(&model, moved, |e, raw| {
                 Ok(match_position(&model, e, raw, &pass1)?.1)
             })?;
             (Some(model), local)
         }
     };
+    let extractions = relocated.as_deref().unwrap_or(extractions);
     // The force gains of the sweeps, on the profile-matched normal force:
     // applied to every test's matched force, so that the force maps are
     // fitted on corrected inputs, as a sensor will give them.
@@ -1204,6 +1210,41 @@ fn detected_in(extractions: &[Extraction], split: Split) -> Vec<&Extraction> {
         .iter()
         .filter(|e| e.row.split == split && e.raw.is_some() && !e.beyond_markers)
         .collect()
+}
+
+/// The extractions with every detected test's point moved as a sensor
+/// moves it ([`ForceMatcher::relocate`] at `cal`'s match column); `None`
+/// when none moves (the model has no anchor, say).
+fn relocate(
+    model: &ProfileModel,
+    extractions: &[Extraction],
+    cal: &Calibration,
+) -> Result<Option<Vec<Extraction>>> {
+    if model.anchor.is_none() {
+        return Ok(None);
+    }
+    let mut matcher = ForceMatcher::new();
+    let mut moves = Vec::new();
+    for (i, e) in extractions.iter().enumerate() {
+        if let Some(raw) = &e.raw {
+            let before = cal.match_column(model, raw)?;
+            let mut column = [before];
+            matcher.relocate(model, &mut column, &e.profiles[0], &e.profiles[1], e.scale)?;
+            if column[0] != before {
+                moves.push((i, column[0] - before));
+            }
+        }
+    }
+    if moves.is_empty() {
+        return Ok(None);
+    }
+    let mut out = extractions.to_vec();
+    for (i, shift) in moves {
+        if let Some(raw) = out[i].raw.as_mut() {
+            raw.x_px += shift;
+        }
+    }
+    Ok(Some(out))
 }
 
 /// Each detected test's local force matched by `model` at the column

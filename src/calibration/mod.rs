@@ -866,7 +866,9 @@ impl Calibration {
     /// With a profile model, sets each contact's
     /// [`RawContact::local_force`] from the frame's flow (`u`, `v` on a grid
     /// of `scale` full-resolution pixels per cell), all contacts at once;
-    /// without one, does nothing. Each contact is matched at
+    /// without one, does nothing. With an anchored model, a contact whose
+    /// motion is clearly elsewhere than its measured point first has its
+    /// `x_px` moved there ([`ForceMatcher::relocate_contacts`]). Each contact is matched at
     /// [`Calibration::match_column`]; with a [`ColumnCorrection`], its
     /// matched normal force is then multiplied by the correction's gain at
     /// that column ([`ColumnCorrection::correct_local_force`]). A sensor
@@ -881,6 +883,11 @@ impl Calibration {
     ) -> Result<()> {
         match &self.profile {
             Some(model) if !raws.is_empty() => {
+                if model.anchor.is_some() {
+                    matcher.relocate_contacts(model, raws, u, v, scale, |r| {
+                        self.match_column(model, r)
+                    })?;
+                }
                 matcher.measure_contacts_at(model, raws, u, v, scale, |r| {
                     self.match_column(model, r)
                 })?;
