@@ -605,6 +605,14 @@ fn relocation_puts_back_a_misplaced_point() {
     m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
     assert!((cols[0] - truth).abs() <= 1.0, "{cols:?}");
     assert_eq!(cols[1], 640.0);
+    // Contacts too far apart for their kernels to meet: each is searched
+    // on its own (the other's unknowns have no equation near it).
+    let far = [161.0, 641.0];
+    let p = profiles(&far, &[force, [-0.2, 0.0, -1.2]]);
+    let mut cols = [far[0], far[1] - 19.0];
+    m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
+    assert_eq!(cols[0], far[0]);
+    assert!((cols[1] - far[1]).abs() <= 1.0, "{cols:?}");
 }
 
 /// A point at its place, or a few pixels off, is left alone, even on a

@@ -845,18 +845,29 @@ impl NormalEquations {
         if steps < 1 {
             return Ok(());
         }
+        let mut near = Vec::with_capacity(columns_px.len());
         for m in 0..columns_px.len() {
             let c0 = columns_px[m];
             // One window for every candidate, so that their residuals add
             // up the same cells.
             let reach = model.reach_px() + radius;
             let window = (c0 - reach, c0 + reach);
+            // The contacts whose kernels reach into the window (the others'
+            // unknowns would have no equation there), this one first.
+            near.clear();
+            near.push(c0);
+            near.extend(
+                columns_px
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, c)| j != m && (c - c0).abs() < reach + model.reach_px())
+                    .map(|(_, &c)| c),
+            );
             let residual_at = |this: &mut Self, cols: &mut [f64], c: f64| {
-                cols[m] = c;
+                cols[0] = c;
                 this.residual(model, cols, profile_u, profile_v, scale, window)
             };
-            let Some(r0) = residual_at(self, columns_px, c0) else {
-                columns_px[m] = c0;
+            let Some(r0) = residual_at(self, &mut near, c0) else {
                 continue;
             };
             // Every fourth pixel, then 2 and 1 pixels either side of the
@@ -865,7 +876,7 @@ impl NormalEquations {
             let (mut best, mut best_r) = (c0, r0);
             for k in (-steps..=steps).step_by(RELOCATE_COARSE_STEP) {
                 let c = c0 + k as f64;
-                if let Some(r) = residual_at(self, columns_px, c).filter(|&r| r < best_r) {
+                if let Some(r) = residual_at(self, &mut near, c).filter(|&r| r < best_r) {
                     (best, best_r) = (c, r);
                 }
             }
@@ -875,7 +886,7 @@ impl NormalEquations {
                     if (c - c0).abs() > radius {
                         continue;
                     }
-                    if let Some(r) = residual_at(self, columns_px, c).filter(|&r| r < best_r) {
+                    if let Some(r) = residual_at(self, &mut near, c).filter(|&r| r < best_r) {
                         (best, best_r) = (c, r);
                     }
                 }

@@ -1,0 +1,75 @@
+//! Criterion bench of the profile model's per-frame work on the strip: the
+//! joint force match of a frame's contacts (`ForceMatcher::measure`) and
+//! the relocation search that runs before it (`ForceMatcher::relocate`),
+//! with the shipped calibration's model (`fixtures/calibration.json`: 300 px
+//! of reach, degree 2, the size term), on a 1600-cell profile (the `fine`
+//! flow's full-resolution grid) holding 1 and 4 contacts.
+//!
+//! The profiles are smooth made-up motion (a spreading press and a shear
+//! bump per contact): the cost does not depend on the values, and the
+//! relocation searches every candidate column whatever it finds.
+//!
+//! `cargo bench --bench profile` (on a shared machine compare the two
+//! functions' ratio within one run).
+
+use std::time::Duration;
+
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use optical_tactile::calibration::Calibration;
+use optical_tactile::contact::profile::ForceMatcher;
+
+const CELLS: usize = 1600;
+
+/// Profiles (u, v) of contacts at `columns`: a spreading press (odd in the
+/// offset) plus a shear bump along u, a small bump along v.
+fn profiles(columns: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let mut u = vec![0.0; CELLS];
+    let mut v = vec![0.0; CELLS];
+    for (j, (pu, pv)) in u.iter_mut().zip(v.iter_mut()).enumerate() {
+        let x = j as f64;
+        for &c in columns {
+            let t = (x - c) / 40.0;
+            let g = (-t * t).exp();
+            *pu += 300.0 * t * g + 80.0 * g;
+            *pv += 10.0 * g;
+        }
+    }
+    (u, v)
+}
+
+fn bench_profile(c: &mut Criterion) {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/calibration.json");
+    let cal = Calibration::load(path).expect("the shipped calibration");
+    let model = cal
+        .profile
+        .expect("the shipped calibration has a profile model");
+    let mut g = c.benchmark_group("profile");
+    g.measurement_time(Duration::from_secs(3));
+    g.warm_up_time(Duration::from_millis(500));
+    for columns in [vec![799.5], vec![300.0, 650.0, 1000.0, 1350.0]] {
+        let (pu, pv) = profiles(&columns);
+        let n = columns.len();
+        let mut matcher = ForceMatcher::new();
+        let mut out = Vec::new();
+        g.bench_function(BenchmarkId::new("measure", n), |b| {
+            b.iter(|| {
+                matcher
+                    .measure(&model, &columns, &pu, &pv, 1.0, &mut out)
+                    .expect("match")
+            })
+        });
+        let mut moved = columns.clone();
+        g.bench_function(BenchmarkId::new("relocate", n), |b| {
+            b.iter(|| {
+                moved.copy_from_slice(&columns);
+                matcher
+                    .relocate(&model, &mut moved, &pu, &pv, 1.0)
+                    .expect("relocate")
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_profile);
+criterion_main!(benches);
