@@ -868,7 +868,7 @@ impl Calibration {
     /// of `scale` full-resolution pixels per cell), all contacts at once;
     /// without one, does nothing. With an anchored model, a contact whose
     /// motion is clearly elsewhere than its measured point first has its
-    /// `x_px` moved there ([`ForceMatcher::relocate_contacts`]). Each contact is matched at
+    /// `x_px` moved there ([`ForceMatcher::relocate_and_measure_contacts_at`]). Each contact is matched at
     /// [`Calibration::match_column`]; with a [`ColumnCorrection`], its
     /// matched normal force is then multiplied by the correction's gain at
     /// that column ([`ColumnCorrection::correct_local_force`]). A sensor
@@ -883,14 +883,13 @@ impl Calibration {
     ) -> Result<()> {
         match &self.profile {
             Some(model) if !raws.is_empty() => {
+                let column_of = |r: &RawContact| self.match_column(model, r);
                 if model.anchor.is_some() {
-                    matcher.relocate_contacts(model, raws, u, v, scale, |r| {
-                        self.match_column(model, r)
-                    })?;
+                    matcher
+                        .relocate_and_measure_contacts_at(model, raws, u, v, scale, column_of)?;
+                } else {
+                    matcher.measure_contacts_at(model, raws, u, v, scale, column_of)?;
                 }
-                matcher.measure_contacts_at(model, raws, u, v, scale, |r| {
-                    self.match_column(model, r)
-                })?;
                 if let Some(c) = &self.column_correction {
                     for r in raws.iter_mut() {
                         if let Some(f) = r.local_force {

@@ -658,6 +658,8 @@ pub struct ForceMatcher {
     profile_v: Vec<f64>,
     forces: Vec<[f64; 3]>,
     columns: Vec<f64>,
+    /// The columns before a relocation.
+    before: Vec<f64>,
 }
 
 /// The least-squares system of one frame's force match, and the copies its
@@ -723,7 +725,36 @@ impl ForceMatcher {
         u: ArrayView2<'_, f32>,
         v: ArrayView2<'_, f32>,
         scale: f64,
+        column_of: impl FnMut(&RawContact) -> Result<f64>,
+    ) -> Result<()> {
+        self.load_profiles(u, v, scale)?;
+        self.solve_loaded(model, raws, scale, column_of)
+    }
+
+    /// [`ForceMatcher::relocate_contacts`], then
+    /// [`ForceMatcher::measure_contacts_at`] at the moved points, on one
+    /// computation of the frame's profiles. Returns how many moved.
+    pub fn relocate_and_measure_contacts_at(
+        &mut self,
+        model: &ProfileModel,
+        raws: &mut [RawContact],
+        u: ArrayView2<'_, f32>,
+        v: ArrayView2<'_, f32>,
+        scale: f64,
         mut column_of: impl FnMut(&RawContact) -> Result<f64>,
+    ) -> Result<usize> {
+        self.load_profiles(u, v, scale)?;
+        let moved = self.relocate_loaded(model, raws, scale, &mut column_of)?;
+        self.solve_loaded(model, raws, scale, column_of)?;
+        Ok(moved)
+    }
+
+    /// The frame's column profiles of `u` and `v` into the matcher's buffers.
+    fn load_profiles(
+        &mut self,
+        u: ArrayView2<'_, f32>,
+        v: ArrayView2<'_, f32>,
+        scale: f64,
     ) -> Result<()> {
         if u.dim() != v.dim() {
             return Err(Error::shape(
@@ -734,10 +765,32 @@ impl ForceMatcher {
         }
         column_profile_into(u, scale, &mut self.profile_u);
         column_profile_into(v, scale, &mut self.profile_v);
+        Ok(())
+    }
+
+    /// Each contact's column `column_of(contact)` into the matcher's buffer.
+    fn load_columns(
+        &mut self,
+        raws: &[RawContact],
+        mut column_of: impl FnMut(&RawContact) -> Result<f64>,
+    ) -> Result<()> {
         self.columns.clear();
-        for r in raws.iter() {
+        for r in raws {
             self.columns.push(column_of(r)?);
         }
+        Ok(())
+    }
+
+    /// The force match of the loaded profiles at `column_of(contact)`,
+    /// into each contact's [`RawContact::local_force`].
+    fn solve_loaded(
+        &mut self,
+        model: &ProfileModel,
+        raws: &mut [RawContact],
+        scale: f64,
+        column_of: impl FnMut(&RawContact) -> Result<f64>,
+    ) -> Result<()> {
+        self.load_columns(raws, column_of)?;
         self.system.solve(
             model,
             &self.columns,
@@ -777,25 +830,23 @@ impl ForceMatcher {
         u: ArrayView2<'_, f32>,
         v: ArrayView2<'_, f32>,
         scale: f64,
-        mut column_of: impl FnMut(&RawContact) -> Result<f64>,
+        column_of: impl FnMut(&RawContact) -> Result<f64>,
     ) -> Result<usize> {
-        if u.dim() != v.dim() {
-            return Err(Error::shape(
-                "flow v against u",
-                (u.ncols(), u.nrows()),
-                (v.ncols(), v.nrows()),
-            ));
-        }
-        if raws.is_empty() {
-            return Ok(0);
-        }
-        column_profile_into(u, scale, &mut self.profile_u);
-        column_profile_into(v, scale, &mut self.profile_v);
-        self.columns.clear();
-        for r in raws.iter() {
-            self.columns.push(column_of(r)?);
-        }
-        let before = self.columns.clone();
+        self.load_profiles(u, v, scale)?;
+        self.relocate_loaded(model, raws, scale, column_of)
+    }
+
+    /// [`ForceMatcher::relocate_contacts`] on the loaded profiles.
+    fn relocate_loaded(
+        &mut self,
+        model: &ProfileModel,
+        raws: &mut [RawContact],
+        scale: f64,
+        column_of: impl FnMut(&RawContact) -> Result<f64>,
+    ) -> Result<usize> {
+        self.load_columns(raws, column_of)?;
+        self.before.clear();
+        self.before.extend_from_slice(&self.columns);
         self.system.relocate(
             model,
             &mut self.columns,
@@ -804,7 +855,7 @@ impl ForceMatcher {
             scale,
         )?;
         let mut moved = 0;
-        for (r, (c, c0)) in raws.iter_mut().zip(self.columns.iter().zip(&before)) {
+        for (r, (c, c0)) in raws.iter_mut().zip(self.columns.iter().zip(&self.before)) {
             if c != c0 {
                 r.x_px += c - c0;
                 moved += 1;
@@ -845,12 +896,12 @@ impl NormalEquations {
         if steps < 1 {
             return Ok(());
         }
+        // One window for every candidate, so that their residuals add up
+        // the same cells.
+        let reach = model.reach_px() + radius;
         let mut near = Vec::with_capacity(columns_px.len());
         for m in 0..columns_px.len() {
             let c0 = columns_px[m];
-            // One window for every candidate, so that their residuals add
-            // up the same cells.
-            let reach = model.reach_px() + radius;
             let window = (c0 - reach, c0 + reach);
             // The contacts whose kernels reach into the window (the others'
             // unknowns would have no equation there), this one first.
