@@ -52,6 +52,8 @@ pub struct Evaluation {
     pub mae_fy_n: f64,
     /// Mean |Fz error|, N.
     pub mae_fz_n: f64,
+    /// Mean 3-D force error (the length of the force's error vector), N.
+    pub mean_force_error_n: f64,
     /// Median per-frame latency, ms (if the prediction recorded it).
     pub median_latency_ms: Option<f64>,
     /// 95th percentile per-frame latency, ms (if recorded).
@@ -138,7 +140,7 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
     let by_name: HashMap<&str, &FrameRecord> =
         truth.iter().map(|f| (f.frame.as_str(), f)).collect();
     let mut e = Evaluation::default();
-    let mut sums = [0.0f64; 7];
+    let mut sums = [0.0f64; 8];
     // Over the pairs whose prediction is not out of domain: x, y, Fx, Fy, Fz.
     let mut inside = [0.0f64; 5];
     let mut latencies = Vec::new();
@@ -169,6 +171,7 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
                 sums[4 + k] += err.abs();
                 e.max_force_error_n[k] = e.max_force_error_n[k].max(err.abs());
             }
+            sums[7] += errors.iter().map(|x| x * x).sum::<f64>().sqrt();
             if let (Some(sx), Some(sy), Some(sz)) = (a.fx_sigma_n, a.fy_sigma_n, a.fz_sigma_n) {
                 with_sigma += 1;
                 for (k, (err, sigma)) in errors.iter().zip([sx, sy, sz]).enumerate() {
@@ -214,6 +217,7 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
         e.mae_fx_n,
         e.mae_fy_n,
         e.mae_fz_n,
+        e.mean_force_error_n,
     ] = sums.map(|s| s / n);
     if !latencies.is_empty() {
         latencies.sort_by(f64::total_cmp);
@@ -263,6 +267,7 @@ impl Evaluation {
         err("MAE Fx (N)", self.mae_fx_n, 4);
         err("MAE Fy (N)", self.mae_fy_n, 4);
         err("MAE Fz (N)", self.mae_fz_n, 4);
+        err("mean 3-D force error (N)", self.mean_force_error_n, 4);
         if scored {
             let [x, y, z] = self.max_force_error_n;
             row(
@@ -410,6 +415,32 @@ mod tests {
         );
         // Without sigmas there is nothing to score.
         assert_eq!(score(&truth, &truth, 5.0).sigma_coverage, None);
+    }
+
+    #[test]
+    fn the_3d_force_error_is_the_length_of_the_error_vector() {
+        // Errors (0.3, 0, -0.4) and (0, 0.12, 0.05): lengths 0.5 and 0.13.
+        let force = |x: f64, fx: f64, fy: f64, fz: f64| ContactRecord {
+            fx_n: fx,
+            fy_n: fy,
+            ..c(x, fz)
+        };
+        let truth = vec![f(
+            "a",
+            vec![force(0.0, 0.0, 0.0, -1.0), force(50.0, 0.1, 0.0, -2.0)],
+            None,
+        )];
+        let pred = vec![f(
+            "a",
+            vec![force(0.0, 0.3, 0.0, -1.4), force(50.0, 0.1, 0.12, -1.95)],
+            None,
+        )];
+        let e = score(&pred, &truth, 5.0);
+        assert!((e.mean_force_error_n - 0.315).abs() < 1e-12, "{e:?}");
+        assert!(
+            e.to_markdown()
+                .contains("| mean 3-D force error (N) | 0.3150 |")
+        );
     }
 
     #[test]
