@@ -163,6 +163,11 @@ struct Cli {
     /// kernel for every indenter; docs/calibration.md).
     #[arg(long)]
     no_size_term: bool,
+    /// Fit the profile model without its kernels' far tails (then a
+    /// contact's far motion is not modelled where another contact's force
+    /// is matched; docs/pipeline.md).
+    #[arg(long)]
+    no_profile_tail: bool,
     /// DIS flow preset [default: fine, the sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
@@ -207,6 +212,7 @@ struct Args {
     force_y2d: bool,
     no_sweeps: bool,
     no_size_term: bool,
+    no_profile_tail: bool,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     crop: Option<Roi>,
@@ -404,6 +410,7 @@ impl Cli {
             force_y2d: self.force_y2d,
             no_sweeps: self.no_sweeps,
             no_size_term: self.no_size_term,
+            no_profile_tail: self.no_profile_tail,
             flow: self.preset,
             crop: self.crop,
             predictions: self.predictions,
@@ -512,6 +519,7 @@ fn run(args: Args) -> Result<(), Failure> {
             force_use_y2d: args.force_y2d || two_d,
             profile: base.profile.map(|p| ProfileFitOptions {
                 size_term: p.size_term && !args.no_size_term,
+                tail_px: if args.no_profile_tail { 0.0 } else { p.tail_px },
                 ..p
             }),
             ..base

@@ -30,8 +30,32 @@ fn response(ch: usize, k: usize, c: f64, t: f64) -> f64 {
     (1.0 + 0.3 * z) * shape * if ch == 0 { 1.0 } else { 0.2 + 0.1 * k as f64 }
 }
 
+/// [`response`] plus a far tail, as on a soft, thick gel: the tangential
+/// and normal forces also move the skin along the arc, one way, far beyond
+/// the kernels' 200 px of reach (e^(-t/300): a fifth of it is left at
+/// 480 px).
+fn tailed_response(ch: usize, k: usize, c: f64, t: f64) -> f64 {
+    let z = (c - CENTRE) / SPAN;
+    let far = match (ch, k) {
+        (0, 0) => 0.3,
+        (0, 2) => -0.2,
+        (1, 2) => 0.05,
+        _ => 0.0,
+    };
+    response(ch, k, c, t) + (1.0 + 0.3 * z) * far * (-t.abs() / 300.0).exp()
+}
+
 /// The profiles (u, v) of contacts at `cols` with local forces `forces`.
 fn profiles(cols: &[f64], forces: &[[f64; 3]]) -> [Vec<f64>; 2] {
+    profiles_of(response, cols, forces)
+}
+
+/// [`profiles`] with the response `response`.
+fn profiles_of(
+    response: fn(usize, usize, f64, f64) -> f64,
+    cols: &[f64],
+    forces: &[[f64; 3]],
+) -> [Vec<f64>; 2] {
     let mut out = [vec![0.0; N], vec![0.0; N]];
     for (ch, prof) in out.iter_mut().enumerate() {
         for (j, p) in prof.iter_mut().enumerate() {
@@ -57,16 +81,33 @@ fn cell(j: usize) -> f64 {
 /// Training contacts on cell centres, so that the kernels are sampled
 /// exactly where the profiles are (no interpolation error).
 fn training_set(seed: u64) -> Vec<Training> {
+    training_set_of(response, (75, 250), seed)
+}
+
+/// [`training_set`] with far tails ([`tailed_response`]), and contacts
+/// from one end of the profile to the other, as a protocol's points are
+/// (every offset is then reached from several places).
+fn tailed_training_set(seed: u64) -> Vec<Training> {
+    training_set_of(tailed_response, (10, 380), seed)
+}
+
+/// 120 training contacts at random cells of `first..first + span`, with
+/// the response `response`.
+fn training_set_of(
+    response: fn(usize, usize, f64, f64) -> f64,
+    (first, span): (usize, usize),
+    seed: u64,
+) -> Vec<Training> {
     let mut rng = SplitMix64::new(seed);
     (0..120)
         .map(|_| {
-            let c = cell(75 + (250.0 * rng.next_f64()) as usize);
+            let c = cell(first + (span as f64 * rng.next_f64()) as usize);
             let f = [
                 rng.next_f64() - 0.5,
                 0.2 * (rng.next_f64() - 0.5),
                 -0.5 - 2.5 * rng.next_f64(),
             ];
-            let p = profiles(&[c], &[f]);
+            let p = profiles_of(response, &[c], &[f]);
             (c, f, p)
         })
         .collect()
@@ -139,6 +180,112 @@ fn two_close_contacts_share_out_their_overlapping_motion() {
     assert!((alone[0][2] - forces[0][2]).abs() > 0.05, "{alone:?}");
 }
 
+#[test]
+fn far_tails_keep_a_distant_contacts_motion_out_of_anothers_force() {
+    let set = tailed_training_set(4);
+    let s = samples(&set, None);
+    let near = ProfileModel::fit(&s, SCALE, 200.0, 1, CENTRE, SPAN).unwrap();
+    assert!(near.tail.is_none());
+    // Tails sampled on the cells (2 px), out to the profile's length.
+    let tailed = near.clone().with_tail(&s, SCALE, 800.0).unwrap();
+    let tail = tailed.tail.as_ref().unwrap();
+    assert_eq!(tail.half_width, 400);
+    assert_eq!(tailed.response_reach_px(), 800.0);
+    // 440 px apart: no cell lies within both contacts' 200 px of reach,
+    // but each one's equations hold the other's far motion.
+    let cols = [cell(80), cell(300)];
+    let forces = [[0.1, 0.02, -2.5], [-0.2, 0.0, -1.0]];
+    let p = profiles_of(tailed_response, &cols, &forces);
+    let mut m = ForceMatcher::new();
+    let mut with_tails = Vec::new();
+    m.measure(&tailed, &cols, &p[0], &p[1], SCALE, &mut with_tails)
+        .unwrap();
+    for (o, f) in with_tails.iter().zip(&forces) {
+        for k in 0..3 {
+            assert!((o[k] - f[k]).abs() < 1e-6, "{with_tails:?} vs {forces:?}");
+        }
+    }
+    // Without them the far motion is read as the other contact's force.
+    let mut without = Vec::new();
+    m.measure(&near, &cols, &p[0], &p[1], SCALE, &mut without)
+        .unwrap();
+    let worst = without
+        .iter()
+        .zip(&forces)
+        .flat_map(|(o, f)| (0..3).map(move |k| (o[k] - f[k]).abs()))
+        .fold(0.0, f64::max);
+    assert!(worst > 0.05, "{without:?} vs {forces:?}");
+    // A contact alone is matched exactly as without the tails: its
+    // equations lie within its own reach, where the kernels are the same.
+    for c in [cell(120), 457.3] {
+        let p = profiles_of(tailed_response, &[c], &[forces[0]]);
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        m.measure(&near, &[c], &p[0], &p[1], SCALE, &mut a).unwrap();
+        m.measure(&tailed, &[c], &p[0], &p[1], SCALE, &mut b)
+            .unwrap();
+        assert_eq!(a, b);
+    }
+    // Relocation sees the far contact too: both points stay put.
+    let mut moved = cols;
+    m.relocate(&tailed, &mut moved, &p[0], &p[1], SCALE)
+        .unwrap();
+    assert_eq!(moved, cols);
+}
+
+#[test]
+fn tails_refuse_bad_parameters_and_broken_files() {
+    let set = tailed_training_set(5);
+    let s = samples(&set, None);
+    let model = ProfileModel::fit(&s, SCALE, 200.0, 1, CENTRE, SPAN).unwrap();
+    for (step, reach) in [
+        (0.0, 800.0),
+        (-2.0, 800.0),
+        (f64::NAN, 800.0),
+        (2.0, f64::INFINITY),
+        (2.0, 200.0), // not beyond the kernels' reach
+        (2.0, 100.0),
+        (1e9, 800.0),
+    ] {
+        let e = model.clone().with_tail(&s, step, reach).unwrap_err();
+        assert!(
+            matches!(e, Error::InvalidParameter { .. }),
+            "{step} {reach}: {e}"
+        );
+    }
+    // Offsets no sample reaches keep a zero tail rather than failing.
+    let far = model.clone().with_tail(&s, SCALE, 4000.0).unwrap();
+    let t = far.tail.as_ref().unwrap();
+    assert!(t.kernels[0][0][0] == 0.0 && t.kernels[0][0][2 * t.half_width] == 0.0);
+    // A file's tail is checked like its kernels.
+    let good = model.with_tail(&s, SCALE, 800.0).unwrap();
+    let json = serde_json::to_string(&good).unwrap();
+    let back: ProfileModel = serde_json::from_str(&json).unwrap();
+    back.validate().unwrap();
+    let (a, b) = (back.tail.as_ref().unwrap(), good.tail.as_ref().unwrap());
+    assert_eq!((a.step_px, a.half_width), (b.step_px, b.half_width));
+    for (x, y) in a
+        .kernels
+        .iter()
+        .flatten()
+        .flatten()
+        .zip(b.kernels.iter().flatten().flatten())
+    {
+        assert!((x - y).abs() <= 1e-12 * (1.0 + y.abs()), "{x} vs {y}");
+    }
+    let mut short = good.clone();
+    short.tail.as_mut().unwrap().kernels[1][0].pop();
+    let mut nan = good.clone();
+    nan.tail.as_mut().unwrap().kernels[0][1][7] = f64::NAN;
+    let mut step = good.clone();
+    step.tail.as_mut().unwrap().step_px = 0.0;
+    let mut wide = good;
+    wide.tail.as_mut().unwrap().half_width = usize::MAX;
+    for broken in [short, nan, step, wide] {
+        let e = broken.validate().unwrap_err();
+        assert!(e.to_string().contains("tail"), "{e}");
+    }
+}
+
 /// The slow, obvious twin of the matcher: build the whole design matrix
 /// (every cell within reach of a contact, both channels) and solve it by SVD.
 fn oracle(model: &ProfileModel, cols: &[f64], p: &[Vec<f64>; 2]) -> Vec<f64> {
@@ -172,19 +319,28 @@ fn oracle(model: &ProfileModel, cols: &[f64], p: &[Vec<f64>; 2]) -> Vec<f64> {
         .collect()
 }
 
-/// Kernel value straight from the stored samples (linear between them).
+/// Kernel value straight from the stored samples (linear between them):
+/// within the reach the kernels', beyond it the tail's (0 without one).
 fn kernel_value(model: &ProfileModel, ch: usize, c: f64, t: f64, k: usize) -> f64 {
-    let idx = t / model.step_px + model.half_width as f64;
-    if idx < 0.0 || idx > (2 * model.half_width) as f64 {
+    let reach = model.half_width as f64 * model.step_px;
+    let (kernels, step, half) = if t.abs() <= reach {
+        (&model.kernels, model.step_px, model.half_width)
+    } else if let Some(tail) = &model.tail {
+        (&tail.kernels, tail.step_px, tail.half_width)
+    } else {
+        return 0.0;
+    };
+    let idx = t / step + half as f64;
+    if idx < 0.0 || idx > (2 * half) as f64 {
         return 0.0;
     }
     let i0 = idx.floor() as usize;
-    let i1 = (i0 + 1).min(2 * model.half_width);
+    let i1 = (i0 + 1).min(2 * half);
     let a = idx - i0 as f64;
     let z = (c - model.centre_px) / model.span_px;
     (0..=model.degree)
         .map(|m| {
-            let kern = &model.kernels[ch][k * (model.degree + 1) + m];
+            let kern = &kernels[ch][k * (model.degree + 1) + m];
             z.powi(m as i32) * ((1.0 - a) * kern[i0] + a * kern[i1])
         })
         .sum()
@@ -201,25 +357,29 @@ proptest::proptest! {
     #[test]
     fn the_matcher_agrees_with_the_svd_oracle(
         c1 in 100.0f64..700.0,
-        gap in 20.0f64..300.0,
+        gap in 20.0f64..600.0,
         noise in proptest::collection::vec(-1.0f64..1.0, 2 * N),
         sized in proptest::bool::ANY,
+        tailed in proptest::bool::ANY,
     ) {
-        let set = training_set(3);
+        let set = tailed_training_set(3);
+        let mut s = samples(&set, None);
         let model = if sized {
             // The same data with made-up sizes: the size kernels are then
             // mostly noise, but the matcher must still solve the same system.
-            let mut s = samples(&set, None);
             for (i, x) in s.iter_mut().enumerate() {
                 x.size_mm = Some([2.0, 5.0, 10.0][i % 3]);
             }
             let term = SizeTerm::for_sizes(s.iter().filter_map(|x| x.size_mm)).unwrap();
             ProfileModel::fit_with_size(&s, SCALE, 200.0, 2, CENTRE, SPAN, Some(term)).unwrap()
         } else {
-            fit(&set, 2)
+            ProfileModel::fit(&s, SCALE, 200.0, 2, CENTRE, SPAN).unwrap()
         };
+        // Tails every 3 px: between the cells, so that the oracle's
+        // interpolation of them is exercised too.
+        let model = if tailed { model.with_tail(&s, 3.0, 800.0).unwrap() } else { model };
         let cols = [c1, (c1 + gap).min(790.0)];
-        let mut p = profiles(&cols, &[[0.2, 0.01, -1.0], [0.0, -0.02, -0.7]]);
+        let mut p = profiles_of(tailed_response, &cols, &[[0.2, 0.01, -1.0], [0.0, -0.02, -0.7]]);
         for (i, e) in noise.iter().enumerate() {
             p[i / N][i % N] += 0.05 * e;
         }

@@ -26,7 +26,8 @@ use super::{
     PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
-    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, SizeTerm, column_profile_into,
+    ColumnMap, ForceMatcher, MAX_PROFILE_REACH_PX, ProfileModel, ProfileSample, SizeTerm,
+    column_profile_into,
 };
 use crate::contact::{ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
@@ -274,20 +275,37 @@ pub struct ProfileFitOptions {
     /// before the term.
     #[serde(default)]
     pub size_term: bool,
+    /// How far each side of a contact the kernels' far tails reach
+    /// ([`crate::contact::profile::ProfileTail`]), full-resolution pixels,
+    /// at most the profile's length; 0 fits no tail (files from before
+    /// the tails).
+    #[serde(default)]
+    pub tail_px: f64,
+    /// Spacing of the tail samples, full-resolution pixels.
+    #[serde(default = "default_tail_step_px")]
+    pub tail_step_px: f64,
+}
+
+fn default_tail_step_px() -> f64 {
+    8.0
 }
 
 impl Default for ProfileFitOptions {
-    /// 300 px (about 60 mm of arc on the default strip, where a press's
-    /// motion has mostly died out) and degree 2 (measured on the simulator's
+    /// 300 px (about 60 mm of arc on the default strip, where most of a
+    /// press's motion has died out) and degree 2 (measured on the simulator's
     /// protocol: degree 2 predicted the unseen test points best, 4 and 6
     /// overfitted), anchor maps up to degree 5 (the camera's projection of
-    /// the arc is close to a cubic).
+    /// the arc is close to a cubic); tails over the whole image (a tenth of
+    /// the peak motion is still there 500 px away), every 8 px (they are
+    /// smooth).
     fn default() -> Self {
         ProfileFitOptions {
             half_width_px: 300.0,
             degree: 2,
             anchor_max_degree: 5,
             size_term: true,
+            tail_px: MAX_PROFILE_REACH_PX,
+            tail_step_px: default_tail_step_px(),
         }
     }
 }
@@ -1321,11 +1339,47 @@ fn fit_profile(
             best = Some((score, model));
         }
     }
-    match (best, last_error) {
-        (Some((_, model)), _) => Ok(model),
-        (None, Some(e)) => Err(e),
-        (None, None) => Err(Error::param("profile", "no profile model candidate")),
+    let model = match (best, last_error) {
+        (Some((_, model)), _) => model,
+        (None, Some(e)) => return Err(e),
+        (None, None) => return Err(Error::param("profile", "no profile model candidate")),
+    };
+    // The tails leave a single contact's match as it is, so the choice
+    // above is the same with them; they are fitted once, for the model kept.
+    let longest = train
+        .iter()
+        .map(|e| e.profiles[0].len() as f64 * e.scale)
+        .fold(0.0, f64::max);
+    let tail_px = options.tail_px.min(longest);
+    if tail_px <= model.reach_px() {
+        return Ok(model);
     }
+    let samples = profile_samples(&train, geometry, model.anchor.as_ref());
+    model.with_tail(&samples, options.tail_step_px, tail_px)
+}
+
+/// The profile samples of the training tests, each at its anchor column of
+/// the true position (or at its measured column without an anchor map).
+fn profile_samples<'a>(
+    train: &[&'a Extraction],
+    geometry: &SensorGeometry,
+    anchor: Option<&ColumnMap>,
+) -> Vec<ProfileSample<'a>> {
+    train
+        .iter()
+        .filter_map(|e| {
+            let raw = e.raw.as_ref()?;
+            let r = &e.row;
+            Some(ProfileSample {
+                column_px: anchor.map_or(raw.x_px, |a| a.column(r.x_mm)),
+                profile_u: &e.profiles[0],
+                profile_v: &e.profiles[1],
+                scale: e.scale,
+                local_force: geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]),
+                size_mm: Some(r.indenter_mm),
+            })
+        })
+        .collect()
 }
 
 /// Fits the profile model on `train` with its kernels anchored by `anchor`
@@ -1337,21 +1391,7 @@ fn fit_profile_at(
     options: ProfileFitOptions,
     anchor: Option<ColumnMap>,
 ) -> Result<ProfileModel> {
-    let samples: Vec<ProfileSample<'_>> = train
-        .iter()
-        .filter_map(|e| {
-            let raw = e.raw.as_ref()?;
-            let r = &e.row;
-            Some(ProfileSample {
-                column_px: anchor.as_ref().map_or(raw.x_px, |a| a.column(r.x_mm)),
-                profile_u: &e.profiles[0],
-                profile_v: &e.profiles[1],
-                scale: e.scale,
-                local_force: geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]),
-                size_mm: Some(r.indenter_mm),
-            })
-        })
-        .collect();
+    let samples = profile_samples(train, geometry, anchor.as_ref());
     let size = if options.size_term {
         SizeTerm::for_sizes(samples.iter().filter_map(|s| s.size_mm))
     } else {

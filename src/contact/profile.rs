@@ -125,6 +125,39 @@ pub struct ProfileModel {
     /// `None` (older files): three components.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub size: Option<SizeTerm>,
+    /// The kernels' far tails ([`ProfileTail`]): the response beyond
+    /// [`ProfileModel::reach_px`], where another contact's equations may
+    /// lie. `None` (older files, or fitted without): no response there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tail: Option<ProfileTail>,
+}
+
+/// The far tails of a [`ProfileModel`]'s kernels, sampled coarser than the
+/// kernels themselves.
+///
+/// Why: on a soft, thick gel a press moves the skin far beyond the reach
+/// over which its force is matched (on the simulated strip a normal press
+/// still moves the markers by a tenth of its peak 500 px away). A contact's
+/// equations are the profile cells within the model's reach, and with a
+/// single contact nothing else is needed. With two, the cells about one
+/// hold the other's far motion; without a kernel for it, the first
+/// contact's unknowns take it in (two perches 110 mm apart read 0.1-0.2 N
+/// of tangential force that is not there). With the tails, every contact's
+/// response is modelled over every equation, and a single contact's match
+/// is exactly as without them.
+///
+/// Sample `i` of a tail kernel lies at offset `(i - half_width) * step_px`,
+/// with the same layout and position polynomial as
+/// [`ProfileModel::kernels`]; it is used only beyond the model's reach.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProfileTail {
+    /// Spacing of the tail samples, full-resolution pixels.
+    pub step_px: f64,
+    /// Samples on each side of the contact.
+    pub half_width: usize,
+    /// Tail samples: `kernels[channel][component * (degree + 1) + m]`;
+    /// 0 at offsets the training data did not determine.
+    pub kernels: Vec<Vec<Vec<f64>>>,
 }
 
 /// A smooth map from a contact's chord position (mm) to the image column
@@ -377,14 +410,85 @@ impl ProfileModel {
             centre_px,
             span_px,
             degree,
-            kernels: vec![vec![vec![0.0; 2 * half_width + 1]; unknowns]; 2],
+            kernels: Vec::new(),
             anchor: None,
             size,
+            tail: None,
         };
+        model.kernels = model.fit_offsets(samples, step_px, half_width, true)?;
+        model.validate()?;
+        Ok(model)
+    }
+
+    /// The model with far tails ([`ProfileTail`]) fitted to `samples` (the
+    /// samples the model was fitted on, at the same columns): every
+    /// `step_px` out to `reach_px` each side. Offsets the samples do not
+    /// determine (too few, or all at one place) keep a zero tail. Errors on
+    /// bad parameters or samples whose sizes the model's size term needs.
+    pub fn with_tail(
+        mut self,
+        samples: &[ProfileSample<'_>],
+        step_px: f64,
+        reach_px: f64,
+    ) -> Result<Self> {
+        for (name, x) in [("tail step_px", step_px), ("tail reach_px", reach_px)] {
+            if !(x > 0.0 && x <= MAX_PROFILE_REACH_PX) {
+                return Err(Error::param(
+                    name,
+                    format!("must be > 0 and at most {MAX_PROFILE_REACH_PX} px, got {x}"),
+                ));
+            }
+        }
+        if reach_px <= self.reach_px() {
+            return Err(Error::param(
+                "tail reach_px",
+                format!(
+                    "{reach_px} px does not reach beyond the kernels' {} px",
+                    self.reach_px()
+                ),
+            ));
+        }
+        if self.size.is_some()
+            && samples
+                .iter()
+                .any(|s| !s.size_mm.is_some_and(|x| x.is_finite()))
+        {
+            return Err(Error::param(
+                "size_mm",
+                "every sample needs a finite indenter size for the size term",
+            ));
+        }
+        let half_width = ((reach_px / step_px).ceil() as usize).min(MAX_PROFILE_HALF_WIDTH);
+        let kernels = self.fit_offsets(samples, step_px, half_width, false)?;
+        self.tail = Some(ProfileTail {
+            step_px,
+            half_width,
+            kernels,
+        });
+        self.validate()?;
+        Ok(self)
+    }
+
+    /// Kernels fitted at the offsets `(i - half_width) * step_px`, `i` in
+    /// `0..=2 * half_width`: `[channel][unknown][i]`. Where too few samples
+    /// reach an offset (the image's ends) its kernels stay 0; a singular
+    /// system there is an error when `strict`, else its kernels stay 0 too.
+    fn fit_offsets(
+        &self,
+        samples: &[ProfileSample<'_>],
+        step_px: f64,
+        half_width: usize,
+        strict: bool,
+    ) -> Result<Vec<Vec<Vec<f64>>>> {
+        let components = self.components();
+        let unknowns = components * (self.degree + 1);
+        // A tail offset is trusted from twice as many samples as unknowns.
+        let min_rows = if strict { unknowns } else { 2 * unknowns };
+        let mut kernels = vec![vec![vec![0.0; 2 * half_width + 1]; unknowns]; 2];
         let mut design = vec![0.0; unknowns];
         let mut ata = vec![0.0; unknowns * unknowns];
         let mut atb = vec![0.0; unknowns];
-        for ch in 0..2 {
+        for (ch, kernels) in kernels.iter_mut().enumerate() {
             for i in 0..=2 * half_width {
                 let t = (i as f64 - half_width as f64) * step_px;
                 ata.fill(0.0);
@@ -395,31 +499,33 @@ impl ProfileModel {
                     let Some(y) = sample_profile(prof, s.scale, s.column_px + t) else {
                         continue;
                     };
-                    let unknowns = model.unknowns(s.local_force, s.size_mm.unwrap_or(0.0));
-                    model.design_row(s.column_px, &unknowns[..components], &mut design);
+                    let unknowns = self.unknowns(s.local_force, s.size_mm.unwrap_or(0.0));
+                    self.design_row(s.column_px, &unknowns[..components], &mut design);
                     accumulate(&mut ata, &mut atb, &design, y);
                     rows += 1;
                 }
-                if rows < unknowns {
+                if rows < min_rows {
                     // Too close to the image's ends for this offset: no
                     // response known there, the kernel stays 0.
                     continue;
                 }
-                let k = solve(&mut ata, &mut atb, unknowns).ok_or_else(|| {
-                    calibration_error(
-                        "profile model: the training forces do not separate the \
-                         tangential, across and normal responses (or the sizes' \
-                         from the normal one: singular system)"
-                            .into(),
-                    )
-                })?;
+                let Some(k) = solve(&mut ata, &mut atb, unknowns) else {
+                    if strict {
+                        return Err(calibration_error(
+                            "profile model: the training forces do not separate the \
+                             tangential, across and normal responses (or the sizes' \
+                             from the normal one: singular system)"
+                                .into(),
+                        ));
+                    }
+                    continue;
+                };
                 for (u, &v) in k.iter().enumerate() {
-                    model.kernels[ch][u][i] = v;
+                    kernels[u][i] = v;
                 }
             }
         }
-        model.validate()?;
-        Ok(model)
+        Ok(kernels)
     }
 
     /// Checks the shapes and values of a loaded model.
@@ -475,6 +581,35 @@ impl ProfileModel {
         if let Some(a) = &self.anchor {
             a.validate()?;
         }
+        if let Some(t) = &self.tail {
+            if !(t.step_px > 0.0 && t.step_px <= MAX_PROFILE_REACH_PX) {
+                return bad(format!(
+                    "tail step_px must be > 0 and at most {MAX_PROFILE_REACH_PX}, got {}",
+                    t.step_px
+                ));
+            }
+            if t.half_width > MAX_PROFILE_HALF_WIDTH {
+                return bad(format!(
+                    "tail half_width {} is above {MAX_PROFILE_HALF_WIDTH} samples",
+                    t.half_width
+                ));
+            }
+            let n = 2 * t.half_width + 1;
+            if t.kernels.len() != 2
+                || t.kernels
+                    .iter()
+                    .any(|c| c.len() != unknowns || c.iter().any(|k| k.len() != n))
+            {
+                return bad(format!(
+                    "expected 2 tail channels of {unknowns} kernels of {n} samples \
+                     (degree {}, tail half_width {})",
+                    self.degree, t.half_width
+                ));
+            }
+            if t.kernels.iter().flatten().flatten().any(|x| !x.is_finite()) {
+                return bad("non-finite tail sample".into());
+            }
+        }
         Ok(())
     }
 
@@ -506,21 +641,28 @@ impl ProfileModel {
 
     /// Kernels of channel `ch` for a contact at `column_px`, at offset `t_px`:
     /// one value per unknown ([`ProfileModel::components`] of them; the rest 0).
+    /// Beyond the kernels' reach, the tail's ([`ProfileTail`]), if any.
     fn kernel(&self, ch: usize, column_px: f64, t_px: f64) -> Option<[f64; MAX_UNKNOWNS]> {
-        let idx = t_px / self.step_px + self.half_width as f64;
-        let last = (2 * self.half_width) as f64;
+        let (kernels, step_px, half_width) = if t_px.abs() <= self.reach_px() {
+            (&self.kernels, self.step_px, self.half_width)
+        } else {
+            let t = self.tail.as_ref()?;
+            (&t.kernels, t.step_px, t.half_width)
+        };
+        let idx = t_px / step_px + half_width as f64;
+        let last = (2 * half_width) as f64;
         if !(0.0..=last).contains(&idx) {
             return None;
         }
-        let i0 = (idx.floor() as usize).min(2 * self.half_width);
-        let i1 = (i0 + 1).min(2 * self.half_width);
+        let i0 = (idx.floor() as usize).min(2 * half_width);
+        let i1 = (i0 + 1).min(2 * half_width);
         let a = idx - i0 as f64;
         let z = (column_px - self.centre_px) / self.span_px;
         let mut out = [0.0; MAX_UNKNOWNS];
         for (k, o) in out.iter_mut().take(self.components()).enumerate() {
             let mut p = 1.0;
             for m in 0..=self.degree {
-                let kern = &self.kernels[ch][k * (self.degree + 1) + m];
+                let kern = &kernels[ch][k * (self.degree + 1) + m];
                 *o += p * ((1.0 - a) * kern[i0] + a * kern[i1]);
                 p *= z;
             }
@@ -528,9 +670,19 @@ impl ProfileModel {
         Some(out)
     }
 
-    /// How far each side of a contact the kernels reach, pixels.
+    /// How far each side of a contact the kernels reach, pixels: a
+    /// contact's equations are the profile cells within it.
     pub fn reach_px(&self) -> f64 {
         self.half_width as f64 * self.step_px
+    }
+
+    /// How far each side of a contact its modelled response reaches,
+    /// pixels: the tail's reach with a [`ProfileTail`], else
+    /// [`ProfileModel::reach_px`].
+    pub fn response_reach_px(&self) -> f64 {
+        self.tail.as_ref().map_or(self.reach_px(), |t| {
+            (t.half_width as f64 * t.step_px).max(self.reach_px())
+        })
     }
 }
 
@@ -911,7 +1063,7 @@ impl NormalEquations {
                 columns_px
                     .iter()
                     .enumerate()
-                    .filter(|&(j, c)| j != m && (c - c0).abs() < reach + model.reach_px())
+                    .filter(|&(j, c)| j != m && (c - c0).abs() < reach + model.response_reach_px())
                     .map(|(_, &c)| c),
             );
             let residual_at = |this: &mut Self, cols: &mut [f64], c: f64| {
