@@ -105,6 +105,7 @@ impl Plan {
                 spacing: SpacingPlan {
                     spacings_mm: vec![40.0, 30.0, 25.0, 20.0, 15.0, 10.0],
                     forces_n: vec![1.5],
+                    second_force_ratio: 1.0,
                     centres_mm: vec![0.0],
                     tol_mm: 3.0,
                 },

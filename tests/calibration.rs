@@ -893,10 +893,13 @@ fn two_contact_errors(
 /// The profile model's far tails keep one contact's far motion out of the
 /// other's force: without them (the same calibration, tails removed) the
 /// weaker rod of the close pair reads about 0.6 N light and the perches
-/// 0.1-0.2 N of tangential force that is not there.
+/// 0.1-0.2 N of tangential force that is not there. The split rule's far
+/// rule keeps a weaker contact 110 mm from a stronger one: without it the
+/// two share one patch and the weaker is lost.
 #[test]
 fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
     use optical_tactile::TactileSensor;
+    use optical_tactile::segment::SplitRule;
     use optical_tactile_sim::scenario::{Pair, Perches, Scenario};
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/calibration.json");
     let cal = Calibration::load(&path).unwrap();
@@ -929,6 +932,19 @@ fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
             "{name}: {without:?}"
         );
     }
+    let (n, far) = two_contact_errors(pair(110.0), sensor(&cal), "pair110");
+    assert!(n == 2 && far.iter().all(|e| e.1 < 0.1), "{far:?}");
+    let near_only = TactileSensor::builder(cal)
+        .configure(|c| {
+            c.extractor.split = Some(SplitRule {
+                far_px: 0,
+                ..SplitRule::DEFAULT
+            })
+        })
+        .build()
+        .unwrap();
+    let (n, _) = two_contact_errors(pair(110.0), near_only, "pair110-near");
+    assert_eq!(n, 1, "without the far rule the two rods share one patch");
 }
 
 #[test]

@@ -92,7 +92,8 @@ fn naive_cuts(d: &[f64], rule: &SplitRule, valid: std::ops::Range<usize>) -> Vec
             }
         }
         let p = d[b];
-        if d[at] <= -(rule.depth as f64) * group.min(p) {
+        let far = rule.far_px > 0 && b - a >= rule.far_px && d[at] < 0.0;
+        if d[at] <= -(rule.depth as f64) * group.min(p) || far {
             cuts.push(at);
             group = p;
         } else {
@@ -128,9 +129,10 @@ fn find_cuts_matches_the_naive_rule() {
         0.0f32..1.0,
         0usize..10,
         0usize..10,
+        0usize..60,
     );
     runner(400)
-        .run(&strategy, |(steps, depth, min_peak, lo, hi)| {
+        .run(&strategy, |(steps, depth, min_peak, lo, hi, far_px)| {
             let (mut s, mut d) = (Vec::new(), Vec::new());
             let walk: Vec<f64> = steps
                 .iter()
@@ -145,6 +147,7 @@ fn find_cuts_matches_the_naive_rule() {
             let rule = SplitRule {
                 depth,
                 min_peak,
+                far_px,
                 ..SplitRule::DEFAULT
             };
             let mut cuts = vec![99];
@@ -167,6 +170,7 @@ fn find_cuts_by_hand() {
     let rule = SplitRule {
         depth: 0.5,
         min_peak: 0.3,
+        far_px: 0,
         ..SplitRule::DEFAULT
     };
     let mut cuts = vec![];
@@ -194,6 +198,21 @@ fn find_cuts_by_hand() {
     let d = [2.0, -2.0, 2.0, -2.0, 2.0];
     find_cuts(&d, &rule, 0..5, &mut cuts);
     assert_eq!(cuts, [1, 3]);
+    // Far apart, a shallow valley is enough, but still a valley: peaks
+    // 6 cells apart with a dip to -0.2 are cut with far_px 6, not with 7
+    // (nor without the far rule, above), and never where the profile only
+    // touches zero.
+    let d = [0.0, 4.0, 0.5, 0.1, -0.2, 0.1, 0.2, 3.0, 0.0];
+    find_cuts(&d, &rule, 0..d.len(), &mut cuts);
+    assert!(cuts.is_empty());
+    let far = |far_px| SplitRule { far_px, ..rule };
+    find_cuts(&d, &far(6), 0..d.len(), &mut cuts);
+    assert_eq!(cuts, [4]);
+    find_cuts(&d, &far(7), 0..d.len(), &mut cuts);
+    assert!(cuts.is_empty());
+    let flat = [0.0, 4.0, 0.5, 0.0, 0.0, 0.0, 0.2, 3.0, 0.0];
+    find_cuts(&flat, &far(1), 0..flat.len(), &mut cuts);
+    assert!(cuts.is_empty());
     // Empty and all-negative profiles.
     find_cuts(&[], &rule, 0..0, &mut cuts);
     assert!(cuts.is_empty());

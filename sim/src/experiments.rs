@@ -521,8 +521,11 @@ pub fn mdf_sweep(
 pub struct SpacingPlan {
     /// Spacings along the arc, mm, descending.
     pub spacings_mm: Vec<f64>,
-    /// The equal force of both rods, N.
+    /// The force of the first (left) rod, N.
     pub forces_n: Vec<f64>,
+    /// The second (right) rod's force as a fraction of the first's (1:
+    /// equal presses).
+    pub second_force_ratio: f64,
     /// Arc positions of the pair's midpoint, mm.
     pub centres_mm: Vec<f64>,
     /// A contact counts for a rod within this distance along the arc, mm.
@@ -530,14 +533,15 @@ pub struct SpacingPlan {
 }
 
 impl Default for SpacingPlan {
-    /// Spacings 40 down to 5 mm, forces 1.5 and 3 N, midpoints -60, 0, 60 mm,
-    /// tolerance 3 mm.
+    /// Spacings 40 down to 5 mm, equal forces of 1.5 and 3 N, midpoints -60,
+    /// 0, 60 mm, tolerance 3 mm.
     fn default() -> Self {
         SpacingPlan {
             spacings_mm: vec![
                 40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0,
             ],
             forces_n: vec![1.5, 3.0],
+            second_force_ratio: 1.0,
             centres_mm: vec![-60.0, 0.0, 60.0],
             tol_mm: 3.0,
         }
@@ -594,8 +598,8 @@ impl SpacingResult {
     }
 }
 
-/// Presses two straight rods of diameter `indenter_mm` with force `force_n`
-/// each, `spacing_mm` apart along the arc around midpoint `centre_mm`, and
+/// Presses two straight rods of diameter `indenter_mm` with forces
+/// `forces_n` (left, right), `spacing_mm` apart along the arc around midpoint `centre_mm`, and
 /// tells whether `extractor` finds exactly two contacts, each within
 /// `tol_mm` (along the arc) of its rod, its column measured as the shipped
 /// calibration does ([`ContactPointMethod::DEFAULT`]). Frames `frame_index` (reference) and
@@ -605,7 +609,7 @@ pub fn pair_told_apart(
     sensor: &SyntheticSensor,
     extractor: &mut ContactExtractor,
     indenter_mm: f64,
-    force_n: f64,
+    forces_n: [f64; 2],
     spacing_mm: f64,
     centre_mm: f64,
     tol_mm: f64,
@@ -625,8 +629,8 @@ pub fn pair_told_apart(
         return Err(Error::param("tol_mm", format!("must be > 0, got {tol_mm}")));
     }
     let rods = [
-        Press::rod(skin.arc_to_chord(s1), [0.0, 0.0, -force_n], indenter_mm),
-        Press::rod(skin.arc_to_chord(s2), [0.0, 0.0, -force_n], indenter_mm),
+        Press::rod(skin.arc_to_chord(s1), [0.0, 0.0, -forces_n[0]], indenter_mm),
+        Press::rod(skin.arc_to_chord(s2), [0.0, 0.0, -forces_n[1]], indenter_mm),
     ];
     let (p1, p2) = (rod_px(sensor, s1), rod_px(sensor, s2));
     let tol = tol_mm * sensor.config().camera.px_per_mm_s;
@@ -648,7 +652,7 @@ pub fn pair_told_apart(
             .map(|b| (b.x * s, b.x_end() * s))
             .collect();
         log.line(&format!(
-            "d {indenter_mm} f {force_n} sp {spacing_mm} c {centre_mm}: rods {p1:.0} {p2:.0} got {got:?} contours {cores:?}"
+            "d {indenter_mm} f {forces_n:?} sp {spacing_mm} c {centre_mm}: rods {p1:.0} {p2:.0} got {got:?} contours {cores:?}"
         ));
     }
     if raws.len() != 2 {
@@ -692,6 +696,13 @@ pub fn spacing_sweep(
             "need at least one force, spacing and midpoint",
         ));
     }
+    let r = plan.second_force_ratio;
+    if !(r > 0.0 && r.is_finite()) {
+        return Err(Error::param(
+            "second_force_ratio",
+            format!("must be finite and > 0, got {r}"),
+        ));
+    }
     let configs: Vec<ExtractorConfig> = o
         .sets
         .iter()
@@ -724,7 +735,10 @@ pub fn spacing_sweep(
                         sensor,
                         ex,
                         INDENTERS_MM[ii],
-                        plan.forces_n[fi],
+                        [
+                            plan.forces_n[fi],
+                            plan.forces_n[fi] * plan.second_force_ratio,
+                        ],
                         plan.spacings_mm[si],
                         plan.centres_mm[ci],
                         plan.tol_mm,

@@ -41,11 +41,11 @@ fn a_pair_60_mm_apart_is_told_apart_and_one_at_0_mm_is_not() {
         let mut ex = extractor(t);
         for d in [2.0, 10.0] {
             assert!(
-                pair_told_apart(&s, &mut ex, d, 2.0, 60.0, 0.0, 3.0, 10, None).unwrap(),
+                pair_told_apart(&s, &mut ex, d, [2.0, 2.0], 60.0, 0.0, 3.0, 10, None).unwrap(),
                 "{name}, {d} mm rods 60 mm apart"
             );
             assert!(
-                !pair_told_apart(&s, &mut ex, d, 2.0, 0.0, 0.0, 3.0, 12, None).unwrap(),
+                !pair_told_apart(&s, &mut ex, d, [2.0, 2.0], 0.0, 0.0, 3.0, 12, None).unwrap(),
                 "{name}, {d} mm rods at the same place"
             );
         }
@@ -58,8 +58,8 @@ fn a_pair_is_not_told_apart_when_the_tolerance_excludes_the_contacts() {
     // contact location's scatter: the criterion really looks at positions.
     let s = sensor(5);
     let mut ex = extractor(Thresholds::MID);
-    assert!(pair_told_apart(&s, &mut ex, 10.0, 2.0, 60.0, 0.0, 3.0, 10, None).unwrap());
-    assert!(!pair_told_apart(&s, &mut ex, 10.0, 2.0, 60.0, 0.0, 1e-6, 10, None).unwrap());
+    assert!(pair_told_apart(&s, &mut ex, 10.0, [2.0, 2.0], 60.0, 0.0, 3.0, 10, None).unwrap());
+    assert!(!pair_told_apart(&s, &mut ex, 10.0, [2.0, 2.0], 60.0, 0.0, 1e-6, 10, None).unwrap());
 }
 
 #[test]
@@ -69,6 +69,7 @@ fn spacing_sweep_matches_sequential_calls() {
     let plan = SpacingPlan {
         spacings_mm: vec![50.0, 12.0],
         forces_n: vec![2.0],
+        second_force_ratio: 1.0,
         centres_mm: vec![0.0],
         tol_mm: 3.0,
     };
@@ -87,7 +88,7 @@ fn spacing_sweep_matches_sequential_calls() {
                     &s,
                     &mut ex,
                     d,
-                    2.0,
+                    [2.0, 2.0],
                     sp,
                     0.0,
                     3.0,
@@ -109,6 +110,7 @@ fn min_spacing_needs_every_larger_spacing_force_and_midpoint() {
     let plan = SpacingPlan {
         spacings_mm: vec![40.0, 30.0, 20.0, 10.0],
         forces_n: vec![1.5, 3.0],
+        second_force_ratio: 1.0,
         centres_mm: vec![-60.0, 0.0],
         tol_mm: 3.0,
     };
@@ -266,6 +268,7 @@ fn bad_input_is_a_parameter_error() {
     let off = SpacingPlan {
         spacings_mm: vec![40.0],
         forces_n: vec![1.0],
+        second_force_ratio: 1.0,
         centres_mm: vec![150.0],
         tol_mm: 3.0,
     };
@@ -274,10 +277,10 @@ fn bad_input_is_a_parameter_error() {
     ));
     let mut ex = extractor(Thresholds::MID);
     assert!(is_param(
-        pair_told_apart(&s, &mut ex, 5.0, 1.0, f64::NAN, 0.0, 3.0, 0, None).unwrap_err()
+        pair_told_apart(&s, &mut ex, 5.0, [1.0, 1.0], f64::NAN, 0.0, 3.0, 0, None).unwrap_err()
     ));
     assert!(is_param(
-        pair_told_apart(&s, &mut ex, 5.0, 1.0, 20.0, 0.0, 0.0, 0, None).unwrap_err()
+        pair_told_apart(&s, &mut ex, 5.0, [1.0, 1.0], 20.0, 0.0, 0.0, 0, None).unwrap_err()
     ));
 }
 

@@ -832,7 +832,12 @@ impl Segmenter {
         let len = if along_x { flow.width() } else { flow.height() };
         let border = (rule.border as f64 / self.config.scale).round() as usize;
         let valid = border.saturating_sub(origin)..(len.saturating_sub(border + origin)).min(n);
-        find_cuts(&self.divergence, rule, valid, &mut self.cuts);
+        let scaled = SplitRule {
+            far_px: ((rule.far_px as f64 / self.config.scale).round() as usize)
+                .max(usize::from(rule.far_px > 0)),
+            ..*rule
+        };
+        find_cuts(&self.divergence, &scaled, valid, &mut self.cuts);
         for c in &mut self.cuts {
             *c += origin;
         }
@@ -986,20 +991,36 @@ pub struct SplitRule {
     /// profile) are ignored, full-resolution pixels (scaled like the
     /// margin).
     pub border: usize,
+    /// Two peaks at least this far apart, full-resolution pixels (scaled
+    /// like the margin), are cut wherever the profile between them goes
+    /// below zero, however shallow the valley; 0 turns this off (rules
+    /// from before it).
+    #[serde(default)]
+    pub far_px: usize,
 }
 
 impl SplitRule {
     /// The rule used by [`Segmenter::new`]: smoothing 21 px, depth 0.1,
-    /// min_peak 0.4, border 32 px. Chosen on the simulator
-    /// (`examples/split_check.rs`, seeds 1 and 2): 0 of 525 single presses
-    /// (7 positions, 5 tilts, 0.5-3 N, 2/5/10 mm rods) cut, for every
-    /// preset; 0 false contacts on 1500 rest pairs (see
+    /// min_peak 0.4, border 32 px, far 200 px. Chosen on the simulator
+    /// (`tools/src/bin/split_check.rs`, seeds 1 and 2): 0 of 525 single
+    /// presses (7 positions, 5 tilts, 0.5-3 N, 2/5/10 mm rods) cut, for
+    /// every preset; 0 false contacts on 1500 rest pairs (see
     /// docs/results.md).
+    ///
+    /// Why the far rule: on a curved skin a press also moves the markers
+    /// one way along the arc, far out (the camera sees the inward push
+    /// slanted), and the sign of that motion flips from one half of the
+    /// skin to the other. Two presses on either side of the middle then
+    /// fill each other's valley: a 3 N and a 1.5 N rod 110 mm apart leave
+    /// a valley of 3% of the higher peak between lobes of 100% and 60%,
+    /// and one of them was lost. A single press's own lobes lie closer
+    /// together than 200 px.
     pub const DEFAULT: SplitRule = SplitRule {
         smooth: 21,
         depth: 0.1,
         min_peak: 0.4,
         border: 32,
+        far_px: 200,
     };
 
     /// Errors unless `smooth >= 1`, `depth` finite and > 0 and `min_peak`
@@ -1075,7 +1096,8 @@ pub fn divergence_profile(
 /// `[.., c)` from `[c, ..)`; see [`SplitRule`].
 ///
 /// Only peaks at indices in `peaks_in` count (the caller leaves out the
-/// image's ends, see [`SplitRule::border`]).
+/// image's ends, see [`SplitRule::border`]). [`SplitRule::far_px`] is read
+/// in the profile's cells: the caller scales it to the flow's grid.
 pub fn find_cuts(
     divergence: &[f64],
     rule: &SplitRule,
@@ -1121,7 +1143,8 @@ pub fn find_cuts(
                         (v, v_at) = (d, k);
                     }
                 }
-                if v <= -(rule.depth as f64) * g.min(best) {
+                let far = rule.far_px > 0 && at - last >= rule.far_px;
+                if v <= -(rule.depth as f64) * g.min(best) || (far && v < 0.0) {
                     cuts.push(v_at);
                     (best, at)
                 } else {

@@ -69,9 +69,12 @@ struct Cli {
     #[arg(long, value_name = "a,b,..",
           default_value_t = Numbers(vec![40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0]))]
     spacings: Numbers,
-    /// Equal force of both rods, N.
+    /// Force of the first (left) rod, N.
     #[arg(long, value_name = "a,b,..", default_value_t = Numbers(vec![1.5, 3.0]))]
     spacing_forces: Numbers,
+    /// The second rod's force as a fraction of the first's (1: equal).
+    #[arg(long, value_name = "R", default_value_t = 1.0, value_parser = cli_support::positive)]
+    ratio: f64,
     /// Arc positions of the pair's midpoint, mm.
     #[arg(long, value_name = "a,b,..", allow_hyphen_values = true,
           default_value_t = Numbers(vec![-60.0, 0.0, 60.0]))]
@@ -79,9 +82,10 @@ struct Cli {
     /// Patch margin, full-resolution px.
     #[arg(long, value_name = "PX", default_value_t = ExtractorConfig::default().margin_px)]
     margin: usize,
-    /// A split rule to evaluate: smooth px, depth, min_peak[, border px], or
-    /// none (repeatable) [default: SplitRule::DEFAULT and none].
-    #[arg(long = "split", value_name = "s,d,m[,b]|none", value_parser = split_rule)]
+    /// A split rule to evaluate: smooth px, depth, min_peak[, border px[,
+    /// far px (0: off)]], or none (repeatable) [default: SplitRule::DEFAULT
+    /// and none].
+    #[arg(long = "split", value_name = "s,d,m[,b[,f]]|none", value_parser = split_rule)]
     splits: Vec<SplitArg>,
 }
 
@@ -108,9 +112,9 @@ fn split_rule(v: &str) -> Result<SplitArg, String> {
         return Ok(SplitArg(None));
     }
     let p = cli_support::number_list(v)?;
-    if !(3..=4).contains(&p.len()) {
+    if !(3..=5).contains(&p.len()) {
         return Err(format!(
-            "expected smooth,depth,min_peak[,border] or none, got `{v}`"
+            "expected smooth,depth,min_peak[,border[,far]] or none, got `{v}`"
         ));
     }
     let r = SplitRule {
@@ -118,6 +122,7 @@ fn split_rule(v: &str) -> Result<SplitArg, String> {
         depth: p[1] as f32,
         min_peak: p[2] as f32,
         border: p.get(3).map_or(SplitRule::DEFAULT.border, |&b| b as usize),
+        far_px: p.get(4).map_or(SplitRule::DEFAULT.far_px, |&b| b as usize),
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(SplitArg(Some(r)))
@@ -132,6 +137,7 @@ struct Args {
     forces: Vec<f64>,
     spacings: Vec<f64>,
     spacing_forces: Vec<f64>,
+    ratio: f64,
     spacing_centres: Vec<f64>,
     splits: Vec<Option<SplitRule>>,
     margin: usize,
@@ -151,6 +157,7 @@ impl Cli {
             forces: self.forces.0,
             spacings: self.spacings.0,
             spacing_forces: self.spacing_forces.0,
+            ratio: self.ratio,
             spacing_centres: self.spacing_centres.0,
             splits,
             margin: self.margin,
@@ -161,7 +168,10 @@ impl Cli {
 fn split_name(s: &Option<SplitRule>) -> String {
     match s {
         None => "none".into(),
-        Some(r) => format!("{},{},{},{}", r.smooth, r.depth, r.min_peak, r.border),
+        Some(r) => format!(
+            "{},{},{},{},{}",
+            r.smooth, r.depth, r.min_peak, r.border, r.far_px
+        ),
     }
 }
 
@@ -356,7 +366,7 @@ fn spacing(out: &mut Sink, args: &Args, sensor: &SyntheticSensor) -> Result<()> 
                     let skin = &sensor.config().skin;
                     let rods = [
                         Press::rod(skin.arc_to_chord(s1), [0.0, 0.0, -f], d),
-                        Press::rod(skin.arc_to_chord(s2), [0.0, 0.0, -f], d),
+                        Press::rod(skin.arc_to_chord(s2), [0.0, 0.0, -f * args.ratio], d),
                     ];
                     let (p1, p2) = (rod_px(sensor, s1), rod_px(sensor, s2));
                     let r = sensor.render_indexed(idx, &[], false)?;
@@ -389,8 +399,9 @@ fn spacing(out: &mut Sink, args: &Args, sensor: &SyntheticSensor) -> Result<()> 
     let nc = args.spacing_centres.len();
     writeln!(
         out,
-        "### Two rods told apart by the patches (each rod covered by its own patch), midpoints {:?} mm, seed {}\n",
-        args.spacing_centres, args.seed
+        "### Two rods told apart by the patches (each rod covered by its own patch), midpoints {:?} mm, \
+         the second rod at {} times the first's force, seed {}\n",
+        args.spacing_centres, args.ratio, args.seed
     )?;
     writeln!(
         out,

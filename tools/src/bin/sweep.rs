@@ -4,8 +4,9 @@
 //!   frame with fresh noise and flicker), per preset;
 //! - `mdf`: minimum detectable force per preset and indenter, over positions
 //!   along the skin and the five tilts of the characterization protocol;
-//! - `spacing`: two rods pressed with equal force at decreasing spacing; told
-//!   apart = exactly two contacts, each within `--tol-mm` of its rod.
+//! - `spacing`: two rods pressed at decreasing spacing (with equal forces,
+//!   or the second at `--ratio` times the first's); told apart = exactly two
+//!   contacts, each within `--tol-mm` of its rod.
 //!
 //! Frames are rendered with the simulator's library API (no PNGs) and go
 //! through the sensor's default DIS flow (`fine`) on the extractor's
@@ -72,9 +73,12 @@ struct Args {
     #[arg(long, value_name = "a,b,..",
           default_value_t = Numbers(vec![40.0, 35.0, 30.0, 25.0, 20.0, 17.5, 15.0, 12.5, 10.0, 7.5, 5.0]))]
     spacings: Numbers,
-    /// Equal force of both rods, N.
+    /// Force of the first (left) rod, N.
     #[arg(long, value_name = "a,b,..", default_value_t = Numbers(vec![1.5, 3.0]))]
     spacing_forces: Numbers,
+    /// The second rod's force as a fraction of the first's (1: equal).
+    #[arg(long, value_name = "R", default_value_t = 1.0, value_parser = cli_support::positive)]
+    ratio: f64,
     /// Arc positions of the pair's midpoint, mm.
     #[arg(long, value_name = "a,b,..", allow_hyphen_values = true,
           default_value_t = Numbers(vec![-60.0, 0.0, 60.0]))]
@@ -282,6 +286,7 @@ fn spacing(
     let plan = SpacingPlan {
         spacings_mm: args.spacings.0.clone(),
         forces_n: args.spacing_forces.0.clone(),
+        second_force_ratio: args.ratio,
         centres_mm: args.spacing_centres.0.clone(),
         tol_mm: args.tol_mm,
     };
@@ -292,8 +297,9 @@ fn spacing(
     let nc = args.spacing_centres.0.len();
     writeln!(
         out,
-        "### Two-rod spacing sweep (equal straight presses, midpoints at {:?} mm, seed {})\n",
-        args.spacing_centres.0, args.seed
+        "### Two-rod spacing sweep (straight presses, the second at {} times the first's force, \
+         midpoints at {:?} mm, seed {})\n",
+        args.ratio, args.spacing_centres.0, args.seed
     )?;
     writeln!(
         out,
