@@ -779,7 +779,7 @@ fn the_shipped_fixture_loads_with_its_settings() {
     let t = cal.report.as_ref().unwrap().test.as_ref().unwrap().total;
     // The figures docs/results.md reports for this file.
     assert!(
-        t.n > 1300 && t.x_mm < 0.16 && t.fx < 0.0125 && t.fy < 0.0040 && t.fz < 0.0570,
+        t.n > 1300 && t.x_mm < 0.16 && t.fx < 0.0135 && t.fy < 0.0040 && t.fz < 0.0600,
         "{t:?}"
     );
     // With far tails over the rest of the strip, every 8 px.
@@ -834,15 +834,16 @@ fn the_shipped_fixture_loads_with_its_settings() {
     assert!(x.abs() < 3.0 && z > 0.0, "{x} {z}");
 }
 
-/// Two simulated presses tracked by `sensor`, frame 0 the reference and
-/// the last frame fully loaded: each true contact's 3-D force error against
-/// the nearest reported one, by true chord position, and how many were
-/// reported.
-fn two_contact_errors(
-    scenario: optical_tactile_sim::scenario::Scenario,
-    mut sensor: optical_tactile::TactileSensor,
+/// The contacts of a simulated sequence's last frame (fully loaded) by
+/// `sensor`, frame 0 the reference, and the true contacts there.
+fn last_frame_contacts(
+    scenario: &optical_tactile_sim::scenario::Scenario,
+    sensor: &mut optical_tactile::TactileSensor,
     name: &str,
-) -> (usize, Vec<(f64, f64)>) {
+) -> (
+    Vec<optical_tactile::Contact>,
+    Vec<optical_tactile::io::ContactRecord>,
+) {
     use optical_tactile::capture::{FrameSource, SequenceSource};
     use optical_tactile::io::{FrameRecord, read_jsonl};
     use optical_tactile_sim::scenario::{self, Common};
@@ -853,7 +854,7 @@ fn two_contact_errors(
     let _ = std::fs::remove_dir_all(&dir);
     let mut common = Common::new(&dir);
     common.flow = false;
-    scenario::run(&scenario, &common).unwrap();
+    scenario::run(scenario, &common).unwrap();
     let truth: Vec<FrameRecord> = read_jsonl(dir.join("truth.jsonl")).unwrap();
     let mut seq = SequenceSource::open(&dir).unwrap();
     let frames: Vec<_> = std::iter::from_fn(|| seq.next_frame())
@@ -862,40 +863,69 @@ fn two_contact_errors(
     std::fs::remove_dir_all(&dir).ok();
     sensor.set_reference(&frames[0].image).unwrap();
     let last = frames.last().unwrap();
-    let contacts = sensor.process(&last.image, last.t_s).unwrap();
-    let want = &truth.last().unwrap().contacts;
-    assert_eq!(want.len(), 2);
-    let errors = want
-        .iter()
-        .map(|t| {
-            let c = contacts
-                .iter()
-                .min_by(|a, b| {
-                    (a.location_mm[0] - t.x_mm)
-                        .abs()
-                        .total_cmp(&(b.location_mm[0] - t.x_mm).abs())
-                })
-                .unwrap();
-            let e = [
-                c.force_n[0] - t.fx_n,
-                c.force_n[1] - t.fy_n,
-                c.force_n[2] - t.fz_n,
-            ];
-            let located = (c.location_mm[0] - t.x_mm).abs() < 1.0;
-            let error = e.iter().map(|v| v * v).sum::<f64>().sqrt();
-            (t.x_mm, if located { error } else { f64::INFINITY })
-        })
-        .collect();
-    (contacts.len(), errors)
+    let contacts = sensor.process(&last.image, last.t_s).unwrap().to_vec();
+    (contacts, truth.last().unwrap().contacts.clone())
 }
 
-/// Two presses at once read as each alone with the shipped calibration.
+/// The reported contact nearest a true chord position, if within 1 mm.
+fn contact_at(
+    contacts: &[optical_tactile::Contact],
+    x_mm: f64,
+) -> Option<&optical_tactile::Contact> {
+    contacts
+        .iter()
+        .filter(|c| (c.location_mm[0] - x_mm).abs() < 1.0)
+        .min_by(|a, b| {
+            (a.location_mm[0] - x_mm)
+                .abs()
+                .total_cmp(&(b.location_mm[0] - x_mm).abs())
+        })
+}
+
+/// For two rods pressed at once (`scenario`, straight 10 mm rods), how many
+/// contacts `sensor` reports, and for each rod how far (3-D, N) its force
+/// reads from the same rod pressed alone (infinite if not found).
+fn pair_against_alone(
+    scenario: optical_tactile_sim::scenario::Scenario,
+    mut sensor: optical_tactile::TactileSensor,
+    name: &str,
+) -> (usize, Vec<f64>) {
+    use optical_tactile_sim::scenario::{Scenario, Single};
+    let (pair, truth) = last_frame_contacts(&scenario, &mut sensor, name);
+    assert_eq!(truth.len(), 2);
+    let gaps = truth
+        .iter()
+        .map(|t| {
+            let alone = Scenario::Single(Single {
+                x_mm: t.x_mm,
+                force_n: -t.fz_n,
+                frames: 2,
+                indenter_mm: 10.0,
+                yaw_deg: 0.0,
+                pitch_deg: 0.0,
+                sweep_to_mm: None,
+            });
+            let (one, _) = last_frame_contacts(&alone, &mut sensor, name);
+            match (contact_at(&pair, t.x_mm), contact_at(&one, t.x_mm)) {
+                (Some(p), Some(o)) => (0..3)
+                    .map(|k| (p.force_n[k] - o.force_n[k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+                _ => f64::INFINITY,
+            }
+        })
+        .collect();
+    (pair.len(), gaps)
+}
+
+/// Two presses at once read as each alone with the shipped calibration
+/// (within 0.08 N; two renders of one press differ by a few hundredths).
 /// The profile model's far tails keep one contact's far motion out of the
 /// other's force: without them (the same calibration, tails removed) the
-/// weaker rod of the close pair reads about 0.6 N light and the perches
-/// 0.1-0.2 N of tangential force that is not there. The split rule's far
-/// rule keeps a weaker contact 110 mm from a stronger one: without it the
-/// two share one patch and the weaker is lost.
+/// weaker rod of the close pair reads about 0.6 N lighter than alone and
+/// the perches 0.1-0.2 N of tangential force that is not there. The split
+/// rule's far rule keeps a weaker contact 110 mm from a stronger one:
+/// without it the two share one patch and the weaker is lost.
 #[test]
 fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
     use optical_tactile::TactileSensor;
@@ -921,19 +951,21 @@ fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
         ..Perches::default()
     });
     for (name, scenario) in [("pair60", pair(60.0)), ("perches", perches)] {
-        let (n, with) = two_contact_errors(scenario.clone(), sensor(&cal), name);
+        let (n, with) = pair_against_alone(scenario.clone(), sensor(&cal), name);
+        assert!(n == 2 && with.iter().all(|g| *g < 0.08), "{name}: {with:?}");
+        assert!(n == 2 && with.iter().all(|g| *g < 0.08), "{name}: {with:?}");
+        let (n, without) = pair_against_alone(scenario, sensor(&untailed), name);
         assert!(
-            n == 2 && with.iter().all(|e| e.1 < 0.08),
-            "{name}: {with:?}"
+            n == 2 && without.iter().any(|g| *g > 0.15),
+            "{name}: {without:?}"
         );
-        let (n, without) = two_contact_errors(scenario, sensor(&untailed), name);
         assert!(
-            n == 2 && without.iter().any(|e| e.1 > 0.15),
+            n == 2 && without.iter().any(|g| *g > 0.15),
             "{name}: {without:?}"
         );
     }
-    let (n, far) = two_contact_errors(pair(110.0), sensor(&cal), "pair110");
-    assert!(n == 2 && far.iter().all(|e| e.1 < 0.1), "{far:?}");
+    let (n, far) = pair_against_alone(pair(110.0), sensor(&cal), "pair110");
+    assert!(n == 2 && far.iter().all(|g| *g < 0.08), "{far:?}");
     let near_only = TactileSensor::builder(cal)
         .configure(|c| {
             c.extractor.split = Some(SplitRule {
@@ -943,7 +975,7 @@ fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
         })
         .build()
         .unwrap();
-    let (n, _) = two_contact_errors(pair(110.0), near_only, "pair110-near");
+    let (n, _) = pair_against_alone(pair(110.0), near_only, "pair110-near");
     assert_eq!(n, 1, "without the far rule the two rods share one patch");
 }
 

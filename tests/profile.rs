@@ -230,6 +230,16 @@ fn far_tails_keep_a_distant_contacts_motion_out_of_anothers_force() {
     m.relocate(&tailed, &mut moved, &p[0], &p[1], SCALE)
         .unwrap();
     assert_eq!(moved, cols);
+    // A contact alone is relocated as without the tails: its search window
+    // reaches past its kernels, and those cells stay unexplained.
+    let c = cell(150);
+    let p = profiles_of(tailed_response, &[c], &[forces[0]]);
+    for at in [c + 24.0, c - 24.0, c + 7.0] {
+        let (mut a, mut b) = ([at], [at]);
+        m.relocate(&near, &mut a, &p[0], &p[1], SCALE).unwrap();
+        m.relocate(&tailed, &mut b, &p[0], &p[1], SCALE).unwrap();
+        assert_eq!(a, b);
+    }
 }
 
 #[test]

@@ -641,12 +641,19 @@ impl ProfileModel {
 
     /// Kernels of channel `ch` for a contact at `column_px`, at offset `t_px`:
     /// one value per unknown ([`ProfileModel::components`] of them; the rest 0).
-    /// Beyond the kernels' reach, the tail's ([`ProfileTail`]), if any.
-    fn kernel(&self, ch: usize, column_px: f64, t_px: f64) -> Option<[f64; MAX_UNKNOWNS]> {
+    /// Beyond the kernels' reach, the tail's ([`ProfileTail`]) when `tail`
+    /// and the model has one.
+    fn kernel(
+        &self,
+        ch: usize,
+        column_px: f64,
+        t_px: f64,
+        tail: bool,
+    ) -> Option<[f64; MAX_UNKNOWNS]> {
         let (kernels, step_px, half_width) = if t_px.abs() <= self.reach_px() {
             (&self.kernels, self.step_px, self.half_width)
         } else {
-            let t = self.tail.as_ref()?;
+            let t = self.tail.as_ref().filter(|_| tail)?;
             (&t.kernels, t.step_px, t.half_width)
         };
         let idx = t_px / step_px + half_width as f64;
@@ -1121,6 +1128,7 @@ impl NormalEquations {
         self.row.clear();
         self.row.resize(n, 0.0);
         let mut yy = 0.0;
+        let reach = model.reach_px();
         // Every second cell: the residual compares candidates, and the
         // kernels are smooth over a cell.
         let first = ((lo + 0.5) / scale - 0.5).ceil().max(0.0) as usize;
@@ -1133,8 +1141,15 @@ impl NormalEquations {
                 if x < lo {
                     continue;
                 }
+                // A contact's tail models its motion where another
+                // contact's equations are, as in the match: a cell beyond
+                // every contact's reach is left unexplained, as it was
+                // before the tails (so a contact alone is relocated the same).
+                let owned = columns_px.iter().any(|c| (x - c).abs() <= reach);
                 for (m, &c) in columns_px.iter().enumerate() {
-                    let kv = model.kernel(ch, c, x - c).unwrap_or([0.0; MAX_UNKNOWNS]);
+                    let kv = model
+                        .kernel(ch, c, x - c, owned)
+                        .unwrap_or([0.0; MAX_UNKNOWNS]);
                     self.row[comps * m..comps * (m + 1)].copy_from_slice(&kv[..comps]);
                 }
                 accumulate(&mut self.ata, &mut self.atb, &self.row, y);
@@ -1181,8 +1196,12 @@ impl NormalEquations {
                 if !columns_px.iter().any(|c| (x - c).abs() <= reach) {
                     continue;
                 }
+                // Every cell here is within some contact's reach: the
+                // others' tails model their motion in it.
                 for (m, &c) in columns_px.iter().enumerate() {
-                    let kv = model.kernel(ch, c, x - c).unwrap_or([0.0; MAX_UNKNOWNS]);
+                    let kv = model
+                        .kernel(ch, c, x - c, true)
+                        .unwrap_or([0.0; MAX_UNKNOWNS]);
                     self.row[comps * m..comps * (m + 1)].copy_from_slice(&kv[..comps]);
                 }
                 if !y.is_finite() {
