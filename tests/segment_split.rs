@@ -73,9 +73,30 @@ fn naive_cuts(d: &[f64], rule: &SplitRule, valid: std::ops::Range<usize>) -> Vec
         let m = d[a..=b].iter().copied().fold(f64::MIN, f64::max);
         (a..=b).find(|&k| d[k] == m).unwrap() == i
     };
-    let peaks: Vec<usize> = (0..d.len())
+    // With the far rule, a weaker peak counts far from every strong one.
+    let level = rule.min_peak as f64 * top;
+    let low = if rule.far_px > 0 {
+        rule.far_min_peak.min(rule.min_peak) as f64 * top
+    } else {
+        level
+    };
+    let candidates: Vec<usize> = (0..d.len())
         .filter(|&i| d[i] > 0.0 && run_max(i))
-        .filter(|&i| d[i] >= rule.min_peak as f64 * top && valid.contains(&i))
+        .filter(|&i| d[i] >= low && valid.contains(&i))
+        .collect();
+    let inset = rule.far_px / 2;
+    let peaks: Vec<usize> = candidates
+        .iter()
+        .copied()
+        .filter(|&i| {
+            d[i] >= level
+                || (i >= valid.start + inset
+                    && i + inset < valid.end
+                    && candidates
+                        .iter()
+                        .filter(|&&o| d[o] >= level)
+                        .all(|&o| o.abs_diff(i) >= rule.far_px))
+        })
         .collect();
     let mut cuts = vec![];
     let mut group = f64::NAN;
@@ -130,38 +151,43 @@ fn find_cuts_matches_the_naive_rule() {
         0usize..10,
         0usize..10,
         0usize..60,
+        0.0f32..1.0,
     );
     runner(400)
-        .run(&strategy, |(steps, depth, min_peak, lo, hi, far_px)| {
-            let (mut s, mut d) = (Vec::new(), Vec::new());
-            let walk: Vec<f64> = steps
-                .iter()
-                .scan(0.0, |a, &x| {
-                    *a += x;
-                    Some(*a)
-                })
-                .collect();
-            divergence_profile(&walk, 1, &mut s, &mut d);
-            let n = d.len();
-            let valid = lo.min(n)..n.saturating_sub(hi).max(lo.min(n));
-            let rule = SplitRule {
-                depth,
-                min_peak,
-                far_px,
-                ..SplitRule::DEFAULT
-            };
-            let mut cuts = vec![99];
-            find_cuts(&d, &rule, valid.clone(), &mut cuts);
-            prop_assert_eq!(&cuts, &naive_cuts(&d, &rule, valid));
-            // Cuts are strictly inside and increasing, at negative values.
-            for w in cuts.windows(2) {
-                prop_assert!(w[0] < w[1]);
-            }
-            for &c in &cuts {
-                prop_assert!(c > 0 && c < n && d[c] < 0.0);
-            }
-            Ok(())
-        })
+        .run(
+            &strategy,
+            |(steps, depth, min_peak, lo, hi, far_px, far_min_peak)| {
+                let (mut s, mut d) = (Vec::new(), Vec::new());
+                let walk: Vec<f64> = steps
+                    .iter()
+                    .scan(0.0, |a, &x| {
+                        *a += x;
+                        Some(*a)
+                    })
+                    .collect();
+                divergence_profile(&walk, 1, &mut s, &mut d);
+                let n = d.len();
+                let valid = lo.min(n)..n.saturating_sub(hi).max(lo.min(n));
+                let rule = SplitRule {
+                    depth,
+                    min_peak,
+                    far_px,
+                    far_min_peak,
+                    ..SplitRule::DEFAULT
+                };
+                let mut cuts = vec![99];
+                find_cuts(&d, &rule, valid.clone(), &mut cuts);
+                prop_assert_eq!(&cuts, &naive_cuts(&d, &rule, valid));
+                // Cuts are strictly inside and increasing, at negative values.
+                for w in cuts.windows(2) {
+                    prop_assert!(w[0] < w[1]);
+                }
+                for &c in &cuts {
+                    prop_assert!(c > 0 && c < n && d[c] < 0.0);
+                }
+                Ok(())
+            },
+        )
         .unwrap();
 }
 
@@ -213,6 +239,27 @@ fn find_cuts_by_hand() {
     let flat = [0.0, 4.0, 0.5, 0.0, 0.0, 0.0, 0.2, 3.0, 0.0];
     find_cuts(&flat, &far(1), 0..flat.len(), &mut cuts);
     assert!(cuts.is_empty());
+    // A peak under min_peak counts from far_min_peak, only far from every
+    // peak above min_peak and half that inside the range: 1.0 (a quarter
+    // of 4) is 6 cells from the 4, and the 0.9 next to the 4 is no peak of
+    // its own.
+    let d = [0.0, 4.0, 0.5, -0.4, 0.9, -0.3, 0.2, 1.0, 0.0, 0.0, 0.0, 0.0];
+    let weak = |far_px, far_min_peak| SplitRule {
+        far_px,
+        far_min_peak,
+        ..rule
+    };
+    find_cuts(&d, &weak(6, 0.2), 0..d.len(), &mut cuts);
+    assert_eq!(cuts, [3]);
+    find_cuts(&d, &weak(6, 0.3), 0..d.len(), &mut cuts);
+    assert!(cuts.is_empty());
+    find_cuts(&d, &weak(7, 0.2), 0..d.len(), &mut cuts);
+    assert!(cuts.is_empty());
+    find_cuts(&d, &weak(2, 0.2), 0..d.len(), &mut cuts);
+    assert_eq!(cuts, [3, 5]);
+    // Within 3 cells of the range's end, the weak peak does not count.
+    find_cuts(&d, &weak(6, 0.2), 0..9, &mut cuts);
+    assert!(cuts.is_empty());
     // Empty and all-negative profiles.
     find_cuts(&[], &rule, 0..0, &mut cuts);
     assert!(cuts.is_empty());
@@ -242,6 +289,14 @@ fn invalid_rules_are_errors() {
         },
         SplitRule {
             min_peak: -0.1,
+            ..SplitRule::DEFAULT
+        },
+        SplitRule {
+            far_min_peak: 1.5,
+            ..SplitRule::DEFAULT
+        },
+        SplitRule {
+            far_min_peak: f32::NAN,
             ..SplitRule::DEFAULT
         },
     ] {

@@ -997,11 +997,18 @@ pub struct SplitRule {
     /// from before it).
     #[serde(default)]
     pub far_px: usize,
+    /// With `far_px`, a peak at least `far_px` from every peak of
+    /// `min_peak` or more, and half of `far_px` inside the range where
+    /// peaks count, counts from this fraction of the highest peak, in [0,
+    /// 1] (at most `min_peak` is used; 0 in rules from before it).
+    #[serde(default)]
+    pub far_min_peak: f32,
 }
 
 impl SplitRule {
     /// The rule used by [`Segmenter::new`]: smoothing 21 px, depth 0.1,
-    /// min_peak 0.4, border 32 px, far 200 px. Chosen on the simulator
+    /// min_peak 0.4, border 32 px, far 250 px from 0.3 of the highest peak.
+    /// Chosen on the simulator
     /// (`tools/src/bin/split_check.rs`, seeds 1 and 2): 0 of 525 single
     /// presses (7 positions, 5 tilts, 0.5-3 N, 2/5/10 mm rods) cut, for
     /// every preset; 0 false contacts on 1500 rest pairs (see
@@ -1013,18 +1020,21 @@ impl SplitRule {
     /// skin to the other. Two presses on either side of the middle then
     /// fill each other's valley: a 3 N and a 1.5 N rod 110 mm apart leave
     /// a valley of 3% of the higher peak between lobes of 100% and 60%,
-    /// and one of them was lost. A single press's own lobes lie closer
-    /// together than 200 px.
+    /// and one of them was lost; a 1 N rod 60 mm from a 3 N one makes a
+    /// lobe of 31-39%, under `min_peak`. A single press's own lobes lie
+    /// closer together than 250 px (a 0.5 N press's weak far lobes reach
+    /// 200 px).
     pub const DEFAULT: SplitRule = SplitRule {
         smooth: 21,
         depth: 0.1,
         min_peak: 0.4,
         border: 32,
-        far_px: 200,
+        far_px: 250,
+        far_min_peak: 0.3,
     };
 
     /// Errors unless `smooth >= 1`, `depth` finite and > 0 and `min_peak`
-    /// in [0, 1].
+    /// and `far_min_peak` in [0, 1].
     pub fn validate(&self) -> Result<()> {
         if self.smooth == 0 {
             return Err(Error::param("split.smooth", "must be >= 1"));
@@ -1039,6 +1049,12 @@ impl SplitRule {
             return Err(Error::param(
                 "split.min_peak",
                 format!("must be in [0, 1], got {}", self.min_peak),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.far_min_peak) {
+            return Err(Error::param(
+                "split.far_min_peak",
+                format!("must be in [0, 1], got {}", self.far_min_peak),
             ));
         }
         Ok(())
@@ -1115,10 +1131,17 @@ pub fn find_cuts(
         return;
     }
     let level = rule.min_peak as f64 * top;
-    // Peaks: the maximum of each run of positive values, if high enough.
-    let mut group: Option<(f64, usize)> = None; // (highest peak of the group, last peak index)
-    let mut i = 0;
+    let far_on = rule.far_px > 0;
+    let low = if far_on {
+        (rule.far_min_peak.min(rule.min_peak)) as f64 * top
+    } else {
+        level
+    };
+    // Candidate peaks, the maximum of each run of positive values at least
+    // `low` high, into `cuts` (it holds the peaks until the cuts replace
+    // them: the cut after peak k is written at index k - 1 or before).
     let n = divergence.len();
+    let mut i = 0;
     while i < n {
         if divergence[i] <= 0.0 {
             i += 1;
@@ -1131,28 +1154,58 @@ pub fn find_cuts(
             }
             i += 1;
         }
-        if best < level || !peaks_in.contains(&at) {
+        if best >= low && peaks_in.contains(&at) {
+            cuts.push(at);
+        }
+    }
+    // A peak under `level` counts only far (`far_px`) from every peak above
+    // it, where a strong press's own lobes do not reach, and at least half
+    // of that inside the range where peaks count, away from the spurious
+    // lobes at the ends of the flow.
+    let strong = |k: usize| divergence[k] >= level;
+    let inset = rule.far_px / 2;
+    let weak_in = peaks_in.start.saturating_add(inset)..peaks_in.end.saturating_sub(inset);
+    let mut kept = 0;
+    for j in 0..cuts.len() {
+        let at = cuts[j];
+        let keep = strong(at)
+            || weak_in.contains(&at)
+                && cuts
+                    .iter()
+                    .all(|&o| !strong(o) || o.abs_diff(at) >= rule.far_px);
+        if keep {
+            cuts[kept] = at;
+            kept += 1;
+        }
+    }
+    cuts.truncate(kept);
+    // The cuts: between consecutive peaks, at the valley's minimum when it
+    // is deep enough (or, far apart, below zero).
+    let mut written = 0;
+    let (mut g, mut last) = (0.0, 0usize); // highest peak of the group, last peak
+    for k in 0..cuts.len() {
+        let (at, best) = (cuts[k], divergence[cuts[k]]);
+        if k == 0 {
+            (g, last) = (best, at);
             continue;
         }
-        group = Some(match group {
-            None => (best, at),
-            Some((g, last)) => {
-                let (mut v, mut v_at) = (f64::INFINITY, last);
-                for (k, &d) in divergence.iter().enumerate().take(at).skip(last + 1) {
-                    if d < v {
-                        (v, v_at) = (d, k);
-                    }
-                }
-                let far = rule.far_px > 0 && at - last >= rule.far_px;
-                if v <= -(rule.depth as f64) * g.min(best) || (far && v < 0.0) {
-                    cuts.push(v_at);
-                    (best, at)
-                } else {
-                    (g.max(best), at)
-                }
+        let (mut v, mut v_at) = (f64::INFINITY, last);
+        for (j, &d) in divergence.iter().enumerate().take(at).skip(last + 1) {
+            if d < v {
+                (v, v_at) = (d, j);
             }
-        });
+        }
+        let far = far_on && at - last >= rule.far_px;
+        if v <= -(rule.depth as f64) * g.min(best) || (far && v < 0.0) {
+            cuts[written] = v_at;
+            written += 1;
+            g = best;
+        } else {
+            g = g.max(best);
+        }
+        last = at;
     }
+    cuts.truncate(written);
 }
 
 /// Nearest odd size to `size * s`, at least 1.

@@ -83,9 +83,9 @@ struct Cli {
     #[arg(long, value_name = "PX", default_value_t = ExtractorConfig::default().margin_px)]
     margin: usize,
     /// A split rule to evaluate: smooth px, depth, min_peak[, border px[,
-    /// far px (0: off)]], or none (repeatable) [default: SplitRule::DEFAULT
-    /// and none].
-    #[arg(long = "split", value_name = "s,d,m[,b[,f]]|none", value_parser = split_rule)]
+    /// far px (0: off)[, far_min_peak]]], or none (repeatable) [default:
+    /// SplitRule::DEFAULT and none].
+    #[arg(long = "split", value_name = "s,d,m[,b[,f[,fm]]]|none", value_parser = split_rule)]
     splits: Vec<SplitArg>,
 }
 
@@ -112,9 +112,9 @@ fn split_rule(v: &str) -> Result<SplitArg, String> {
         return Ok(SplitArg(None));
     }
     let p = cli_support::number_list(v)?;
-    if !(3..=5).contains(&p.len()) {
+    if !(3..=6).contains(&p.len()) {
         return Err(format!(
-            "expected smooth,depth,min_peak[,border[,far]] or none, got `{v}`"
+            "expected smooth,depth,min_peak[,border[,far[,far_min_peak]]] or none, got `{v}`"
         ));
     }
     let r = SplitRule {
@@ -123,6 +123,9 @@ fn split_rule(v: &str) -> Result<SplitArg, String> {
         min_peak: p[2] as f32,
         border: p.get(3).map_or(SplitRule::DEFAULT.border, |&b| b as usize),
         far_px: p.get(4).map_or(SplitRule::DEFAULT.far_px, |&b| b as usize),
+        far_min_peak: p
+            .get(5)
+            .map_or(SplitRule::DEFAULT.far_min_peak, |&m| m as f32),
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(SplitArg(Some(r)))
@@ -169,8 +172,8 @@ fn split_name(s: &Option<SplitRule>) -> String {
     match s {
         None => "none".into(),
         Some(r) => format!(
-            "{},{},{},{},{}",
-            r.smooth, r.depth, r.min_peak, r.border, r.far_px
+            "{},{},{},{},{},{}",
+            r.smooth, r.depth, r.min_peak, r.border, r.far_px, r.far_min_peak
         ),
     }
 }
