@@ -531,12 +531,6 @@ impl ProfileModel {
     /// Checks the shapes and values of a loaded model.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(calibration_error(format!("profile model: {m}")));
-        if !(self.step_px > 0.0 && self.step_px <= MAX_PROFILE_REACH_PX) {
-            return bad(format!(
-                "step_px must be > 0 and at most {MAX_PROFILE_REACH_PX}, got {}",
-                self.step_px
-            ));
-        }
         if !(self.span_px > 0.0 && self.span_px.is_finite() && self.centre_px.is_finite()) {
             return bad("centre_px and span_px must be finite, span_px > 0".into());
         }
@@ -546,69 +540,45 @@ impl ProfileModel {
                 self.degree
             ));
         }
-        if self.half_width > MAX_PROFILE_HALF_WIDTH {
-            return bad(format!(
-                "half_width {} is above {MAX_PROFILE_HALF_WIDTH} samples",
-                self.half_width
-            ));
-        }
-        // Cannot overflow: both are bounded above.
-        let n = 2 * self.half_width + 1;
         if let Some(t) = &self.size {
             t.validate()?;
         }
         let unknowns = self.components() * (self.degree + 1);
-        if self.kernels.len() != 2
-            || self
-                .kernels
-                .iter()
-                .any(|c| c.len() != unknowns || c.iter().any(|k| k.len() != n))
-        {
-            return bad(format!(
-                "expected 2 channels of {unknowns} kernels of {n} samples (degree {}, half_width {})",
-                self.degree, self.half_width
-            ));
-        }
-        if self
-            .kernels
-            .iter()
-            .flatten()
-            .flatten()
-            .any(|x| !x.is_finite())
-        {
-            return bad("non-finite kernel sample".into());
-        }
-        if let Some(a) = &self.anchor {
-            a.validate()?;
-        }
-        if let Some(t) = &self.tail {
-            if !(t.step_px > 0.0 && t.step_px <= MAX_PROFILE_REACH_PX) {
+        let sampled = |what: &str, step_px: f64, half_width: usize, kernels: &[Vec<Vec<f64>>]| {
+            if !(step_px > 0.0 && step_px <= MAX_PROFILE_REACH_PX) {
                 return bad(format!(
-                    "tail step_px must be > 0 and at most {MAX_PROFILE_REACH_PX}, got {}",
-                    t.step_px
+                    "{what}step_px must be > 0 and at most {MAX_PROFILE_REACH_PX}, got {step_px}"
                 ));
             }
-            if t.half_width > MAX_PROFILE_HALF_WIDTH {
+            if half_width > MAX_PROFILE_HALF_WIDTH {
                 return bad(format!(
-                    "tail half_width {} is above {MAX_PROFILE_HALF_WIDTH} samples",
-                    t.half_width
+                    "{what}half_width {half_width} is above {MAX_PROFILE_HALF_WIDTH} samples"
                 ));
             }
-            let n = 2 * t.half_width + 1;
-            if t.kernels.len() != 2
-                || t.kernels
+            // Cannot overflow: bounded above.
+            let n = 2 * half_width + 1;
+            if kernels.len() != 2
+                || kernels
                     .iter()
                     .any(|c| c.len() != unknowns || c.iter().any(|k| k.len() != n))
             {
                 return bad(format!(
-                    "expected 2 tail channels of {unknowns} kernels of {n} samples \
-                     (degree {}, tail half_width {})",
-                    self.degree, t.half_width
+                    "expected 2 {what}channels of {unknowns} kernels of {n} samples (degree {}, \
+                     {what}half_width {half_width})",
+                    self.degree
                 ));
             }
-            if t.kernels.iter().flatten().flatten().any(|x| !x.is_finite()) {
-                return bad("non-finite tail sample".into());
+            if kernels.iter().flatten().flatten().any(|x| !x.is_finite()) {
+                return bad(format!("non-finite {what}kernel sample"));
             }
+            Ok(())
+        };
+        sampled("", self.step_px, self.half_width, &self.kernels)?;
+        if let Some(t) = &self.tail {
+            sampled("tail ", t.step_px, t.half_width, &t.kernels)?;
+        }
+        if let Some(a) = &self.anchor {
+            a.validate()?;
         }
         Ok(())
     }
