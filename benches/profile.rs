@@ -2,8 +2,9 @@
 //! joint force match of a frame's contacts (`ForceMatcher::measure`) and
 //! the relocation search that runs before it (`ForceMatcher::relocate`),
 //! with the shipped calibration's model (`fixtures/calibration.json`: 300 px
-//! of reach, degree 2, the size term), on a 1600-cell profile (the `fine`
-//! flow's full-resolution grid) holding 1 and 4 contacts.
+//! of reach, degree 2, the size term, far tails) and the same model without
+//! its tails, on a 1600-cell profile (the `fine` flow's full-resolution
+//! grid) holding 1 and 4 contacts.
 //!
 //! The profiles are smooth made-up motion (a spreading press and a shear
 //! bump per contact): the cost does not depend on the values, and the
@@ -46,27 +47,33 @@ fn bench_profile(c: &mut Criterion) {
     let mut g = c.benchmark_group("profile");
     g.measurement_time(Duration::from_secs(3));
     g.warm_up_time(Duration::from_millis(500));
+    // The same model without its far tails: what they cost.
+    let mut untailed = model.clone();
+    untailed.tail = None;
     for columns in [vec![799.5], vec![300.0, 650.0, 1000.0, 1350.0]] {
         let (pu, pv) = profiles(&columns);
         let n = columns.len();
         let mut matcher = ForceMatcher::new();
         let mut out = Vec::new();
-        g.bench_function(BenchmarkId::new("measure", n), |b| {
-            b.iter(|| {
-                matcher
-                    .measure(&model, &columns, &pu, &pv, 1.0, &mut out)
-                    .expect("match")
-            })
-        });
-        let mut moved = columns.clone();
-        g.bench_function(BenchmarkId::new("relocate", n), |b| {
-            b.iter(|| {
-                moved.copy_from_slice(&columns);
-                matcher
-                    .relocate(&model, &mut moved, &pu, &pv, 1.0)
-                    .expect("relocate")
-            })
-        });
+        for (model, tails) in [(&model, "tails"), (&untailed, "no tails")] {
+            let id = format!("{n}, {tails}");
+            g.bench_function(BenchmarkId::new("measure", &id), |b| {
+                b.iter(|| {
+                    matcher
+                        .measure(model, &columns, &pu, &pv, 1.0, &mut out)
+                        .expect("match")
+                })
+            });
+            let mut moved = columns.clone();
+            g.bench_function(BenchmarkId::new("relocate", &id), |b| {
+                b.iter(|| {
+                    moved.copy_from_slice(&columns);
+                    matcher
+                        .relocate(model, &mut moved, &pu, &pv, 1.0)
+                        .expect("relocate")
+                })
+            });
+        }
     }
     g.finish();
 }
