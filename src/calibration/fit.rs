@@ -295,8 +295,8 @@ impl Default for ProfileFitOptions {
     /// press's motion has died out) and degree 2 (measured on the simulator's
     /// protocol: degree 2 predicted the unseen test points best, 4 and 6
     /// overfitted), anchor maps up to degree 5 (the camera's projection of
-    /// the arc is close to a cubic); tails over the whole image (a tenth of
-    /// the peak motion is still there 500 px away), every 8 px (they are
+    /// the arc is close to a cubic); tails over the whole image (an eighth
+    /// to a fifth of the peak motion is still there 500 px away), every 8 px (they are
     /// smooth).
     fn default() -> Self {
         ProfileFitOptions {

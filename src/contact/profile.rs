@@ -136,8 +136,9 @@ pub struct ProfileModel {
 /// kernels themselves.
 ///
 /// Why: on a soft, thick gel a press moves the skin far beyond the reach
-/// over which its force is matched (on the simulated strip a normal press
-/// still moves the markers by a tenth of its peak 500 px away). A contact's
+/// over which its force is matched (on the simulated strip a straight
+/// press still moves the markers by an eighth to a fifth of its peak 500 px
+/// away). A contact's
 /// equations are the profile cells within the model's reach, and with a
 /// single contact nothing else is needed. With two, the cells about one
 /// hold the other's far motion; without a kernel for it, the first
@@ -348,15 +349,7 @@ impl ProfileModel {
     ) -> Result<Self> {
         if let Some(t) = size {
             t.validate()?;
-            if samples
-                .iter()
-                .any(|s| !s.size_mm.is_some_and(|x| x.is_finite()))
-            {
-                return Err(Error::param(
-                    "size_mm",
-                    "every sample needs a finite indenter size for the size term",
-                ));
-            }
+            require_sizes(samples)?;
         }
         for (name, x) in [
             ("step_px", step_px),
@@ -448,15 +441,8 @@ impl ProfileModel {
                 ),
             ));
         }
-        if self.size.is_some()
-            && samples
-                .iter()
-                .any(|s| !s.size_mm.is_some_and(|x| x.is_finite()))
-        {
-            return Err(Error::param(
-                "size_mm",
-                "every sample needs a finite indenter size for the size term",
-            ));
+        if self.size.is_some() {
+            require_sizes(samples)?;
         }
         let half_width = ((reach_px / step_px).ceil() as usize).min(MAX_PROFILE_HALF_WIDTH);
         let kernels = self.fit_offsets(samples, step_px, half_width, false)?;
@@ -695,6 +681,21 @@ impl SizeTerm {
             )))
         }
     }
+}
+
+/// Errors unless every sample carries a finite indenter size (the size
+/// term needs them).
+fn require_sizes(samples: &[ProfileSample<'_>]) -> Result<()> {
+    if samples
+        .iter()
+        .any(|s| !s.size_mm.is_some_and(|x| x.is_finite()))
+    {
+        return Err(Error::param(
+            "size_mm",
+            "every sample needs a finite indenter size for the size term",
+        ));
+    }
+    Ok(())
 }
 
 fn calibration_error(message: String) -> Error {

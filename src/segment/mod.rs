@@ -1009,10 +1009,10 @@ impl SplitRule {
     /// The rule used by [`Segmenter::new`]: smoothing 21 px, depth 0.1,
     /// min_peak 0.4, border 32 px, far 250 px from 0.3 of the highest peak.
     /// Chosen on the simulator
-    /// (`tools/src/bin/split_check.rs`, seeds 1 and 2): 0 of 525 single
-    /// presses (7 positions, 5 tilts, 0.5-3 N, 2/5/10 mm rods) cut, for
-    /// every preset; 0 false contacts on 1500 rest pairs (see
-    /// docs/results.md).
+    /// (`tools/src/bin/split_check.rs`, seeds 1 to 4 with the far rules,
+    /// 1 and 2 before them): 0 of 525 single presses (7 positions, 5 tilts,
+    /// 0.5-3 N, 2/5/10 mm rods) cut, for every preset; 0 false contacts on
+    /// 1500 rest pairs (see docs/results.md).
     ///
     /// Why the far rule: on a curved skin a press also moves the markers
     /// one way along the arc, far out (the camera sees the inward push
