@@ -1000,7 +1000,8 @@ pub struct SplitRule {
     /// With `far_px`, a peak at least `far_px` from every peak of
     /// `min_peak` or more, and half of `far_px` inside the range where
     /// peaks count, counts from this fraction of the highest peak, in [0,
-    /// 1] (at most `min_peak` is used; 0 in rules from before it).
+    /// 1] (at most `min_peak` is used). With `far_px` 0, as in rules from
+    /// before the far rules, only `min_peak` counts.
     #[serde(default)]
     pub far_min_peak: f32,
 }
