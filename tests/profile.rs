@@ -190,7 +190,7 @@ fn far_tails_keep_a_distant_contacts_motion_out_of_anothers_force() {
     let tailed = near.clone().with_tail(&s, SCALE, 800.0).unwrap();
     let tail = tailed.tail.as_ref().unwrap();
     assert_eq!(tail.half_width, 400);
-    assert_eq!(tailed.response_reach_px(), 800.0);
+    assert_eq!(tail.half_width as f64 * tail.step_px, 800.0);
     // 440 px apart: no cell lies within both contacts' 200 px of reach,
     // but each one's equations hold the other's far motion.
     let cols = [cell(80), cell(300)];

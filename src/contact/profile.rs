@@ -638,15 +638,6 @@ impl ProfileModel {
     pub fn reach_px(&self) -> f64 {
         self.half_width as f64 * self.step_px
     }
-
-    /// How far each side of a contact its modelled response reaches,
-    /// pixels: the tail's reach with a [`ProfileTail`], else
-    /// [`ProfileModel::reach_px`].
-    pub fn response_reach_px(&self) -> f64 {
-        self.tail.as_ref().map_or(self.reach_px(), |t| {
-            (t.half_width as f64 * t.step_px).max(self.reach_px())
-        })
-    }
 }
 
 impl SizeTerm {
