@@ -1109,8 +1109,8 @@ impl TactileSensor {
         self.tracker.last()
     }
 
-    /// How many contacts were dropped so far because their location or force
-    /// was not a finite number.
+    /// How many contacts were dropped so far because their location, force
+    /// or force sigma was not a finite number.
     pub fn non_finite_dropped(&self) -> u64 {
         self.non_finite
     }

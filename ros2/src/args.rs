@@ -134,6 +134,10 @@ pub struct NodeArgs {
     /// Topic of the net wrench (geometry_msgs/msg/WrenchStamped).
     #[arg(long, value_name = "TOPIC", default_value = "tactile_wrench")]
     pub wrench_topic: String,
+    /// Topic of the contact cloud (sensor_msgs/msg/PointCloud2): every
+    /// contact's position, force, force sigma, id and flags.
+    #[arg(long, value_name = "TOPIC", default_value = "tactile_contact_cloud")]
+    pub cloud_topic: String,
     /// Topic of the RViz markers (visualization_msgs/msg/MarkerArray).
     #[arg(long, value_name = "TOPIC", default_value = "tactile_markers")]
     pub markers_topic: String,
@@ -240,9 +244,10 @@ fn dis_preset() -> impl TypedValueParser<Value = DisPreset> {
 const SWITCHES: [&str; 4] = ["raw", "force_crop", "localhost_only", "quiet"];
 
 /// The topic flags, by the default topic name a `-r FROM:=TO` remaps.
-const TOPICS: [(&str, &str); 4] = [
+const TOPICS: [(&str, &str); 5] = [
     ("tactile_contacts", "--contacts-topic"),
     ("tactile_wrench", "--wrench-topic"),
+    ("tactile_contact_cloud", "--cloud-topic"),
     ("tactile_markers", "--markers-topic"),
     ("tactile_debug_image", "--image-topic"),
 ];

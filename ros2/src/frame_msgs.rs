@@ -7,8 +7,8 @@ use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::viz::Canvas;
 
 use crate::msg::{
-    ColorRGBA, Duration, Finite, Header, Image, Marker, MarkerArray, Point, Pose, TactileContact,
-    TactileContacts, Vector3, Wrench, WrenchStamped,
+    ColorRGBA, Duration, Finite, Header, Image, Marker, MarkerArray, Point, PointCloud2,
+    PointField, Pose, TactileContact, TactileContacts, Vector3, Wrench, WrenchStamped,
 };
 
 /// Metres per millimetre.
@@ -42,6 +42,9 @@ pub struct FrameMessages {
     pub contacts: TactileContacts,
     /// The net wrench about the sensor frame's origin (calibrated only).
     pub wrench: Option<WrenchStamped>,
+    /// Every contact with all the sensor says of it, force sigma included
+    /// (calibrated only; [`contact_cloud`]).
+    pub cloud: Option<PointCloud2>,
     /// The markers: a DELETEALL, then a sphere and a force arrow per contact.
     pub markers: MarkerArray,
     /// The debug panel, when asked for.
@@ -73,6 +76,9 @@ impl FrameMessages {
         if self.wrench.as_ref().is_some_and(|w| !w.is_finite()) {
             return bad("wrench");
         }
+        if self.cloud.as_ref().is_some_and(|c| !c.is_finite()) {
+            return bad("contact cloud");
+        }
         if !self.markers.is_finite() {
             return bad("markers");
         }
@@ -94,12 +100,15 @@ pub fn contact_id(name: &str) -> Option<u64> {
 /// (position in metres, force in newtons, both in the sensor frame; the
 /// outward skin normal at the contact; no torque: a point contact), the net
 /// wrench about the sensor frame's origin (the forces' sum, and the sum of
-/// `p x F` with `p` in metres) and the markers.
+/// `p x F` with `p` in metres), the contact cloud ([`contact_cloud`], with
+/// the force sigmas when `sigma`: a calibration with an uncertainty model)
+/// and the markers.
 pub fn calibrated(
     header: &Header,
     contacts: &[Contact],
     geometry: &SensorGeometry,
     style: &MarkerStyle,
+    sigma: bool,
 ) -> FrameMessages {
     let mut list = Vec::with_capacity(contacts.len());
     let mut net = Wrench::default();
@@ -135,8 +144,89 @@ pub fn calibrated(
             header: header.clone(),
             wrench: net,
         }),
+        cloud: Some(contact_cloud(header, contacts, sigma)),
         markers,
         image: None,
+    }
+}
+
+/// The fields of a [`contact_cloud`], in order: name and type.
+const CLOUD_FIELDS: [(&str, u8); 10] = [
+    ("x", PointField::FLOAT64),
+    ("y", PointField::FLOAT64),
+    ("z", PointField::FLOAT64),
+    ("fx", PointField::FLOAT64),
+    ("fy", PointField::FLOAT64),
+    ("fz", PointField::FLOAT64),
+    ("id", PointField::UINT32),
+    ("held_frames", PointField::UINT32),
+    ("out_of_domain", PointField::UINT8),
+    ("fallback", PointField::UINT8),
+];
+
+/// The force sigma fields a [`contact_cloud`] adds with `sigma`.
+const SIGMA_FIELDS: [&str; 3] = ["fx_sigma", "fy_sigma", "fz_sigma"];
+
+/// Every contact of a frame as one point of an unordered `PointCloud2`
+/// (little-endian, one row): `x`, `y`, `z` (m) and `fx`, `fy`, `fz` (N) in
+/// the sensor frame as `float64`; `id` (the tracked id, saturated at
+/// `u32::MAX`) and `held_frames` (frames the tracker has held it without a
+/// detection) as `uint32`; `out_of_domain` and `fallback` (0 or 1) as
+/// `uint8`; with `sigma`, then `fx_sigma`, `fy_sigma`, `fz_sigma` (N, the
+/// standard deviation of each force component's error) as `float64`.
+///
+/// `TactileContacts` has no field for what a robot needs to weigh a
+/// reading (its uncertainty, whether the calibration knows such a contact):
+/// this message carries all of it in a standard type that ROS tools and
+/// `sensor_msgs_py.point_cloud2.read_points` read by field name.
+pub fn contact_cloud(header: &Header, contacts: &[Contact], sigma: bool) -> PointCloud2 {
+    let mut fields = Vec::with_capacity(CLOUD_FIELDS.len() + SIGMA_FIELDS.len());
+    let mut offset = 0;
+    let names = CLOUD_FIELDS.iter().copied().chain(
+        SIGMA_FIELDS
+            .iter()
+            .map(|&n| (n, PointField::FLOAT64))
+            .take(if sigma { SIGMA_FIELDS.len() } else { 0 }),
+    );
+    for (name, datatype) in names {
+        fields.push(PointField {
+            name: name.into(),
+            offset,
+            datatype,
+            count: 1,
+        });
+        offset += PointField::size_of(datatype).unwrap_or(0);
+    }
+    let point_step = offset;
+    let mut data = Vec::with_capacity(point_step as usize * contacts.len());
+    for c in contacts {
+        for v in c.location_mm.map(|v| v * M_PER_MM).iter().chain(&c.force_n) {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+        let id = u32::try_from(c.id).unwrap_or(u32::MAX);
+        data.extend_from_slice(&id.to_le_bytes());
+        data.extend_from_slice(&c.missed.to_le_bytes());
+        data.push(u8::from(c.out_of_domain));
+        data.push(u8::from(c.fallback));
+        if sigma {
+            // A contact without a sigma under a calibration that has them
+            // cannot happen; NaN would stop the frame at the finiteness check.
+            for v in c.force_sigma_n.unwrap_or([f64::NAN; 3]) {
+                data.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    let width = u32::try_from(contacts.len()).unwrap_or(u32::MAX);
+    PointCloud2 {
+        header: header.clone(),
+        height: 1,
+        width,
+        fields,
+        is_bigendian: false,
+        point_step,
+        row_step: point_step.saturating_mul(width),
+        data,
+        is_dense: true,
     }
 }
 
@@ -175,6 +265,7 @@ pub fn raw(header: &Header, patches: &[RawContact]) -> FrameMessages {
             contacts,
         },
         wrench: None,
+        cloud: None,
         markers: MarkerArray {
             markers: vec![delete_all(header)],
         },
@@ -326,7 +417,7 @@ mod tests {
             contact(3, [10.0, -2.0, 159.0], [0.1, 0.0, -1.0]),
             contact(8, [-20.0, 4.0, 158.0], [0.0, 0.2, -0.5]),
         ];
-        let m = calibrated(&header(), &cs, &g, &MarkerStyle::default());
+        let m = calibrated(&header(), &cs, &g, &MarkerStyle::default(), false);
         assert_eq!(m.contacts.contacts.len(), 2);
         let c = &m.contacts.contacts[0];
         assert_eq!(contact_id(&c.name), Some(3));
@@ -350,7 +441,7 @@ mod tests {
     fn markers_delete_all_first_then_a_sphere_and_an_arrow_per_contact() {
         let g = SensorGeometry::default();
         let cs = [contact(4, [0.0, 0.0, 160.0], [0.0, 0.0, -2.0])];
-        let m = calibrated(&header(), &cs, &g, &MarkerStyle::default()).markers;
+        let m = calibrated(&header(), &cs, &g, &MarkerStyle::default(), false).markers;
         assert_eq!(m.markers.len(), 3);
         assert_eq!(m.markers[0].action, Marker::DELETEALL);
         assert_eq!(m.markers[1].kind, Marker::SPHERE);
@@ -361,7 +452,7 @@ mod tests {
         assert!((b.z - 0.160).abs() < 1e-15 && a.z > b.z);
         assert!(m.markers[1].lifetime.nanosec > 0);
 
-        let empty = calibrated(&header(), &[], &g, &MarkerStyle::default());
+        let empty = calibrated(&header(), &[], &g, &MarkerStyle::default(), false);
         assert!(empty.contacts.contacts.is_empty());
         assert_eq!(empty.markers.markers.len(), 1);
         assert_eq!(empty.wrench.unwrap().wrench, Wrench::default());
@@ -372,11 +463,11 @@ mod tests {
         let g = SensorGeometry::default();
         for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
             let cs = [contact(1, [0.0, 0.0, 160.0], [0.0, bad, -1.0])];
-            let m = calibrated(&header(), &cs, &g, &MarkerStyle::default());
+            let m = calibrated(&header(), &cs, &g, &MarkerStyle::default(), false);
             assert_eq!(m.check_finite().unwrap_err().message, "contacts");
             let cs = [contact(1, [bad, 0.0, 160.0], [0.0, 0.0, -1.0])];
             assert!(
-                calibrated(&header(), &cs, &g, &MarkerStyle::default())
+                calibrated(&header(), &cs, &g, &MarkerStyle::default(), false)
                     .check_finite()
                     .is_err()
             );
@@ -386,8 +477,73 @@ mod tests {
             ..MarkerStyle::default()
         };
         let cs = [contact(1, [0.0, 0.0, 160.0], [0.0, 0.0, -1.0])];
-        let m = calibrated(&header(), &cs, &g, &style);
+        let m = calibrated(&header(), &cs, &g, &style, false);
         assert_eq!(m.check_finite().unwrap_err().message, "markers");
+    }
+
+    #[test]
+    fn the_cloud_holds_every_contact_with_its_sigma_and_flags() {
+        let g = SensorGeometry::default();
+        let mut a = contact(3, [10.0, -2.0, 159.0], [0.1, 0.0, -1.0]);
+        a.force_sigma_n = Some([0.01, 0.002, 0.04]);
+        a.out_of_domain = true;
+        let mut b = contact(u64::MAX, [-20.0, 4.0, 158.0], [0.0, 0.2, -0.5]);
+        b.force_sigma_n = Some([0.02, 0.003, 0.05]);
+        b.missed = 2;
+        b.fallback = true;
+        let m = calibrated(&header(), &[a, b], &g, &MarkerStyle::default(), true);
+        m.check_finite().unwrap();
+        let c = m.cloud.unwrap();
+        assert_eq!(c.header, header());
+        assert_eq!((c.height, c.width), (1, 2));
+        assert_eq!(c.fields.len(), 13);
+        assert_eq!(c.point_step, 9 * 8 + 2 * 4 + 2);
+        assert_eq!(c.row_step, 2 * c.point_step);
+        assert_eq!(c.data.len(), c.row_step as usize);
+        // Offsets follow each other without a gap or an overlap.
+        for w in c.fields.windows(2) {
+            let size = PointField::size_of(w[0].datatype).unwrap();
+            assert_eq!(
+                w[1].offset,
+                w[0].offset + size,
+                "{} -> {}",
+                w[0].name,
+                w[1].name
+            );
+        }
+        let v = |i, name| c.value(i, name, 0).unwrap();
+        assert!((v(0, "x") - 0.010).abs() < 1e-15 && (v(1, "z") - 0.158).abs() < 1e-15);
+        assert_eq!((v(0, "fz"), v(1, "fy")), (-1.0, 0.2));
+        assert_eq!((v(0, "id"), v(1, "id")), (3.0, u32::MAX as f64));
+        assert_eq!((v(0, "held_frames"), v(1, "held_frames")), (0.0, 2.0));
+        assert_eq!((v(0, "out_of_domain"), v(1, "out_of_domain")), (1.0, 0.0));
+        assert_eq!((v(0, "fallback"), v(1, "fallback")), (0.0, 1.0));
+        assert_eq!((v(0, "fz_sigma"), v(1, "fx_sigma")), (0.04, 0.02));
+        assert_eq!(c.value(2, "x", 0), None);
+        assert_eq!(c.value(0, "torque", 0), None);
+
+        // Without an uncertainty model: no sigma fields.
+        let m = calibrated(&header(), &[a], &g, &MarkerStyle::default(), false);
+        let c = m.cloud.unwrap();
+        assert_eq!(c.fields.len(), 10);
+        assert_eq!(c.value(0, "fx_sigma", 0), None);
+        assert_eq!(c.value(0, "fz", 0), Some(-1.0));
+        // No contact: an empty cloud with the same fields.
+        let c = contact_cloud(&header(), &[], true);
+        assert_eq!((c.width, c.data.len(), c.fields.len()), (0, 0, 13));
+        // Raw frames have none.
+        assert!(raw(&header(), &[]).cloud.is_none());
+    }
+
+    #[test]
+    fn a_contact_without_a_finite_sigma_stops_the_frame() {
+        let g = SensorGeometry::default();
+        let mut a = contact(1, [0.0, 0.0, 160.0], [0.0, 0.0, -1.0]);
+        for bad in [None, Some([0.01, f64::NAN, 0.02]), Some([f64::INFINITY; 3])] {
+            a.force_sigma_n = bad;
+            let m = calibrated(&header(), &[a], &g, &MarkerStyle::default(), true);
+            assert_eq!(m.check_finite().unwrap_err().message, "contact cloud");
+        }
     }
 
     #[test]

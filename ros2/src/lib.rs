@@ -10,6 +10,7 @@
 //! |---|---|---|
 //! | `tactile_contacts` | `tactile_msgs/msg/TactileContacts` | every contact: position (m), normal, force (N), in the sensor frame; `name` = `contact_<id>` |
 //! | `tactile_wrench` | `geometry_msgs/msg/WrenchStamped` | the net wrench about the sensor frame's origin |
+//! | `tactile_contact_cloud` | `sensor_msgs/msg/PointCloud2` | every contact with its force sigma, id and flags, read by field name |
 //! | `tactile_markers` | `visualization_msgs/msg/MarkerArray` | DELETEALL, then a sphere and a force arrow per contact |
 //! | `tactile_debug_image` | `sensor_msgs/msg/Image` | the debug panel (`--debug-image on`) |
 //!

@@ -436,6 +436,119 @@ impl Finite for Image {
     }
 }
 
+/// `sensor_msgs/PointField`: one field of a [`PointCloud2`]'s points.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PointField {
+    /// The field's name.
+    pub name: String,
+    /// Byte offset of the field in a point.
+    pub offset: u32,
+    /// Its type: [`PointField::UINT8`], [`PointField::UINT32`], [`PointField::FLOAT64`], ...
+    pub datatype: u8,
+    /// How many values of that type the field holds.
+    pub count: u32,
+}
+
+impl PointField {
+    /// An unsigned byte.
+    pub const UINT8: u8 = 2;
+    /// An unsigned 32-bit integer.
+    pub const UINT32: u8 = 6;
+    /// A 32-bit float.
+    pub const FLOAT32: u8 = 7;
+    /// A 64-bit float.
+    pub const FLOAT64: u8 = 8;
+
+    /// Bytes of one value of `datatype`, `None` for an unknown type.
+    pub fn size_of(datatype: u8) -> Option<u32> {
+        match datatype {
+            1 | 2 => Some(1),
+            3 | 4 => Some(2),
+            5..=7 => Some(4),
+            8 => Some(8),
+            _ => None,
+        }
+    }
+}
+
+/// `sensor_msgs/PointCloud2`: points of named, typed fields packed in bytes.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PointCloud2 {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Rows of points (1 for an unordered cloud).
+    pub height: u32,
+    /// Points per row.
+    pub width: u32,
+    /// The fields of every point.
+    pub fields: Vec<PointField>,
+    /// Whether multi-byte values are big-endian.
+    pub is_bigendian: bool,
+    /// Bytes per point.
+    pub point_step: u32,
+    /// Bytes per row.
+    pub row_step: u32,
+    /// The points, `row_step * height` bytes.
+    pub data: Vec<u8>,
+    /// Whether every value is valid (no NaN).
+    pub is_dense: bool,
+}
+
+impl RosMessage for PointCloud2 {
+    const TYPE: (&'static str, &'static str) = ("sensor_msgs", "PointCloud2");
+}
+
+impl PointCloud2 {
+    /// The `k`-th value (of `count`) of the field `name` of point `i`, read
+    /// as a float whatever its type; `None` when there is no such field,
+    /// point or value, or the bytes run short.
+    pub fn value(&self, i: usize, name: &str, k: usize) -> Option<f64> {
+        let f = self.fields.iter().find(|f| f.name == name)?;
+        self.read(i, f, k)
+    }
+
+    fn read(&self, i: usize, f: &PointField, k: usize) -> Option<f64> {
+        if i >= (self.width as usize).saturating_mul(self.height as usize) || k >= f.count as usize
+        {
+            return None;
+        }
+        let size = PointField::size_of(f.datatype)? as usize;
+        let start = i
+            .checked_mul(self.point_step as usize)?
+            .checked_add(f.offset as usize)?
+            .checked_add(k * size)?;
+        let bytes = self.data.get(start..start.checked_add(size)?)?;
+        let mut b = [0u8; 8];
+        b[..size].copy_from_slice(bytes);
+        if self.is_bigendian {
+            b[..size].reverse();
+        }
+        Some(match f.datatype {
+            1 => b[0] as i8 as f64,
+            2 => b[0] as f64,
+            3 => i16::from_le_bytes([b[0], b[1]]) as f64,
+            4 => u16::from_le_bytes([b[0], b[1]]) as f64,
+            5 => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            6 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            7 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            _ => f64::from_le_bytes(b),
+        })
+    }
+}
+
+impl Finite for PointCloud2 {
+    /// Every float value of every point is finite, and every value lies
+    /// within `data` (a cloud whose bytes run short is not).
+    fn is_finite(&self) -> bool {
+        let points = (self.width as usize).saturating_mul(self.height as usize);
+        self.fields.iter().all(|f| {
+            (0..points).all(|i| {
+                (0..f.count as usize).all(|k| self.read(i, f, k).is_some_and(f64::is_finite))
+            })
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -466,6 +579,65 @@ mod tests {
         assert_eq!(Duration::from_secs_f64(f64::NAN), Duration::default());
         assert_eq!(Duration::from_secs_f64(-1.0), Duration::default());
         assert_eq!(Duration::from_secs_f64(f64::INFINITY).sec, i32::MAX);
+    }
+
+    #[test]
+    fn cloud_values_are_read_in_either_byte_order_and_within_the_data_only() {
+        let field = |name: &str, offset, datatype| PointField {
+            name: name.into(),
+            offset,
+            datatype,
+            count: 1,
+        };
+        let mut data = 2.5f64.to_le_bytes().to_vec();
+        data.extend_from_slice(&7u32.to_le_bytes());
+        let mut c = PointCloud2 {
+            height: 1,
+            width: 1,
+            fields: vec![
+                field("a", 0, PointField::FLOAT64),
+                field("n", 8, PointField::UINT32),
+            ],
+            point_step: 12,
+            row_step: 12,
+            data,
+            is_dense: true,
+            ..Default::default()
+        };
+        assert!(c.is_finite());
+        assert_eq!(
+            (c.value(0, "a", 0), c.value(0, "n", 0)),
+            (Some(2.5), Some(7.0))
+        );
+        assert_eq!(c.value(0, "a", 1), None);
+        assert_eq!(c.value(1, "a", 0), None);
+        // Big-endian bytes of the same values.
+        let mut be = 2.5f64.to_be_bytes().to_vec();
+        be.extend_from_slice(&7u32.to_be_bytes());
+        let b = PointCloud2 {
+            is_bigendian: true,
+            data: be,
+            ..c.clone()
+        };
+        assert_eq!(
+            (b.value(0, "a", 0), b.value(0, "n", 0)),
+            (Some(2.5), Some(7.0))
+        );
+        // A NaN, bytes that run short, an unknown type, a huge offset.
+        c.data[..8].copy_from_slice(&f64::NAN.to_le_bytes());
+        assert!(!c.is_finite());
+        c.data[..8].copy_from_slice(&1.0f64.to_le_bytes());
+        c.data.truncate(10);
+        assert!(!c.is_finite());
+        c.data.resize(12, 0);
+        assert!(c.is_finite());
+        c.fields[1].datatype = 99;
+        assert!(!c.is_finite());
+        c.fields[1] = field("n", u32::MAX, PointField::UINT32);
+        assert!(!c.is_finite());
+        c.width = u32::MAX;
+        c.height = u32::MAX;
+        assert_eq!(c.value(usize::MAX, "a", 0), None);
     }
 
     #[test]

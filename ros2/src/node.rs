@@ -106,7 +106,9 @@ impl Pipeline {
         let mut m = match self {
             Pipeline::Calibrated(s) => {
                 s.process(&frame.image, frame.t_s)?;
-                frame_msgs::calibrated(header, s.contacts(), &s.calibration().setup.geometry, style)
+                let cal = s.calibration();
+                let sigma = cal.uncertainty.is_some();
+                frame_msgs::calibrated(header, s.contacts(), &cal.setup.geometry, style, sigma)
             }
             Pipeline::Raw(r) => {
                 let raw_header = Header {

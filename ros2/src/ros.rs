@@ -11,7 +11,7 @@ use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, P
 use serde::Serialize;
 
 use crate::frame_msgs::FrameMessages;
-use crate::msg::{Image, MarkerArray, RosMessage, TactileContacts, WrenchStamped};
+use crate::msg::{Image, MarkerArray, PointCloud2, RosMessage, TactileContacts, WrenchStamped};
 use crate::node::Publish;
 
 /// Where and how to publish.
@@ -29,6 +29,8 @@ pub struct RosConfig {
     pub contacts_topic: String,
     /// Wrench topic.
     pub wrench_topic: String,
+    /// Contact cloud topic.
+    pub cloud_topic: String,
     /// Markers topic.
     pub markers_topic: String,
     /// Debug image topic, `None` when the image is off.
@@ -48,6 +50,7 @@ impl RosConfig {
             namespace: a.namespace.clone(),
             contacts_topic: a.contacts_topic.clone(),
             wrench_topic: a.wrench_topic.clone(),
+            cloud_topic: a.cloud_topic.clone(),
             markers_topic: a.markers_topic.clone(),
             image_topic: a.debug_image.then(|| a.image_topic.clone()),
             qos_depth: a.qos_depth,
@@ -146,6 +149,7 @@ impl Drop for Spinning {
 pub struct RosPublisher {
     contacts: Publisher<TactileContacts>,
     wrench: Publisher<WrenchStamped>,
+    cloud: Publisher<PointCloud2>,
     markers: Publisher<MarkerArray>,
     image: Option<Publisher<Image>>,
     // Dropped after the publishers: the node, then the participant.
@@ -173,6 +177,7 @@ impl RosPublisher {
         Ok(RosPublisher {
             contacts: publisher(&mut node, &c.contacts_topic, &qos)?,
             wrench: publisher(&mut node, &c.wrench_topic, &qos)?,
+            cloud: publisher(&mut node, &c.cloud_topic, &qos)?,
             markers: publisher(&mut node, &c.markers_topic, &qos)?,
             image: c
                 .image_topic
@@ -184,12 +189,14 @@ impl RosPublisher {
         })
     }
 
-    /// How many subscribers each topic has (contacts, wrench, markers, image).
+    /// How many subscribers each topic has (contacts, wrench, contact
+    /// cloud, markers, image).
     pub fn subscriber_counts(&self) -> Vec<usize> {
         let n = &self.node.node;
         let mut v = vec![
             self.contacts.get_subscription_count(n),
             self.wrench.get_subscription_count(n),
+            self.cloud.get_subscription_count(n),
             self.markers.get_subscription_count(n),
         ];
         if let Some(i) = &self.image {
@@ -224,6 +231,11 @@ impl Publish for RosPublisher {
             self.wrench
                 .publish(w)
                 .map_err(|e| format!("cannot publish the wrench: {e}"))?;
+        }
+        if let Some(c) = m.cloud {
+            self.cloud
+                .publish(c)
+                .map_err(|e| format!("cannot publish the contact cloud: {e}"))?;
         }
         self.markers
             .publish(m.markers)

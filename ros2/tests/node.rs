@@ -1,6 +1,6 @@
 //! The node end to end: started in-process on the bundled press with the
 //! bundled calibration, a subscriber in the same test receives its
-//! contacts, wrenches and markers over the loopback (in a network namespace
+//! contacts, wrenches, contact clouds and markers over the loopback (in a network namespace
 //! of the test's own), and they match what the library gives on the same
 //! frames, computed the way the `track` example does.
 
@@ -19,7 +19,9 @@ use optical_tactile::{Calibration, TactileSensor};
 use optical_tactile_ros2::Node;
 use optical_tactile_ros2::args::NodeArgs;
 use optical_tactile_ros2::frame_msgs::contact_id;
-use optical_tactile_ros2::msg::{Marker, MarkerArray, RosMessage, TactileContacts, WrenchStamped};
+use optical_tactile_ros2::msg::{
+    Marker, MarkerArray, PointCloud2, RosMessage, TactileContacts, WrenchStamped,
+};
 use optical_tactile_ros2::ros::{self, Spinning};
 use ros2_client::Subscription;
 use serde::de::DeserializeOwned;
@@ -104,6 +106,7 @@ fn publishes_what_track_computes() {
     let mut listener = Spinning::new(&context, "/", "test_listener").unwrap();
     let contacts_sub = subscribe::<TactileContacts>(&mut listener, &args.contacts_topic);
     let wrench_sub = subscribe::<WrenchStamped>(&mut listener, &args.wrench_topic);
+    let cloud_sub = subscribe::<PointCloud2>(&mut listener, &args.cloud_topic);
     let markers_sub = subscribe::<MarkerArray>(&mut listener, &args.markers_topic);
 
     // The node started, then its first frame only once the subscriber has
@@ -116,6 +119,7 @@ fn publishes_what_track_computes() {
         let seen = [
             contacts_sub.get_publisher_count(&listener.node),
             wrench_sub.get_publisher_count(&listener.node),
+            cloud_sub.get_publisher_count(&listener.node),
             markers_sub.get_publisher_count(&listener.node),
         ];
         let counts = node.publisher().subscriber_counts();
@@ -134,18 +138,20 @@ fn publishes_what_track_computes() {
     });
 
     let (mut contacts, mut wrenches, mut markers) = (Vec::new(), Vec::new(), Vec::new());
+    let mut clouds = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(60);
     let mut report = None;
     while Instant::now() < deadline {
         take_all(&contacts_sub, &mut contacts);
         take_all(&wrench_sub, &mut wrenches);
+        take_all(&cloud_sub, &mut clouds);
         take_all(&markers_sub, &mut markers);
         if report.is_none() {
             if let Ok(r) = done_rx.try_recv() {
                 report = Some(r.expect("the node runs"));
             }
         }
-        let all = [contacts.len(), wrenches.len(), markers.len()]
+        let all = [contacts.len(), wrenches.len(), clouds.len(), markers.len()]
             .iter()
             .all(|&n| n >= want.len());
         if all && report.is_some() {
@@ -154,9 +160,10 @@ fn publishes_what_track_computes() {
         std::thread::sleep(Duration::from_millis(5));
     }
     eprintln!(
-        "received {} contacts, {} wrench, {} markers messages",
+        "received {} contacts, {} wrench, {} cloud, {} markers messages",
         contacts.len(),
         wrenches.len(),
+        clouds.len(),
         markers.len()
     );
     let report = report.expect("the node ends within the time limit");
@@ -169,6 +176,7 @@ fn publishes_what_track_computes() {
     assert_eq!(contacts.len(), want.len(), "contacts messages received");
     assert_eq!(wrenches.len(), want.len(), "wrench messages received");
     assert_eq!(markers.len(), want.len(), "marker messages received");
+    assert_eq!(clouds.len(), want.len(), "contact cloud messages received");
 
     let mut last_stamp = None;
     for (k, want) in want.iter().enumerate() {
@@ -210,6 +218,30 @@ fn publishes_what_track_computes() {
                 (g - w).abs() <= FORCE_TOL_N,
                 "frame {k}: net force {f:?}, library {net:?}"
             );
+        }
+
+        // The cloud: one point per contact, in the same order, with the
+        // force sigma of the bundled calibration's uncertainty model.
+        let cloud = &clouds[k];
+        assert_eq!(cloud.header, got.header);
+        assert_eq!(cloud.width as usize, want.len(), "frame {k}: cloud points");
+        for (i, w) in want.iter().enumerate() {
+            let v = |name| cloud.value(i, name, 0).expect(name);
+            assert_eq!(v("id") as u64, w.id);
+            assert_eq!(v("held_frames") as u32, w.missed);
+            assert_eq!(v("out_of_domain") != 0.0, w.out_of_domain);
+            assert_eq!(v("fallback") != 0.0, w.fallback);
+            for (j, name) in ["x", "y", "z"].into_iter().enumerate() {
+                assert!((v(name) - w.location_mm[j] * 1e-3).abs() <= POSITION_TOL_M);
+            }
+            let sigma = w.force_sigma_n.expect("the bundled calibration has sigmas");
+            for (j, (f, s)) in [("fx", "fx_sigma"), ("fy", "fy_sigma"), ("fz", "fz_sigma")]
+                .into_iter()
+                .enumerate()
+            {
+                assert!((v(f) - w.force_n[j]).abs() <= FORCE_TOL_N);
+                assert!(v(s) > 0.0 && (v(s) - sigma[j]).abs() <= FORCE_TOL_N);
+            }
         }
 
         let m = &markers[k].markers;

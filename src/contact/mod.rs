@@ -139,12 +139,13 @@ impl Contact {
         (x * x + y * y + z * z).sqrt()
     }
 
-    /// Whether its location and force are finite numbers (the sensor never
-    /// reports a contact that is not).
+    /// Whether its location, force and force sigma (if any) are finite
+    /// numbers (the sensor never reports a contact that is not).
     pub fn is_finite(&self) -> bool {
         self.location_mm
             .iter()
             .chain(&self.force_n)
+            .chain(self.force_sigma_n.iter().flatten())
             .all(|v| v.is_finite())
     }
 
@@ -907,6 +908,26 @@ pub fn rotate_to_sensor(geometry: &SensorGeometry, x_mm: f64, raw: &RawContact) 
 mod tests {
     use super::*;
     use ndarray::Array2;
+
+    #[test]
+    fn a_contact_is_finite_only_with_a_finite_location_force_and_sigma() {
+        let mut c = Contact {
+            location_mm: [1.0, 0.0, 160.0],
+            force_n: [0.0, 0.0, -1.0],
+            ..Contact::default()
+        };
+        assert!(c.is_finite());
+        c.force_sigma_n = Some([0.01, 0.002, 0.04]);
+        assert!(c.is_finite());
+        c.force_sigma_n = Some([0.01, f64::NAN, 0.04]);
+        assert!(!c.is_finite());
+        c.force_sigma_n = None;
+        c.force_n[1] = f64::INFINITY;
+        assert!(!c.is_finite());
+        c.force_n[1] = 0.0;
+        c.location_mm[2] = f64::NAN;
+        assert!(!c.is_finite());
+    }
 
     /// The plain twin of [`raw_quantities`]: one field at a time.
     fn raw_quantities_plain(
