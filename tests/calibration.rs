@@ -15,7 +15,8 @@ use optical_tactile::calibration::report::{
 };
 use optical_tactile::calibration::uncertainty::{self, AxisSpread, ForceUncertainty, SpreadSample};
 use optical_tactile::calibration::{
-    self, Calibration, ForceFrame, ForceGuard, GUARD_BOX_MARGIN, Sample, SensorSetup,
+    self, Calibration, ForceFrame, ForceGuard, GUARD_BOX_MARGIN, LoadSite, Sample, SensorSetup,
+    along_the_load,
 };
 use optical_tactile::contact::RawContact;
 use optical_tactile::frame::Roi;
@@ -979,6 +980,48 @@ fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
     assert_eq!(n, 1, "without the far rule the two rods share one patch");
 }
 
+/// Presses stronger than any of the characterization (3 N) keep reading
+/// about their force with the shipped calibration, marked out of domain:
+/// read along the load from the data's edge. The force maps evaluated as
+/// they are at the same inputs read them more than 1 N off (a 6 N press as
+/// a pull of several newtons).
+#[test]
+fn presses_beyond_the_characterization_keep_rising_with_the_load() {
+    use optical_tactile::TactileSensor;
+    use optical_tactile_sim::scenario::{Scenario, Single};
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/calibration.json");
+    let cal = Calibration::load(&path).unwrap();
+    let mut sensor = TactileSensor::from_calibration(cal.clone()).unwrap();
+    for (x_mm, force_n) in [(-80.0, 4.5), (80.0, 4.5), (-80.0, 6.0), (80.0, 6.0)] {
+        let press = Scenario::Single(Single {
+            x_mm,
+            force_n,
+            frames: 2,
+            indenter_mm: 10.0,
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+            sweep_to_mm: None,
+        });
+        let name = format!("strong{x_mm}_{force_n}");
+        let (contacts, truth) = last_frame_contacts(&press, &mut sensor, &name);
+        let t = &truth[0];
+        let c = contact_at(&contacts, t.x_mm).expect("the press is found");
+        let error = |f: [f64; 3]| {
+            let d = [f[0] - t.fx_n, f[1] - t.fy_n, f[2] - t.fz_n];
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        };
+        assert!(error(c.force_n) < 0.5, "{name}: {:?} for {t:?}", c.force_n);
+        assert!(c.out_of_domain, "{name}");
+        let v = cal.force_inputs(&c.raw);
+        let maps = [cal.gx(), cal.gy(), cal.gz()];
+        let as_they_are: [f64; 3] = std::array::from_fn(|k| maps[k].evaluate(&v).unwrap());
+        let as_they_are =
+            cal.force_frame()
+                .to_sensor(&cal.setup.geometry, c.location_mm[0], as_they_are);
+        assert!(error(as_they_are) > 1.0, "{name}: {as_they_are:?}");
+    }
+}
+
 #[test]
 fn shear_cap_splits_the_displacement_group() {
     // One group {dx, dy, dz} by default: dx^5 is a term.
@@ -1035,6 +1078,7 @@ fn guarded_calibration() -> Calibration {
         input_max: [100.0, 100.0, 0.0, 1600.0, 200.0, 10.0],
         tolerance_n: [0.05, 0.05, 0.1],
         report: None,
+        envelope: Vec::new(),
     });
     cal
 }
@@ -1157,6 +1201,30 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
         s.d_pf,
     ];
     assert!(cal.force_checked(&far).unwrap().1);
+    // The envelope: one site per training or validation point, at the mean
+    // contact point of its tests, holding its strongest load; every one of
+    // those tests lies within it.
+    let points: std::collections::BTreeSet<u32> = samples
+        .iter()
+        .filter(|s| s.split != Split::Test)
+        .map(|s| s.point)
+        .collect();
+    assert_eq!(g.envelope.len(), points.len());
+    for (site, p) in g.envelope.iter().zip(&points) {
+        let own: Vec<_> = samples
+            .iter()
+            .filter(|s| s.split != Split::Test && s.point == *p)
+            .collect();
+        let mean = own.iter().map(|s| s.x2d).sum::<f64>() / own.len() as f64;
+        let strongest = own
+            .iter()
+            .map(|s| calibration::load_of(&s.force_inputs()))
+            .fold(0.0, f64::max);
+        assert!((site.x2d - mean).abs() < 1e-9 && site.load_max == strongest);
+    }
+    for s in samples.iter().filter(|s| s.split != Split::Test) {
+        assert!(g.knows(&s.force_inputs(), GUARD_BOX_MARGIN), "{s:?}");
+    }
     // Saved and loaded, the guard is the same.
     let back = Calibration::from_json_str(&cal.to_json_string()).unwrap();
     let bg = back.guard.as_ref().unwrap();
@@ -1164,6 +1232,7 @@ fn a_fitted_guard_trusts_the_training_data_and_round_trips() {
         (&bg.maps, bg.input_min, bg.input_max, bg.tolerance_n),
         (&g.maps, g.input_min, g.input_max, g.tolerance_n)
     );
+    assert_eq!(bg.envelope, g.envelope);
     // With the default rule (1.5 times the 99th percentile) at most 1% of
     // the training and validation rows fall back.
     let cal = fit::fit(&samples, &setup(), &small_options()).unwrap();
@@ -1220,6 +1289,203 @@ fn a_malformed_guard_is_rejected_with_its_name() {
     let missing = text.replacen("\"maps\"", "\"mapz\"", 1);
     let e = load_text("guard_maps.json", &missing);
     assert!(e.to_string().contains("maps"), "{e}");
+    // Load sites: finite, with a positive strongest load, not too many.
+    let mut cal = guarded_calibration();
+    let site = |load_max| LoadSite {
+        x2d: 800.0,
+        y2d: 100.0,
+        load_max,
+    };
+    for (name, envelope) in [
+        ("site_nan", vec![site(f64::NAN)]),
+        ("site_zero", vec![site(0.0)]),
+        ("site_negative", vec![site(-1.0)]),
+        (
+            "sites_many",
+            vec![site(1.0); calibration::MAX_LOAD_SITES + 1],
+        ),
+    ] {
+        cal.guard.as_mut().unwrap().envelope = envelope;
+        let text = cal.to_json_string();
+        let e = load_text(&format!("guard_{name}.json"), &text);
+        // NaN is written as null, which no number field takes.
+        let why = if name == "site_nan" {
+            "null"
+        } else {
+            "load site"
+        };
+        assert!(e.to_string().contains(why), "{name}: {e}");
+    }
+    cal.guard.as_mut().unwrap().envelope = vec![site(300.0)];
+    let back = Calibration::from_json_str(&cal.to_json_string()).unwrap();
+    assert_eq!(back.guard.unwrap().envelope, vec![site(300.0)]);
+}
+
+/// A calibration whose Fz map turns back past its data, like a polynomial
+/// evaluated beyond its fit: `Fz = -(-dz - 0.02 |dz|^3)` for a press
+/// (`dz < 0`), largest at |dz| = 4.08 and 1.68 N at dz = -6, fitted (say)
+/// up to |dz| = 3; `Fx = 0.3 + 0.01 x2d` carries an offset that no load
+/// gives. The box holds everything; the envelope says 3 at every place.
+fn turning_calibration() -> Calibration {
+    let g1 = Polynomial::raw(&["x2d"], vec![vec![0], vec![1]], vec![-200.0, 0.25]).unwrap();
+    let g2 = Polynomial::raw(&["y2d"], vec![vec![0]], vec![0.0]).unwrap();
+    let fx = Polynomial::raw(
+        &calibration::FORCE_VARIABLES,
+        vec![vec![0, 0, 0, 0, 0, 0], vec![0, 0, 0, 1, 0, 0]],
+        vec![0.3, 0.01],
+    )
+    .unwrap();
+    // dz + 0.02 |dz|^3 for dz < 0 is dz - 0.02 dz^3.
+    let fz = Polynomial::raw(
+        &calibration::FORCE_VARIABLES,
+        vec![vec![0, 0, 1, 0, 0, 0], vec![0, 0, 3, 0, 0, 0]],
+        vec![1.0, -0.02],
+    )
+    .unwrap();
+    let maps = [g1, g2, fx.clone(), linear_force(1, 0.0), fz.clone()];
+    let mut cal = Calibration::new(setup(), maps, None).unwrap();
+    cal.guard = Some(ForceGuard {
+        maps: [fx, linear_force(1, 0.0), fz],
+        input_min: [-10.0, -10.0, -20.0, 0.0, 0.0, 0.0],
+        input_max: [10.0, 10.0, 0.0, 1600.0, 200.0, 100.0],
+        tolerance_n: [0.05, 0.05, 0.1],
+        report: None,
+        envelope: vec![
+            LoadSite {
+                x2d: 400.0,
+                y2d: 100.0,
+                load_max: 3.0,
+            },
+            LoadSite {
+                x2d: 1200.0,
+                y2d: 100.0,
+                load_max: 3.0,
+            },
+        ],
+    });
+    cal
+}
+
+#[test]
+fn a_map_that_turns_back_past_its_data_is_read_along_the_load() {
+    let cal = turning_calibration();
+    let g = cal.guard.as_ref().unwrap();
+    let inputs = |dz: f64| [0.0, 0.0, dz, 800.0, 100.0, 5.0];
+    let direct = |dz: f64| cal.gz().evaluate(&inputs(dz)).unwrap();
+    // Within the envelope (3 and its 5% margin): the maps as they are.
+    for dz in [-0.5, -2.0, -3.1] {
+        let (f, fell_back) = cal.force_checked(&inputs(dz)).unwrap();
+        assert_eq!(f[2], direct(dz));
+        assert!(!fell_back && g.knows(&inputs(dz), GUARD_BOX_MARGIN));
+    }
+    // Beyond it the maps turn back (1.68 N at dz = -6, then pulling), the
+    // reading keeps rising with the load, and the offset of Fx stays an
+    // offset: it is not scaled with the load.
+    assert!(direct(-6.0) > -1.7 && direct(-9.0) > 0.0);
+    let mut last = direct(-3.1);
+    for dz in [-3.5, -4.0, -5.0, -6.0, -8.0, -12.0] {
+        let (f, fell_back) = cal.force_checked(&inputs(dz)).unwrap();
+        assert!(f[2] < last - 0.2, "dz {dz}: {f:?} after {last}");
+        last = f[2];
+        assert!(!fell_back, "inside the box the full maps answer");
+        assert!((f[0] - 8.3).abs() < 1e-9, "{f:?}");
+        assert!(!g.knows(&inputs(dz), GUARD_BOX_MARGIN));
+    }
+    let f6 = cal.force_checked(&inputs(-6.0)).unwrap().0[2];
+    assert!((-6.0..-4.0).contains(&f6), "{f6}");
+    // A contact so strong is marked out of domain.
+    let raw = |dz| optical_tactile::contact::RawContact {
+        x_px: 800.0,
+        y_px: 100.0,
+        d_sensor: [0.0, 0.0, dz],
+        d_pf: 5.0,
+        ..Default::default()
+    };
+    assert!(cal.contact(&raw(-6.0)).unwrap().out_of_domain);
+    assert!(!cal.contact(&raw(-2.0)).unwrap().out_of_domain);
+    // Without an envelope only the box bounds the inputs: the maps answer.
+    let mut bare = cal.clone();
+    bare.guard.as_mut().unwrap().envelope.clear();
+    assert_eq!(
+        bare.force_checked(&inputs(-6.0)).unwrap().0[2],
+        direct(-6.0)
+    );
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+    /// Oracle: maps that grow linearly with the load (any offset, any
+    /// dependence on the place) are read along the load exactly as they
+    /// are, from any scale: the walk never stops and the straight
+    /// continuation is the map itself. Quadratic growth that never turns
+    /// back keeps the maps as they are at the whole load.
+    #[test]
+    fn reading_along_the_load_keeps_maps_that_grow(
+        c in proptest::collection::vec(-2.0f64..2.0, 3 * 7),
+        load in proptest::collection::vec(-3.0f64..3.0, 4),
+        place in (0.0f64..1600.0, 0.0f64..200.0),
+        scale in 0.05f64..1.0,
+        bend in 0.0f64..0.05,
+    ) {
+        // Terms: 1, d1, d2, d3, d_pf, x2d, y2d.
+        let exps = vec![
+            vec![0, 0, 0, 0, 0, 0], vec![1, 0, 0, 0, 0, 0], vec![0, 1, 0, 0, 0, 0],
+            vec![0, 0, 1, 0, 0, 0], vec![0, 0, 0, 0, 0, 1], vec![0, 0, 0, 1, 0, 0],
+            vec![0, 0, 0, 0, 1, 0],
+        ];
+        let map = |k: usize| {
+            let mut coef = c[7 * k..7 * (k + 1)].to_vec();
+            coef[5] *= 1e-3;
+            coef[6] *= 1e-2;
+            Polynomial::raw(&calibration::FORCE_VARIABLES, exps.clone(), coef).unwrap()
+        };
+        let maps = [map(0), map(1), map(2)];
+        let refs = [&maps[0], &maps[1], &maps[2]];
+        let v = [load[0], load[1], load[2], place.0, place.1, load[3].abs()];
+        let direct: Vec<f64> = maps.iter().map(|m| m.evaluate(&v).unwrap()).collect();
+        let at_one = along_the_load(refs, &v, 1.0).unwrap();
+        proptest::prop_assert_eq!(at_one.to_vec(), direct.clone());
+        let scaled = along_the_load(refs, &v, scale).unwrap();
+        for k in 0..3 {
+            proptest::prop_assert!((scaled[k] - direct[k]).abs() < 1e-9 * (1.0 + direct[k].abs()));
+        }
+        // Growth that bends but never turns back: d3 + bend d3^2 with
+        // |d3| <= 3 and bend < 0.05 keeps its slope above 0.7 of the mean.
+        let curved = Polynomial::raw(
+            &calibration::FORCE_VARIABLES,
+            vec![vec![0, 0, 1, 0, 0, 0], vec![0, 0, 2, 0, 0, 0]],
+            vec![1.0, bend],
+        )
+        .unwrap();
+        let zero = Polynomial::raw(&calibration::FORCE_VARIABLES, vec![vec![0; 6]], vec![0.0]).unwrap();
+        let f = along_the_load([&zero, &zero, &curved], &v, 1.0).unwrap();
+        proptest::prop_assert_eq!(f[2], curved.evaluate(&v).unwrap());
+    }
+}
+
+#[test]
+fn the_envelope_is_its_sites_weighted_by_inverse_square_distance() {
+    let mut cal = turning_calibration();
+    let g = cal.guard.as_mut().unwrap();
+    g.envelope[1].load_max = 5.0;
+    assert_eq!(g.envelope_at(400.0, 100.0), Some(3.0));
+    assert_eq!(g.envelope_at(1200.0, 100.0), Some(5.0));
+    assert!((g.envelope_at(800.0, 100.0).unwrap() - 4.0).abs() < 1e-12);
+    // A quarter of the way: weights 1/1 and 1/9 (distances 1 and 3).
+    let quarter = (3.0 + 5.0 / 9.0) / (1.0 + 1.0 / 9.0);
+    assert!((g.envelope_at(600.0, 100.0).unwrap() - quarter).abs() < 1e-12);
+    // The load is the magnitude of the displacements; the margin widens it.
+    let v = [3.0, 0.0, -4.0, 400.0, 100.0, 1.0];
+    assert_eq!(calibration::load_of(&v), 5.0);
+    assert!((g.load_scale(&v, 0.0) - 0.6).abs() < 1e-12);
+    assert!((g.load_scale(&v, 0.05) - 0.63).abs() < 1e-12);
+    assert_eq!(
+        g.load_scale(&[0.0, 0.0, -3.1, 400.0, 100.0, 1.0], 0.05),
+        1.0
+    );
+    g.envelope.clear();
+    assert_eq!(g.envelope_at(400.0, 100.0), None);
+    assert_eq!(g.load_scale(&v, 0.0), 1.0);
 }
 
 #[test]

@@ -23,7 +23,7 @@ use super::report::{self, DetectionLimit, PointTable, evaluate};
 use super::uncertainty::{ForceUncertainty, SpreadSample};
 use super::{
     Calibration, CalibrationReport, ForceFrame, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
-    PipelineSettings, Sample, SensorSetup, in_memory,
+    LoadSite, PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
     ColumnMap, ForceMatcher, MAX_PROFILE_REACH_PX, ProfileModel, ProfileSample, SizeTerm,
@@ -511,13 +511,19 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
                 ..options.clone()
             })?;
             let [(fx, rfx), (fy, rfy), (fz, rfz)] = force_maps(&spec, "guard.")?;
-            Some(fit_guard(
+            let mut guard = fit_guard(
                 [&gx, &gy, &gz],
                 [fx, fy, fz],
                 vec![rfx, rfy, rfz],
                 [&tr.force, &va.force],
                 &g,
-            )?)
+            )?;
+            guard.envelope = load_envelope(
+                samples
+                    .iter()
+                    .filter(|s| matches!(s.split, Split::Train | Split::Val)),
+            );
+            Some(guard)
         }
     };
     let mut cal = Calibration::new(
@@ -608,7 +614,37 @@ fn fit_guard(
         input_max: hi,
         tolerance_n,
         report: Some(report),
+        envelope: Vec::new(),
     })
+}
+
+/// The guard's load envelope ([`ForceGuard::envelope_at`]): per
+/// characterization point of `samples`, its mean contact point and largest
+/// load ([`super::load_of`]), in the order of the points' numbers (at most
+/// [`super::MAX_LOAD_SITES`] points, the first ones).
+fn load_envelope<'a>(samples: impl Iterator<Item = &'a Sample>) -> Vec<LoadSite> {
+    let mut sites: std::collections::BTreeMap<u32, (f64, f64, f64, usize)> = Default::default();
+    for s in samples {
+        let load = super::load_of(&s.force_inputs());
+        if !(s.x2d.is_finite() && s.y2d.is_finite() && load.is_finite()) {
+            continue;
+        }
+        let e = sites.entry(s.point).or_insert((0.0, 0.0, 0.0, 0));
+        e.0 += s.x2d;
+        e.1 += s.y2d;
+        e.2 = e.2.max(load);
+        e.3 += 1;
+    }
+    sites
+        .into_values()
+        .filter(|&(_, _, d, _)| d > 0.0)
+        .take(super::MAX_LOAD_SITES)
+        .map(|(x, y, d, n)| LoadSite {
+            x2d: x / n as f64,
+            y2d: y / n as f64,
+            load_max: d,
+        })
+        .collect()
 }
 
 /// Puts the map's name in front of an error's message.

@@ -107,6 +107,20 @@ pub const G2_2D_VARIABLES: [&str; 3] = ["x2d", "y2d", "shear_y"];
 /// Variables of the force maps `gx, gy, gz` in the sensor frame
 /// ([`ForceFrame::Sensor`]), in evaluation order.
 pub const FORCE_VARIABLES: [&str; 6] = ["dx", "dy", "dz", "x2d", "y2d", "d_pf"];
+/// The force inputs ([`FORCE_VARIABLES`] order) that grow with the load:
+/// the three displacements and `d_pf` ([`along_the_load`]).
+pub const LOAD_INPUTS: [usize; 4] = [0, 1, 2, 5];
+
+/// [`along_the_load`] looks at loads from this fraction of the contact's up
+/// to the contact's own: a map is never read at less than half the load.
+pub const LOAD_WALK_FROM: f64 = 0.5;
+/// Steps of [`along_the_load`]'s walk from [`LOAD_WALK_FROM`] to the full load.
+pub const LOAD_WALK_STEPS: usize = 16;
+/// [`along_the_load`] stops where the force's rate of change along the
+/// load, projected on its mean rate since the walk's start, is less than
+/// this fraction of it: an elastic skin's force keeps growing with its
+/// deformation, the maps' turns back past their data.
+pub const LOAD_WALK_MIN_GROWTH: f64 = 0.5;
 /// Variables of the force maps in the local surface frame
 /// ([`ForceFrame::Local`]): the raw displacements along the arc, across
 /// and along the outward normal (negative for a press), then the contact
@@ -187,6 +201,68 @@ impl ForceFrame {
             ForceFrame::Local => raw.local_force.unwrap_or([raw.ds1, raw.ds2, -raw.dn]),
         }
     }
+}
+
+/// `maps` (`gx`, `gy`, `gz`) at the inputs `v`.
+fn evaluate_maps(maps: [&Polynomial; 3], v: &[f64; 6]) -> Result<[f64; 3]> {
+    Ok([
+        maps[0].evaluate(v)?,
+        maps[1].evaluate(v)?,
+        maps[2].evaluate(v)?,
+    ])
+}
+
+/// The force of `maps` (`gx`, `gy`, `gz`) at the inputs `v`, read along
+/// the load: the load-like inputs ([`LOAD_INPUTS`]) are scaled by `s`
+/// from [`LOAD_WALK_FROM`] of `scale` up to `scale` in
+/// [`LOAD_WALK_STEPS`] steps, and the walk stops at the first step where
+/// the force's rate of change along the load, projected on its mean rate
+/// since the walk's start, falls under [`LOAD_WALK_MIN_GROWTH`] of that
+/// mean rate (a step back or sideways). From the last load before it,
+/// `s0`, the force is continued in a straight line to the whole load:
+/// `F(s0) + (1 - s0) m`, with `m` the mean rate over the walk. When the
+/// walk reaches `scale = 1`, the result is the maps at `v` itself.
+///
+/// Why: the force maps are polynomials fitted on the characterization, up
+/// to its strongest press (3 N by the paper's protocol); past it their
+/// highest-order terms take over, and an elastic skin's force grows about
+/// in proportion to its deformation while theirs turns back. On the
+/// simulated strip a 10 mm rod at x = -80 mm pressed beside a second rod
+/// read 2.9 N at 3.7 N and 1.0 N at 4.5 N, its inputs inside the box of
+/// all the training data (stronger inputs came from other places) but
+/// beyond what was pressed there; a single rod at the same place read
+/// 0.8 N at 4.5 N and +8.8 N (a pull) at 6 N. Read along the load from the
+/// data's edge: 3.9, 4.5, 4.55 and 5.65 N.
+pub fn along_the_load(maps: [&Polynomial; 3], v: &[f64; 6], scale: f64) -> Result<[f64; 3]> {
+    let at = |s: f64| -> Result<[f64; 3]> {
+        let mut p = *v;
+        for &j in &LOAD_INPUTS {
+            p[j] *= s;
+        }
+        evaluate_maps(maps, &p)
+    };
+    let step = |k: usize| {
+        scale * (LOAD_WALK_FROM + (1.0 - LOAD_WALK_FROM) * k as f64 / LOAD_WALK_STEPS as f64)
+    };
+    let dot = |a: &[f64; 3], b: &[f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let (s_start, f_start) = (step(0), at(step(0))?);
+    let (mut s0, mut f0) = (s_start, f_start);
+    let mut mean = [0.0; 3];
+    for k in 1..=LOAD_WALK_STEPS {
+        let s = step(k);
+        let f = at(s)?;
+        let rate: [f64; 3] = std::array::from_fn(|c| (f[c] - f0[c]) / (s - s0));
+        // The first step sets the mean rate; later ones are judged by it.
+        if k > 1 && dot(&rate, &mean) < LOAD_WALK_MIN_GROWTH * dot(&mean, &mean) {
+            break;
+        }
+        (s0, f0) = (s, f);
+        mean = std::array::from_fn(|c| (f0[c] - f_start[c]) / (s0 - s_start));
+    }
+    if s0 == 1.0 {
+        return Ok(f0);
+    }
+    Ok(std::array::from_fn(|c| f0[c] + (1.0 - s0) * mean[c]))
 }
 
 /// The sensor-side settings a calibration belongs to: geometry, crop and
@@ -473,9 +549,11 @@ pub fn passes_press_test(min_normal_n: Option<f64>, local_force: Option<[f64; 3]
 /// validation data. [`Calibration::force_checked`] uses the full maps where
 /// they are trusted and the fallback maps, for all three components, when the
 /// inputs leave the box or the two sets disagree by more than the tolerance on
-/// any component: a force then differs from the fallback's by at most the
-/// tolerance, and a contact read by the fallback is marked
-/// ([`Contact::fallback`]).
+/// any component: a force inside the box and the envelope then differs from
+/// the fallback's by at most the tolerance, and a contact read by the
+/// fallback is marked ([`Contact::fallback`]). Its envelope ([`ForceGuard::envelope`]) bounds
+/// the load per place: beyond the data the maps are read along the load
+/// ([`along_the_load`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ForceGuard {
     /// Fallback `gx`, `gy`, `gz` (variables [`FORCE_VARIABLES`]).
@@ -490,7 +568,34 @@ pub struct ForceGuard {
     /// Order searches of the fallback maps, if they were fitted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub report: Option<Vec<FitReport>>,
+    /// The strongest load the training and validation data hold at each
+    /// place of the characterization ([`ForceGuard::envelope_at`]); empty
+    /// in files from before it (then only the box bounds the inputs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub envelope: Vec<LoadSite>,
 }
+
+/// One place of the characterization and the strongest load pressed there.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoadSite {
+    /// Mean contact column of the place's tests, pixels.
+    pub x2d: f64,
+    /// Mean contact row, pixels.
+    pub y2d: f64,
+    /// Largest magnitude of the displacement inputs `(d1, d2, d3)` of the
+    /// place's tests ([`load_of`]): with a profile model they are the
+    /// matched force, in newtons near enough.
+    pub load_max: f64,
+}
+
+/// The load of force inputs `v` ([`FORCE_VARIABLES`] order) that the
+/// guard's envelope bounds: the magnitude of the three displacement inputs.
+pub fn load_of(v: &[f64; 6]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// Largest number of [`LoadSite`]s a guard may hold.
+pub const MAX_LOAD_SITES: usize = 1 << 16;
 
 impl ForceGuard {
     /// Whether `v` (force inputs, [`FORCE_VARIABLES`] order) lies in the
@@ -505,6 +610,41 @@ impl ForceGuard {
                 let pad = margin * (hi - lo);
                 (x >= lo - pad && x <= hi + pad) || self.maps.iter().all(|m| m.max_exponent(j) == 0)
             })
+    }
+
+    /// The strongest load ([`load_of`]) the characterization pressed near
+    /// the contact point `(x2d, y2d)`: the sites' `load_max` weighted by the
+    /// inverse square of their distance (a site's own value at the site);
+    /// `None` without an envelope.
+    pub fn envelope_at(&self, x2d: f64, y2d: f64) -> Option<f64> {
+        let (mut num, mut den) = (0.0, 0.0);
+        for site in &self.envelope {
+            let d2 = (site.x2d - x2d).powi(2) + (site.y2d - y2d).powi(2);
+            if d2 < 1e-12 {
+                return Some(site.load_max);
+            }
+            num += site.load_max / d2;
+            den += 1.0 / d2;
+        }
+        (den > 0.0).then(|| num / den)
+    }
+
+    /// How much the load of force inputs `v` ([`load_of`]) must shrink to
+    /// come within the envelope widened by `margin` of itself: `envelope /
+    /// load` when the load is beyond it, else (or without an envelope) 1.
+    pub fn load_scale(&self, v: &[f64; 6], margin: f64) -> f64 {
+        let load = load_of(v);
+        match self.envelope_at(v[3], v[4]) {
+            Some(e) if load > e * (1.0 + margin) && e > 0.0 => e * (1.0 + margin) / load,
+            _ => 1.0,
+        }
+    }
+
+    /// Whether force inputs `v` lie where the guard's data do: inside the
+    /// box ([`ForceGuard::contains`]) and the load within the envelope
+    /// ([`ForceGuard::load_scale`]), both widened by `margin`.
+    pub fn knows(&self, v: &[f64; 6], margin: f64) -> bool {
+        self.contains(v, margin) && self.load_scale(v, margin) >= 1.0
     }
 
     fn validate(&self) -> std::result::Result<(), String> {
@@ -530,6 +670,17 @@ impl ForceGuard {
             .any(|t| !(t.is_finite() && *t >= 0.0))
         {
             return Err("guard: tolerances must be finite and non-negative".into());
+        }
+        if self.envelope.len() > MAX_LOAD_SITES {
+            return Err(format!(
+                "guard: {} load sites, at most {MAX_LOAD_SITES}",
+                self.envelope.len()
+            ));
+        }
+        if self.envelope.iter().any(|e| {
+            !(e.x2d.is_finite() && e.y2d.is_finite() && e.load_max.is_finite() && e.load_max > 0.0)
+        }) {
+            return Err("guard: a load site must be finite with a positive load_max".into());
         }
         Ok(())
     }
@@ -785,30 +936,31 @@ impl Calibration {
     /// [`GUARD_BOX_MARGIN`] of its width) or the full and fallback maps
     /// disagree by more than the guard's tolerance on any component.
     /// Without a guard, always the full maps.
+    ///
+    /// A load beyond the guard's envelope at the contact's place
+    /// ([`ForceGuard::load_scale`]) is read along the load from the
+    /// envelope ([`along_the_load`]): past the strongest press of the
+    /// characterization the maps turn back.
     pub fn force_checked(&self, v: &[f64; 6]) -> Result<([f64; 3], bool)> {
-        let full = [
-            self.gx.evaluate(v)?,
-            self.gy.evaluate(v)?,
-            self.gz.evaluate(v)?,
-        ];
+        let full = [&self.gx, &self.gy, &self.gz];
         let Some(g) = &self.guard else {
-            return Ok((full, false));
+            return Ok((evaluate_maps(full, v)?, false));
         };
-        let safe = [
-            g.maps[0].evaluate(v)?,
-            g.maps[1].evaluate(v)?,
-            g.maps[2].evaluate(v)?,
-        ];
-        let agree = full
-            .iter()
-            .zip(&safe)
-            .zip(&g.tolerance_n)
-            .all(|((f, s), t)| (f - s).abs() <= *t);
-        if agree && g.contains(v, GUARD_BOX_MARGIN) {
-            Ok((full, false))
-        } else {
-            Ok((safe, true))
+        let fallback = [&g.maps[0], &g.maps[1], &g.maps[2]];
+        let mut trusted = g.contains(v, GUARD_BOX_MARGIN);
+        if trusted {
+            for ((f, s), t) in full.iter().zip(&fallback).zip(&g.tolerance_n) {
+                trusted &= (f.evaluate(v)? - s.evaluate(v)?).abs() <= *t;
+            }
         }
+        let maps = if trusted { full } else { fallback };
+        let scale = g.load_scale(v, GUARD_BOX_MARGIN);
+        let f = if scale < 1.0 {
+            along_the_load(maps, v, scale)?
+        } else {
+            evaluate_maps(maps, v)?
+        };
+        Ok((f, !trusted))
     }
 
     /// Half-width of the energy-centroid window this calibration was fitted
@@ -944,7 +1096,7 @@ impl Calibration {
         let outside_training = self
             .guard
             .as_ref()
-            .is_some_and(|g| !g.contains(&inputs, GUARD_BOX_MARGIN));
+            .is_some_and(|g| !g.knows(&inputs, GUARD_BOX_MARGIN));
         let off_surface = !self.setup.geometry.contains(location_mm[0], location_mm[1]);
         Ok(Contact {
             id: 0,

@@ -119,8 +119,10 @@ pub struct Contact {
     #[serde(default)]
     pub fallback: bool,
     /// Whether the contact lies outside what its calibration knows: force
-    /// inputs outside the box of the training data (beyond the guard's
-    /// margin, [`crate::calibration::GUARD_BOX_MARGIN`]), a location off
+    /// inputs outside the box of the training data or a load beyond the
+    /// strongest the characterization pressed at that place (beyond the
+    /// guard's margin, [`crate::calibration::GUARD_BOX_MARGIN`];
+    /// [`crate::calibration::ForceGuard::knows`]), a location off
     /// the sensor's surface ([`crate::geometry::SensorGeometry::contains`]),
     /// or, on a regular grid of markers, motion of half the grid's pitch or
     /// more ([`crate::sensor::ContactExtractor::beyond_markers`]), where a
