@@ -551,9 +551,9 @@ pub fn passes_press_test(min_normal_n: Option<f64>, local_force: Option<[f64; 3]
 /// inputs leave the box or the two sets disagree by more than the tolerance on
 /// any component: a force inside the box and the envelope then differs from
 /// the fallback's by at most the tolerance, and a contact read by the
-/// fallback is marked ([`Contact::fallback`]). Its envelope ([`ForceGuard::envelope`]) bounds
-/// the load per place: beyond the data the maps are read along the load
-/// ([`along_the_load`]).
+/// fallback is marked ([`Contact::fallback`]). Its envelope
+/// ([`ForceGuard::envelope`]) bounds the load per place: beyond it the maps
+/// are read along the load ([`along_the_load`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ForceGuard {
     /// Fallback `gx`, `gy`, `gz` (variables [`FORCE_VARIABLES`]).
@@ -943,22 +943,28 @@ impl Calibration {
     /// characterization the maps turn back.
     pub fn force_checked(&self, v: &[f64; 6]) -> Result<([f64; 3], bool)> {
         let full = [&self.gx, &self.gy, &self.gz];
+        let full_at = evaluate_maps(full, v)?;
         let Some(g) = &self.guard else {
-            return Ok((evaluate_maps(full, v)?, false));
+            return Ok((full_at, false));
         };
         let fallback = [&g.maps[0], &g.maps[1], &g.maps[2]];
-        let mut trusted = g.contains(v, GUARD_BOX_MARGIN);
-        if trusted {
-            for ((f, s), t) in full.iter().zip(&fallback).zip(&g.tolerance_n) {
-                trusted &= (f.evaluate(v)? - s.evaluate(v)?).abs() <= *t;
-            }
-        }
-        let maps = if trusted { full } else { fallback };
+        let fallback_at = evaluate_maps(fallback, v)?;
+        let agree = full_at
+            .iter()
+            .zip(&fallback_at)
+            .zip(&g.tolerance_n)
+            .all(|((f, s), t)| (f - s).abs() <= *t);
+        let trusted = agree && g.contains(v, GUARD_BOX_MARGIN);
+        let (maps, at) = if trusted {
+            (full, full_at)
+        } else {
+            (fallback, fallback_at)
+        };
         let scale = g.load_scale(v, GUARD_BOX_MARGIN);
         let f = if scale < 1.0 {
             along_the_load(maps, v, scale)?
         } else {
-            evaluate_maps(maps, v)?
+            at
         };
         Ok((f, !trusted))
     }
