@@ -182,12 +182,8 @@ const SIGMA_FIELDS: [&str; 3] = ["fx_sigma", "fy_sigma", "fz_sigma"];
 pub fn contact_cloud(header: &Header, contacts: &[Contact], sigma: bool) -> PointCloud2 {
     let mut fields = Vec::with_capacity(CLOUD_FIELDS.len() + SIGMA_FIELDS.len());
     let mut offset = 0;
-    let names = CLOUD_FIELDS.iter().copied().chain(
-        SIGMA_FIELDS
-            .iter()
-            .map(|&n| (n, PointField::FLOAT64))
-            .take(if sigma { SIGMA_FIELDS.len() } else { 0 }),
-    );
+    let sigmas = SIGMA_FIELDS.iter().filter(|_| sigma);
+    let names = (CLOUD_FIELDS.iter().copied()).chain(sigmas.map(|&n| (n, PointField::FLOAT64)));
     for (name, datatype) in names {
         fields.push(PointField {
             name: name.into(),
