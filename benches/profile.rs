@@ -2,8 +2,9 @@
 //! joint force match of a frame's contacts (`ForceMatcher::measure`) and
 //! the relocation search that runs before it (`ForceMatcher::relocate`),
 //! with the shipped calibration's model (`fixtures/calibration.json`: 300 px
-//! of reach, degree 2, the size term, far tails) and the same model without
-//! its tails, on a 1600-cell profile (the `fine` flow's full-resolution
+//! of reach, degree 2, the size term, far tails), the same model without
+//! its tails and with the best relocation (`Relocation::Best`, as fitted
+//! without sweeps), on a 1600-cell profile (the `fine` flow's full-resolution
 //! grid) holding 1 and 4 contacts.
 //!
 //! The profiles are smooth made-up motion (a spreading press and a shear
@@ -17,7 +18,7 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use optical_tactile::calibration::Calibration;
-use optical_tactile::contact::profile::ForceMatcher;
+use optical_tactile::contact::profile::{ForceMatcher, ProfileModel, Relocation};
 
 const CELLS: usize = 1600;
 
@@ -47,16 +48,25 @@ fn bench_profile(c: &mut Criterion) {
     let mut g = c.benchmark_group("profile");
     g.measurement_time(Duration::from_secs(3));
     g.warm_up_time(Duration::from_millis(500));
-    // The same model without its far tails: what they cost.
+    // The same model without its far tails: what they cost; and with the
+    // best relocation (a calibration fitted without sweeps).
     let mut untailed = model.clone();
     untailed.tail = None;
+    let best = ProfileModel {
+        relocation: Relocation::Best,
+        ..model.clone()
+    };
     for columns in [vec![799.5], vec![300.0, 650.0, 1000.0, 1350.0]] {
         let (pu, pv) = profiles(&columns);
         let n = columns.len();
         let mut matcher = ForceMatcher::new();
         let mut out = Vec::new();
-        for (model, tails) in [(&model, "tails"), (&untailed, "no tails")] {
-            let id = format!("{n}, {tails}");
+        for (model, what) in [
+            (&model, "tails"),
+            (&untailed, "no tails"),
+            (&best, "tails, best"),
+        ] {
+            let id = format!("{n}, {what}");
             g.bench_function(BenchmarkId::new("measure", &id), |b| {
                 b.iter(|| {
                     matcher

@@ -50,7 +50,11 @@
 //! 0.5-2 mm along the skin), from which the location and the force learn
 //! what the marker pattern does between the protocol's points
 //! (docs/calibration.md, "Sweeps"); without them `calibrate` prints a note
-//! on what that costs, and `--no-sweeps` ignores them.
+//! on what that costs, and `--no-sweeps` ignores them. Without sweeps a
+//! contact's match column is moved to where the profile model fits its
+//! motion best, to a fraction of a pixel (`--relocation best`); with them
+//! only a clearly misplaced one is (`--relocation clear`, see
+//! `contact::profile::Relocation`).
 //!
 //! The calibration also gets a per-contact force uncertainty, fitted on the
 //! validation split (`calibration::uncertainty`): one line prints its
@@ -83,6 +87,7 @@ use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::calibration::uncertainty::ForceUncertainty;
 use optical_tactile::calibration::{ForceFrame, Sample};
 use optical_tactile::contact::ContactPointMethod;
+use optical_tactile::contact::profile::Relocation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
@@ -174,6 +179,12 @@ struct Cli {
     /// is matched; docs/pipeline.md).
     #[arg(long)]
     no_profile_tail: bool,
+    /// When a contact's match column moves to where its motion fits the
+    /// profile model best: `clear` only for a clearly misplaced point,
+    /// `best` always, to a fraction of a pixel [default: clear with sweeps,
+    /// best without].
+    #[arg(long, value_enum, value_name = "WHEN")]
+    relocation: Option<RelocationArg>,
     /// DIS flow preset [default: fine, the sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
@@ -198,6 +209,22 @@ enum PresetArg {
     All,
 }
 
+/// `--relocation`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum RelocationArg {
+    Clear,
+    Best,
+}
+
+impl From<RelocationArg> for Relocation {
+    fn from(r: RelocationArg) -> Self {
+        match r {
+            RelocationArg::Clear => Relocation::Clear,
+            RelocationArg::Best => Relocation::Best,
+        }
+    }
+}
+
 /// What the command line resolves to.
 struct Args {
     dir: PathBuf,
@@ -219,6 +246,7 @@ struct Args {
     no_sweeps: bool,
     no_size_term: bool,
     no_profile_tail: bool,
+    relocation: Option<Relocation>,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     crop: Option<Roi>,
@@ -247,8 +275,8 @@ fn extract_with_bar(
 /// was not given): without sweeps the maps know the skin only at the
 /// protocol's points (docs/calibration.md, "Sweeps").
 const NO_SWEEPS_NOTE: &str = "note: no sweeps.csv beside tests.csv. Between the protocol's points, \
-where most contacts land, forces will read about twice as far off as with sweeps (simulated strip: \
-presses anywhere Fz 0.13 N against 0.065 N, two perches 0.11 N against 0.017 N per contact); \
+where most contacts land, forces will read further off than with sweeps (simulated strip: \
+presses anywhere Fz 0.088 N against 0.065 N, two perches 0.051 N against 0.017 N per contact); \
 one rod swept every 1-2 mm (120-240 images) brings nearly all of it back (docs/calibration.md, \
 \"Sweeps\"). --no-sweeps fits without them and says nothing.";
 
@@ -426,6 +454,7 @@ impl Cli {
             no_sweeps: self.no_sweeps,
             no_size_term: self.no_size_term,
             no_profile_tail: self.no_profile_tail,
+            relocation: self.relocation.map(Relocation::from),
             flow: self.preset,
             crop: self.crop,
             predictions: self.predictions,
@@ -538,6 +567,7 @@ fn run(args: Args) -> Result<(), Failure> {
             profile: base.profile.map(|p| ProfileFitOptions {
                 size_term: p.size_term && !args.no_size_term,
                 tail_px: if args.no_profile_tail { 0.0 } else { p.tail_px },
+                relocation: args.relocation.or(p.relocation),
                 ..p
             }),
             ..base

@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, DVector};
 use optical_tactile::Error;
 use optical_tactile::contact::profile::{
-    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, SizeTerm, column_profile_into,
+    ColumnMap, ForceMatcher, ProfileModel, ProfileSample, Relocation, SizeTerm, column_profile_into,
 };
 use optical_tactile_sim::rng::SplitMix64;
 
@@ -807,6 +807,131 @@ fn relocation_leaves_a_well_placed_point() {
     let mut cols = [truth + 60.0];
     m.relocate(&model, &mut cols, &p[0], &p[1], SCALE).unwrap();
     assert!((cols[0] - truth).abs() >= 30.0, "{cols:?}");
+}
+
+/// The slow twin of the best relocation: the residual sum of squares of a
+/// single contact's match at column `c`, over every cell of `window`
+/// (both channels), solved by SVD.
+fn residual_oracle(model: &ProfileModel, c: f64, p: &[Vec<f64>; 2], window: (f64, f64)) -> f64 {
+    let comps = model.kernels[0].len() / (model.degree + 1);
+    let mut rows = Vec::new();
+    let mut rhs = Vec::new();
+    for (ch, prof) in p.iter().enumerate() {
+        for (j, &y) in prof.iter().enumerate() {
+            let x = cell(j);
+            if x < window.0 || x > window.1 {
+                continue;
+            }
+            rows.push(
+                (0..comps)
+                    .map(|k| kernel_value(model, ch, c, x - c, k))
+                    .collect::<Vec<_>>(),
+            );
+            rhs.push(y);
+        }
+    }
+    let a = DMatrix::from_fn(rows.len(), comps, |i, j| rows[i][j]);
+    let b = DVector::from_vec(rhs);
+    let x = a.clone().svd(true, true).solve(&b, 1e-12).unwrap();
+    (&a * x - b).norm_squared()
+}
+
+/// With [`Relocation::Best`] the match column goes where the motion fits
+/// best, to a fraction of a pixel, from any start within the search
+/// radius, a start a pixel or two off included (which [`Relocation::Clear`]
+/// leaves alone); on a noisy profile it lands where a scan of the
+/// residual every 0.02 px puts the minimum.
+#[test]
+fn best_relocation_finds_the_column_to_a_fraction_of_a_pixel() {
+    let clear = fit(&training_set(4), 1);
+    let best = ProfileModel {
+        relocation: Relocation::Best,
+        ..clear.clone()
+    };
+    let radius = optical_tactile::contact::profile::RELOCATE_RADIUS_OF_REACH * best.reach_px();
+    let force = [0.4, 0.02, -1.8];
+    let mut m = ForceMatcher::new();
+    for truth in [401.3, 388.75, 412.5] {
+        let p = profiles(&[truth], &[force]);
+        for start in [truth + 1.5, truth - 2.4, truth + 11.0, truth - 20.0] {
+            let mut cols = [start];
+            m.relocate(&best, &mut cols, &p[0], &p[1], SCALE).unwrap();
+            assert!(
+                (cols[0] - truth).abs() < 0.05,
+                "{truth}: {start} -> {}",
+                cols[0]
+            );
+            if (start - truth).abs() < 3.0 {
+                let mut cols = [start];
+                m.relocate(&clear, &mut cols, &p[0], &p[1], SCALE).unwrap();
+                assert_eq!(cols[0], start, "clear moves only a misplaced point");
+            }
+        }
+    }
+    // Noise: the minimum of the residual is no longer the truth; the
+    // search finds the residual's minimum.
+    let truth = 395.6;
+    let mut p = profiles(&[truth], &[force]);
+    let mut rng = SplitMix64::new(17);
+    for x in p.iter_mut().flatten() {
+        *x += 0.05 * (rng.next_f64() - 0.5);
+    }
+    for start in [truth + 6.3, truth - 4.1] {
+        let mut cols = [start];
+        m.relocate(&best, &mut cols, &p[0], &p[1], SCALE).unwrap();
+        let reach = best.reach_px() + radius;
+        let window = (start - reach, start + reach);
+        let scan = (0..=((2.0 * radius / 0.02) as usize))
+            .map(|i| start - radius + 0.02 * i as f64)
+            .map(|c| (c, residual_oracle(&best, c, &p, window)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        assert!(
+            (cols[0] - scan.0).abs() < 0.1,
+            "from {start}: search {} against the scan's {} (truth {truth})",
+            cols[0],
+            scan.0
+        );
+        assert!((cols[0] - start).abs() <= radius);
+    }
+    // Two contacts, close (kernels overlapping) or far apart (each one's
+    // window holding the other's far motion): each found where it is,
+    // the other's motion taken out at its own column.
+    let set = tailed_training_set(4);
+    let tailed = ProfileModel::fit(&samples(&set, None), SCALE, 200.0, 1, CENTRE, SPAN)
+        .unwrap()
+        .with_tail(&samples(&set, None), SCALE, 800.0)
+        .unwrap();
+    let tailed_best = ProfileModel {
+        relocation: Relocation::Best,
+        ..tailed.clone()
+    };
+    let forces = [[0.3, 0.02, -2.5], [-0.2, 0.0, -1.2]];
+    for truths in [[300.3, 470.7], [cell(80) + 0.4, cell(300) + 0.3]] {
+        let p = profiles_of(tailed_response, &truths, &forces);
+        let start = [truths[0] + 2.5, truths[1] - 3.2];
+        let mut cols = start;
+        m.relocate(&tailed_best, &mut cols, &p[0], &p[1], SCALE)
+            .unwrap();
+        for (c, t) in cols.iter().zip(&truths) {
+            assert!((c - t).abs() < 0.1, "{truths:?}: {start:?} -> {cols:?}");
+        }
+        let mut cols = start;
+        m.relocate(&tailed, &mut cols, &p[0], &p[1], SCALE).unwrap();
+        assert_eq!(cols, start, "clear leaves points a few pixels off");
+    }
+    // The setting is kept in files; older files (without it) and the
+    // default are `Clear`, which is not written.
+    let json = serde_json::to_string(&best).unwrap();
+    assert!(json.contains(r#""relocation":"best""#), "{json}");
+    let back: ProfileModel = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.relocation, Relocation::Best);
+    let old = serde_json::to_string(&clear).unwrap();
+    assert!(!old.contains("relocation"));
+    let back: ProfileModel = serde_json::from_str(&old).unwrap();
+    assert_eq!(back.relocation, Relocation::Clear);
+    let unknown = json.replace(r#""relocation":"best""#, r#""relocation":"sometimes""#);
+    assert!(serde_json::from_str::<ProfileModel>(&unknown).is_err());
 }
 
 /// `relocate_contacts` moves the patch's measured point by the column's

@@ -26,8 +26,8 @@ use super::{
     LoadSite, PipelineSettings, Sample, SensorSetup, in_memory,
 };
 use crate::contact::profile::{
-    ColumnMap, ForceMatcher, MAX_PROFILE_REACH_PX, ProfileModel, ProfileSample, SizeTerm,
-    column_profile_into,
+    ColumnMap, ForceMatcher, MAX_PROFILE_REACH_PX, ProfileModel, ProfileSample, Relocation,
+    SizeTerm, column_profile_into,
 };
 use crate::contact::{ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
@@ -284,6 +284,12 @@ pub struct ProfileFitOptions {
     /// Spacing of the tail samples, full-resolution pixels.
     #[serde(default = "default_tail_step_px")]
     pub tail_step_px: f64,
+    /// When a contact's match column is moved to where its motion fits
+    /// best ([`Relocation`]); `None` (the default): [`Relocation::Clear`]
+    /// with sweeps, whose corrections are learned at the measured columns,
+    /// and [`Relocation::Best`] without them.
+    #[serde(default)]
+    pub relocation: Option<Relocation>,
 }
 
 fn default_tail_step_px() -> f64 {
@@ -306,6 +312,7 @@ impl Default for ProfileFitOptions {
             size_term: true,
             tail_px: MAX_PROFILE_REACH_PX,
             tail_step_px: default_tail_step_px(),
+            relocation: None,
         }
     }
 }
@@ -958,7 +965,8 @@ pub fn fit_dataset_with_sweeps(
     let (profile, local) = match options.profile {
         None => (None, Vec::new()),
         Some(p) => {
-            let model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
+            let mut model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
+            model.relocation = relocation_for(p.relocation, !sweeps.is_empty());
             relocated = relocate(&model, extractions, &pass1)?;
             let moved = relocated.as_deref().unwrap_or(extractions);
             let local = match_forces(&model, moved, |e, raw| {
@@ -1039,6 +1047,17 @@ pub fn fit_dataset_with_sweeps(
         sweep_misses,
         min_force,
         test_table,
+    })
+}
+
+/// The relocation a profile model is fitted with: the one asked for, else
+/// [`Relocation::Clear`] with sweeps (their corrections are learned at the
+/// measured columns) and [`Relocation::Best`] without.
+fn relocation_for(asked: Option<Relocation>, sweeps: bool) -> Relocation {
+    asked.unwrap_or(if sweeps {
+        Relocation::Clear
+    } else {
+        Relocation::Best
     })
 }
 
@@ -1694,6 +1713,23 @@ mod tests {
         );
         let blind = vec![sweep_image(0.0, None); 3];
         assert!(location_correction(&blind, &cal, cal.setup.crop).is_err());
+    }
+
+    #[test]
+    fn without_sweeps_contacts_go_where_their_motion_fits_best() {
+        assert_eq!(relocation_for(None, false), Relocation::Best);
+        assert_eq!(relocation_for(None, true), Relocation::Clear);
+        for asked in [Relocation::Clear, Relocation::Best] {
+            for sweeps in [false, true] {
+                assert_eq!(relocation_for(Some(asked), sweeps), asked);
+            }
+        }
+        // Option files from before the setting ask for nothing.
+        let old: ProfileFitOptions = serde_json::from_str(
+            r#"{"half_width_px": 300.0, "degree": 2, "anchor_max_degree": 5, "size_term": true}"#,
+        )
+        .unwrap();
+        assert_eq!(old.relocation, None);
     }
 
     #[test]

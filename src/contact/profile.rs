@@ -130,6 +130,44 @@ pub struct ProfileModel {
     /// lie. `None` (older files, or fitted without): no response there.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tail: Option<ProfileTail>,
+    /// When [`ForceMatcher::relocate_contacts`] moves a contact's match
+    /// column ([`Relocation`]). Older files: [`Relocation::Clear`].
+    #[serde(default, skip_serializing_if = "Relocation::is_clear")]
+    pub relocation: Relocation,
+}
+
+/// When [`ForceMatcher::relocate_contacts`] moves a contact's match column
+/// to the column whose kernel match explains its motion best.
+///
+/// Why two modes: the measured column (the profile's steepest rise) sticks
+/// to the markers under the contact and jumps between them, by up to 3 px
+/// (0.6 mm) on the simulated strip as a rod moves along it, and the force
+/// matched there reads low by up to 10%. A calibration fitted with sweeps
+/// learns those jumps per column ([`crate::calibration::correction`]) and
+/// needs the measured column to stay as it was measured; it moves a
+/// contact only when the measured point is clearly wrong (`Clear`). Without
+/// sweeps nothing corrects the jumps, and the best-fitting column, found to
+/// a fraction of a pixel, follows the rod more closely (`Best`: on a rod
+/// moved along the simulated strip, 0.7 px of scatter against 1.2 px).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Relocation {
+    /// Only when the best column within the search radius leaves a residual
+    /// [`RELOCATE_MIN_GAIN`] smaller and lies at least
+    /// [`RELOCATE_MIN_SHIFT_OF_RADIUS`] of the radius away: a misplaced
+    /// point, not the residual's wobble.
+    #[default]
+    Clear,
+    /// Always to the column of least residual within the search radius,
+    /// refined to a fraction of a pixel (every profile cell counts).
+    Best,
+}
+
+impl Relocation {
+    /// Whether this is the default, [`Relocation::Clear`].
+    pub fn is_clear(&self) -> bool {
+        *self == Relocation::Clear
+    }
 }
 
 /// The far tails of a [`ProfileModel`]'s kernels, sampled coarser than the
@@ -303,6 +341,15 @@ pub const RELOCATE_MIN_GAIN: f64 = 0.3;
 /// residual's ordinary wobble, not a misplaced point.
 pub const RELOCATE_MIN_SHIFT_OF_RADIUS: f64 = 1.0 / 6.0;
 
+/// Most passes of [`Relocation::Best`] over several contacts (each pass
+/// searches every contact with the others' motion, matched at their latest
+/// columns, taken out).
+const RELOCATE_BEST_PASSES: usize = 3;
+
+/// [`Relocation::Best`] over several contacts stops once no column moved
+/// by more than this in a pass, pixels.
+const RELOCATE_BEST_SETTLED_PX: f64 = 0.02;
+
 /// The coarse search's step in [`ForceMatcher::relocate_contacts`], pixels.
 const RELOCATE_COARSE_STEP: usize = 4;
 
@@ -407,6 +454,7 @@ impl ProfileModel {
             anchor: None,
             size,
             tail: None,
+            relocation: Relocation::Clear,
         };
         model.kernels = model.fit_offsets(samples, step_px, half_width, true)?;
         model.validate()?;
@@ -631,6 +679,32 @@ impl ProfileModel {
             }
         }
         Some(out)
+    }
+
+    /// Takes the modelled motion of a contact at `column_px` with
+    /// `unknowns` (its local force, then the size term's unknown if the
+    /// model has one) out of the profiles `[u, v]` (cells of `scale`
+    /// pixels) in the cells whose pixel lies in `window`, far tails
+    /// included.
+    fn subtract_motion(
+        &self,
+        column_px: f64,
+        unknowns: &[f64],
+        scale: f64,
+        (lo, hi): (f64, f64),
+        profiles: [&mut [f64]; 2],
+    ) {
+        for (ch, prof) in profiles.into_iter().enumerate() {
+            for (j, p) in prof.iter_mut().enumerate() {
+                let x = (j as f64 + 0.5) * scale - 0.5;
+                if x < lo || x > hi {
+                    continue;
+                }
+                if let Some(kv) = self.kernel(ch, column_px, x - column_px, true) {
+                    *p -= kv.iter().zip(unknowns).map(|(k, f)| k * f).sum::<f64>();
+                }
+            }
+        }
     }
 
     /// How far each side of a contact the kernels reach, pixels: a
@@ -936,6 +1010,9 @@ impl ForceMatcher {
     /// [`RELOCATE_MIN_SHIFT_OF_RADIUS`] of the radius away, the contact's
     /// `x_px` moves by the same number of pixels. Returns how many moved.
     /// The kernels' far tails ([`ProfileTail`]) take no part in the search.
+    /// That is [`Relocation::Clear`]; a model with [`Relocation::Best`]
+    /// moves every contact to its best column, to a fraction of a pixel,
+    /// with the tails (see there).
     ///
     /// Why: the contact point is the steepest rise of a profile. Under a
     /// wide rod pushed at a slant the profile can have two steep flanks,
@@ -1012,11 +1089,82 @@ impl NormalEquations {
         scale: f64,
     ) -> Result<()> {
         check_match_inputs(columns_px, profile_u, profile_v, scale)?;
+        if model.relocation == Relocation::Best && columns_px.len() > 1 {
+            // The other contacts' motion, matched jointly at their current
+            // columns (with the far tails), is taken out of the profiles,
+            // and each contact is then searched alone: the same answer as
+            // searching it among them with their forces held, at a
+            // fraction of the cost of re-solving every contact for every
+            // candidate.
+            // Repeated while a column still moves: the neighbours' motion
+            // is taken out at their latest columns.
+            let start = columns_px.to_vec();
+            let radius = RELOCATE_RADIUS_OF_REACH * model.reach_px();
+            // The cells a search from a column can see: its window, with
+            // room for the search to move it.
+            let window = model.reach_px() + 3.0 * radius;
+            let mut forces = Vec::new();
+            let mut solved = false;
+            for pass in 0..RELOCATE_BEST_PASSES {
+                if self
+                    .solve(model, columns_px, profile_u, profile_v, scale, &mut forces)
+                    .is_err()
+                {
+                    break;
+                }
+                solved = true;
+                let comps = model.components();
+                let unknowns = self.work_b[..comps * columns_px.len()].to_vec();
+                let at = columns_px.to_vec();
+                let mut own = [0.0];
+                for m in 0..at.len() {
+                    let (mut u, mut v) = (profile_u.to_vec(), profile_v.to_vec());
+                    for (j, &c) in at.iter().enumerate().filter(|&(j, _)| j != m) {
+                        model.subtract_motion(
+                            c,
+                            &unknowns[comps * j..comps * (j + 1)],
+                            scale,
+                            (at[m] - window, at[m] + window),
+                            [&mut u, &mut v],
+                        );
+                    }
+                    own[0] = at[m];
+                    self.relocate_each(model, &mut own, &u, &v, scale, pass == 0);
+                    columns_px[m] = own[0].clamp(start[m] - radius, start[m] + radius);
+                }
+                let moved = at
+                    .iter()
+                    .zip(columns_px.iter())
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                if moved < RELOCATE_BEST_SETTLED_PX {
+                    break;
+                }
+            }
+            if solved {
+                return Ok(());
+            }
+        }
+        self.relocate_each(model, columns_px, profile_u, profile_v, scale, true);
+        Ok(())
+    }
+
+    /// [`NormalEquations::relocate`] searching every contact among the
+    /// others (each re-solved at every candidate).
+    fn relocate_each(
+        &mut self,
+        model: &ProfileModel,
+        columns_px: &mut [f64],
+        profile_u: &[f64],
+        profile_v: &[f64],
+        scale: f64,
+        coarse: bool,
+    ) {
         let radius = RELOCATE_RADIUS_OF_REACH * model.reach_px();
         let min_shift = RELOCATE_MIN_SHIFT_OF_RADIUS * radius;
         let steps = radius.floor() as i64;
         if steps < 1 {
-            return Ok(());
+            return;
         }
         // One window for every candidate, so that their residuals add up
         // the same cells.
@@ -1032,31 +1180,54 @@ impl NormalEquations {
             // weighing alike on every candidate, and with them every
             // contact would enter every search (4 contacts: 2.2 times the
             // time).
+            // For the best column to a fraction of a pixel the far tails
+            // count: a neighbour's far motion across the window would
+            // otherwise pull the column towards it, so every contact takes
+            // part, with its tails.
+            let tails = model.relocation == Relocation::Best && model.tail.is_some();
             near.clear();
             near.push(c0);
             near.extend(
                 columns_px
                     .iter()
                     .enumerate()
-                    .filter(|&(j, c)| j != m && (c - c0).abs() < reach + model.reach_px())
+                    .filter(|&(j, c)| {
+                        j != m && (tails || (c - c0).abs() < reach + model.reach_px())
+                    })
                     .map(|(_, &c)| c),
             );
-            let residual_at = |this: &mut Self, cols: &mut [f64], c: f64| {
+            // Every second cell to find a misplaced point: the residual
+            // compares candidates, and the kernels are smooth over a cell.
+            // Every cell, and the far tails, for the best column to a
+            // fraction of a pixel.
+            let best_mode = model.relocation == Relocation::Best;
+            let rough = (2, tails);
+            let fine = if best_mode { (1, tails) } else { rough };
+            let residual_at = |this: &mut Self, cols: &mut [f64], c: f64, how| {
                 cols[0] = c;
-                this.residual(model, cols, profile_u, profile_v, scale, window)
+                this.residual(model, cols, profile_u, profile_v, scale, window, how)
             };
-            let Some(r0) = residual_at(self, &mut near, c0) else {
+            let Some(r0) = residual_at(self, &mut near, c0, rough) else {
                 continue;
             };
             // Every fourth pixel, then 2 and 1 pixels either side of the
             // best: a misplaced point is a dozen pixels or more off, and the
             // residual's basin about the right column is wider than 4 px.
             let (mut best, mut best_r) = (c0, r0);
-            for k in (-steps..=steps).step_by(RELOCATE_COARSE_STEP) {
-                let c = c0 + k as f64;
-                if let Some(r) = residual_at(self, &mut near, c).filter(|&r| r < best_r) {
-                    (best, best_r) = (c, r);
+            if coarse {
+                for k in (-steps..=steps).step_by(RELOCATE_COARSE_STEP) {
+                    let c = c0 + k as f64;
+                    if let Some(r) = residual_at(self, &mut near, c, rough).filter(|&r| r < best_r)
+                    {
+                        (best, best_r) = (c, r);
+                    }
                 }
+            }
+            if best_mode {
+                let Some(r) = residual_at(self, &mut near, best, fine) else {
+                    continue;
+                };
+                best_r = r;
             }
             for step in [2.0, 1.0] {
                 let centre = best;
@@ -1064,20 +1235,50 @@ impl NormalEquations {
                     if (c - c0).abs() > radius {
                         continue;
                     }
-                    if let Some(r) = residual_at(self, &mut near, c).filter(|&r| r < best_r) {
+                    if let Some(r) = residual_at(self, &mut near, c, fine).filter(|&r| r < best_r) {
                         (best, best_r) = (c, r);
                     }
                 }
             }
-            let moves = best_r < (1.0 - RELOCATE_MIN_GAIN) * r0 && (best - c0).abs() >= min_shift;
+            let moves = match model.relocation {
+                Relocation::Clear => {
+                    best_r < (1.0 - RELOCATE_MIN_GAIN) * r0 && (best - c0).abs() >= min_shift
+                }
+                Relocation::Best => {
+                    // Half a pixel either side of the best whole pixel,
+                    // then the vertex of the parabola through the best and
+                    // its two half-pixel neighbours.
+                    let centre = best;
+                    for c in [centre - 0.5, centre + 0.5] {
+                        if (c - c0).abs() > radius {
+                            continue;
+                        }
+                        if let Some(r) =
+                            residual_at(self, &mut near, c, fine).filter(|&r| r < best_r)
+                        {
+                            (best, best_r) = (c, r);
+                        }
+                    }
+                    let below = residual_at(self, &mut near, best - 0.5, fine);
+                    let above = residual_at(self, &mut near, best + 0.5, fine);
+                    if let (Some(lo), Some(hi)) = (below, above) {
+                        let curvature = lo - 2.0 * best_r + hi;
+                        if curvature > 0.0 {
+                            best += (0.25 * (lo - hi) / curvature).clamp(-0.25, 0.25);
+                        }
+                    }
+                    best = best.clamp(c0 - radius, c0 + radius);
+                    true
+                }
+            };
             columns_px[m] = if moves { best } else { c0 };
         }
-        Ok(())
     }
 
     /// The residual sum of squares of the least-squares match of contacts
-    /// at `columns_px`, over the profile cells whose pixel lies in
-    /// `window`; `None` when the system is singular there.
+    /// at `columns_px`, over every `stride`-th profile cell whose pixel
+    /// lies in `window`, with the far tails when `tails`; `None` when the
+    /// system is singular there.
     fn residual(
         &mut self,
         model: &ProfileModel,
@@ -1086,6 +1287,7 @@ impl NormalEquations {
         profile_v: &[f64],
         scale: f64,
         (lo, hi): (f64, f64),
+        (stride, tails): (usize, bool),
     ) -> Option<f64> {
         let comps = model.components();
         let n = comps * columns_px.len();
@@ -1096,11 +1298,9 @@ impl NormalEquations {
         self.row.clear();
         self.row.resize(n, 0.0);
         let mut yy = 0.0;
-        // Every second cell: the residual compares candidates, and the
-        // kernels are smooth over a cell.
         let first = ((lo + 0.5) / scale - 0.5).ceil().max(0.0) as usize;
         for (ch, prof) in [profile_u, profile_v].into_iter().enumerate() {
-            for (j, &y) in prof.iter().enumerate().skip(first).step_by(2) {
+            for (j, &y) in prof.iter().enumerate().skip(first).step_by(stride) {
                 let x = (j as f64 + 0.5) * scale - 0.5;
                 if x > hi {
                     break;
@@ -1110,7 +1310,7 @@ impl NormalEquations {
                 }
                 for (m, &c) in columns_px.iter().enumerate() {
                     let kv = model
-                        .kernel(ch, c, x - c, false)
+                        .kernel(ch, c, x - c, tails)
                         .unwrap_or([0.0; MAX_UNKNOWNS]);
                     self.row[comps * m..comps * (m + 1)].copy_from_slice(&kv[..comps]);
                 }
@@ -1122,7 +1322,22 @@ impl NormalEquations {
         self.work_a.extend_from_slice(&self.ata);
         self.work_b.clear();
         self.work_b.extend_from_slice(&self.atb);
-        solve_in_place(&mut self.work_a, &mut self.work_b, n)?;
+        if solve_in_place(&mut self.work_a, &mut self.work_b, n).is_none() {
+            if !tails {
+                return None;
+            }
+            // A contact without an equation in the window (a far one whose
+            // tail is zero there): a small ridge leaves its unknowns at 0.
+            let ridge = 1e-9 * (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max);
+            self.work_a.clear();
+            self.work_a.extend_from_slice(&self.ata);
+            for i in 0..n {
+                self.work_a[i * n + i] += ridge;
+            }
+            self.work_b.clear();
+            self.work_b.extend_from_slice(&self.atb);
+            solve_in_place(&mut self.work_a, &mut self.work_b, n)?;
+        }
         let explained: f64 = self.work_b.iter().zip(&self.atb).map(|(x, b)| x * b).sum();
         Some(yy - explained).filter(|r| r.is_finite())
     }
