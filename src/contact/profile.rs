@@ -1318,17 +1318,31 @@ impl NormalEquations {
                 yy += y * y;
             }
         }
-        self.work_a.clear();
-        self.work_a.extend_from_slice(&self.ata);
-        self.work_b.clear();
-        self.work_b.extend_from_slice(&self.atb);
-        if solve_in_place(&mut self.work_a, &mut self.work_b, n).is_none() {
-            if !tails {
-                return None;
-            }
+        if tails {
             // A contact without an equation in the window (a far one whose
-            // tail is zero there): a small ridge leaves its unknowns at 0.
-            let ridge = 1e-9 * (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max);
+            // tail is zero there): the ridge leaves its unknowns at 0.
+            self.solve_ridged(n)?;
+        } else {
+            self.work_a.clear();
+            self.work_a.extend_from_slice(&self.ata);
+            self.work_b.clear();
+            self.work_b.extend_from_slice(&self.atb);
+            solve_in_place(&mut self.work_a, &mut self.work_b, n)?;
+        }
+        let explained: f64 = self.work_b.iter().zip(&self.atb).map(|(x, b)| x * b).sum();
+        Some(yy - explained).filter(|r| r.is_finite())
+    }
+
+    /// Solves the accumulated system (`ata x = atb`, `n` unknowns) into
+    /// `work_b`, `ata` and `atb` kept; when it is singular, again with a
+    /// ridge of 1e-9 of the largest diagonal entry, which shares unknowns
+    /// the data cannot tell apart out evenly and leaves those without an
+    /// equation at 0. `None` if even that fails (an all-zero system).
+    fn solve_ridged(&mut self, n: usize) -> Option<()> {
+        for ridge in [
+            0.0,
+            1e-9 * (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max),
+        ] {
             self.work_a.clear();
             self.work_a.extend_from_slice(&self.ata);
             for i in 0..n {
@@ -1336,10 +1350,11 @@ impl NormalEquations {
             }
             self.work_b.clear();
             self.work_b.extend_from_slice(&self.atb);
-            solve_in_place(&mut self.work_a, &mut self.work_b, n)?;
+            if solve_in_place(&mut self.work_a, &mut self.work_b, n).is_some() {
+                return Some(());
+            }
         }
-        let explained: f64 = self.work_b.iter().zip(&self.atb).map(|(x, b)| x * b).sum();
-        Some(yy - explained).filter(|r| r.is_finite())
+        None
     }
 
     /// See [`ForceMatcher::measure`].
@@ -1395,26 +1410,13 @@ impl NormalEquations {
         // make the system singular. Rather than fail the frame, a small ridge
         // then shares the force out evenly between them (the minimum-norm
         // answer); the solution is otherwise untouched.
-        let solved = |ata: &[f64], atb: &[f64], wa: &mut Vec<f64>, wb: &mut Vec<f64>| {
-            wa.clear();
-            wa.extend_from_slice(ata);
-            wb.clear();
-            wb.extend_from_slice(atb);
-            solve_in_place(wa, wb, n).is_some()
-        };
-        if !solved(&self.ata, &self.atb, &mut self.work_a, &mut self.work_b) {
-            let ridge = 1e-9 * (0..n).map(|i| self.ata[i * n + i]).fold(0.0, f64::max);
-            for i in 0..n {
-                self.ata[i * n + i] += ridge;
-            }
-            if !solved(&self.ata, &self.atb, &mut self.work_a, &mut self.work_b) {
-                return Err(Error::Numerical {
-                    what: "profile force match".into(),
-                    message: format!(
-                        "no motion near the contacts at columns {columns_px:?} (all-zero system)"
-                    ),
-                });
-            }
+        if self.solve_ridged(n).is_none() {
+            return Err(Error::Numerical {
+                what: "profile force match".into(),
+                message: format!(
+                    "no motion near the contacts at columns {columns_px:?} (all-zero system)"
+                ),
+            });
         }
         out.extend(self.work_b.chunks_exact(comps).map(|c| [c[0], c[1], c[2]]));
         Ok(())
