@@ -1095,14 +1095,14 @@ impl NormalEquations {
             // and each contact is then searched alone: the same answer as
             // searching it among them with their forces held, at a
             // fraction of the cost of re-solving every contact for every
-            // candidate.
-            // Repeated while a column still moves: the neighbours' motion
-            // is taken out at their latest columns.
+            // candidate. Repeated while a column still moves, the
+            // neighbours' motion taken out at their latest columns.
             let start = columns_px.to_vec();
             let radius = RELOCATE_RADIUS_OF_REACH * model.reach_px();
             // The cells a search from a column can see: its window, with
             // room for the search to move it.
             let window = model.reach_px() + 3.0 * radius;
+            let comps = model.components();
             let mut forces = Vec::new();
             let mut solved = false;
             for pass in 0..RELOCATE_BEST_PASSES {
@@ -1113,7 +1113,6 @@ impl NormalEquations {
                     break;
                 }
                 solved = true;
-                let comps = model.components();
                 let unknowns = self.work_b[..comps * columns_px.len()].to_vec();
                 let at = columns_px.to_vec();
                 let mut own = [0.0];
@@ -1169,22 +1168,31 @@ impl NormalEquations {
         // One window for every candidate, so that their residuals add up
         // the same cells.
         let reach = model.reach_px() + radius;
+        // To find a misplaced point the search compares candidate columns by
+        // their residual over the window, every second cell (the kernels are
+        // smooth over a cell), without the far tails: a far contact's motion
+        // weighs alike on every candidate, and with them every contact would
+        // enter every search (4 contacts: 2.2 times the time). For the best
+        // column to a fraction of a pixel the final steps take every cell,
+        // and the tails count: a neighbour's far motion across the window
+        // would otherwise pull the column towards it, so every contact takes
+        // part, with its tails.
+        let best_mode = model.relocation == Relocation::Best;
+        let tails = best_mode && model.tail.is_some();
+        let rough = (2, tails);
+        let fine = if best_mode { (1, tails) } else { rough };
+        let steps_px: &[f64] = if best_mode {
+            &[2.0, 1.0, 0.5]
+        } else {
+            &[2.0, 1.0]
+        };
         let mut near = Vec::with_capacity(columns_px.len());
         for m in 0..columns_px.len() {
             let c0 = columns_px[m];
             let window = (c0 - reach, c0 + reach);
             // The contacts whose kernels reach into the window (the others'
-            // unknowns would have no equation there), this one first. The
-            // search compares candidate columns by their residual over the
-            // window: it leaves the far tails out, a far contact's motion
-            // weighing alike on every candidate, and with them every
-            // contact would enter every search (4 contacts: 2.2 times the
-            // time).
-            // For the best column to a fraction of a pixel the far tails
-            // count: a neighbour's far motion across the window would
-            // otherwise pull the column towards it, so every contact takes
-            // part, with its tails.
-            let tails = model.relocation == Relocation::Best && model.tail.is_some();
+            // unknowns would have no equation there), or with the tails
+            // every contact; this one first.
             near.clear();
             near.push(c0);
             near.extend(
@@ -1196,13 +1204,6 @@ impl NormalEquations {
                     })
                     .map(|(_, &c)| c),
             );
-            // Every second cell to find a misplaced point: the residual
-            // compares candidates, and the kernels are smooth over a cell.
-            // Every cell, and the far tails, for the best column to a
-            // fraction of a pixel.
-            let best_mode = model.relocation == Relocation::Best;
-            let rough = (2, tails);
-            let fine = if best_mode { (1, tails) } else { rough };
             let residual_at = |this: &mut Self, cols: &mut [f64], c: f64, how| {
                 cols[0] = c;
                 this.residual(model, cols, profile_u, profile_v, scale, window, how)
@@ -1210,8 +1211,8 @@ impl NormalEquations {
             let Some(r0) = residual_at(self, &mut near, c0, rough) else {
                 continue;
             };
-            // Every fourth pixel, then 2 and 1 pixels either side of the
-            // best: a misplaced point is a dozen pixels or more off, and the
+            // Every fourth pixel, then 2 and 1 pixels (and half a pixel for
+            // the best column) either side of the best: a misplaced point is a dozen pixels or more off, and the
             // residual's basin about the right column is wider than 4 px.
             let (mut best, mut best_r) = (c0, r0);
             if coarse {
@@ -1229,7 +1230,7 @@ impl NormalEquations {
                 };
                 best_r = r;
             }
-            for step in [2.0, 1.0] {
+            for &step in steps_px {
                 let centre = best;
                 for c in [centre - step, centre + step] {
                     if (c - c0).abs() > radius {
@@ -1245,20 +1246,8 @@ impl NormalEquations {
                     best_r < (1.0 - RELOCATE_MIN_GAIN) * r0 && (best - c0).abs() >= min_shift
                 }
                 Relocation::Best => {
-                    // Half a pixel either side of the best whole pixel,
-                    // then the vertex of the parabola through the best and
-                    // its two half-pixel neighbours.
-                    let centre = best;
-                    for c in [centre - 0.5, centre + 0.5] {
-                        if (c - c0).abs() > radius {
-                            continue;
-                        }
-                        if let Some(r) =
-                            residual_at(self, &mut near, c, fine).filter(|&r| r < best_r)
-                        {
-                            (best, best_r) = (c, r);
-                        }
-                    }
+                    // The vertex of the parabola through the best and its
+                    // two half-pixel neighbours.
                     let below = residual_at(self, &mut near, best - 0.5, fine);
                     let above = residual_at(self, &mut near, best + 0.5, fine);
                     if let (Some(lo), Some(hi)) = (below, above) {
