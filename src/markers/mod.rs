@@ -1,4 +1,5 @@
-//! The marker pattern of a reference frame: the pitch of a regular grid.
+//! The marker pattern of a reference frame: the pitch of a regular grid,
+//! and its dots followed one by one ([`DotTracker`]).
 //!
 //! A regular grid of markers (the dark dots of a GelSight-class sensor) is
 //! periodic: seen against one unloaded reference, a dot that moved by a
@@ -18,6 +19,9 @@
 //! [`MIN_GRID_CORRELATION`].
 
 use ndarray::ArrayRef2;
+
+pub mod dots;
+pub use dots::DotTracker;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex64;
 

@@ -1,0 +1,329 @@
+//! The dot tracker on rendered dot grids: the dots found, followed under
+//! known motion, the spread flow against a direct sum, and bad input.
+
+use super::*;
+use proptest::prelude::*;
+use proptest::test_runner::RngSeed;
+
+/// A deterministic standard normal stream (sum of uniforms).
+struct Noise(u64);
+
+impl Noise {
+    fn normal(&mut self) -> f32 {
+        let mut s = 0.0;
+        for _ in 0..12 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            s += (self.0 >> 11) as f64 / (1u64 << 53) as f64;
+        }
+        (s - 6.0) as f32
+    }
+}
+
+/// A `w x h` image of round dots at `centres` (radius `r`, a soft edge of
+/// 1.5 px): `dark` dots 120 grey levels below a gel lit to 180 with some
+/// vignetting, or bright dots 120 above a gel at 40; camera noise of
+/// `noise` grey levels.
+fn render(
+    w: usize,
+    h: usize,
+    centres: &[[f64; 2]],
+    r: f64,
+    dark: bool,
+    noise: f32,
+    seed: u64,
+) -> Array2<f32> {
+    let mut n = Noise(seed);
+    let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+    let mut img = Array2::from_shape_fn((h, w), |(i, j)| {
+        let v = 1.0 - 0.15 * (((j as f64 - cx) / cx).powi(2) + ((i as f64 - cy) / cy).powi(2));
+        (if dark { 180.0 * v } else { 40.0 * v }) as f32
+    });
+    let e = 1.5;
+    for c in centres {
+        let reach = (r + e + 1.0).ceil() as isize;
+        let (ci, cj) = (c[1].round() as isize, c[0].round() as isize);
+        for i in ci - reach..=ci + reach {
+            for j in cj - reach..=cj + reach {
+                if i < 0 || j < 0 || i >= h as isize || j >= w as isize {
+                    continue;
+                }
+                let d = ((j as f64 - c[0]).powi(2) + (i as f64 - c[1]).powi(2)).sqrt();
+                let t = ((r + e - d) / (2.0 * e)).clamp(0.0, 1.0);
+                let p = (t * t * (3.0 - 2.0 * t)) as f32;
+                img[[i as usize, j as usize]] += if dark { -120.0 * p } else { 120.0 * p };
+            }
+        }
+    }
+    img.mapv_inplace(|v| (v + noise * n.normal()).clamp(0.0, 255.0));
+    img
+}
+
+/// The centres of a square grid of `pitch` px offset by `(ox, oy)`,
+/// every dot whole inside `w x h`.
+fn grid(w: usize, h: usize, pitch: f64, ox: f64, oy: f64) -> Vec<[f64; 2]> {
+    let mut v = Vec::new();
+    let mut y = oy;
+    while y < h as f64 - 6.0 {
+        let mut x = ox;
+        while x < w as f64 - 6.0 {
+            if x > 6.0 && y > 6.0 {
+                v.push([x, y]);
+            }
+            x += pitch;
+        }
+        y += pitch;
+    }
+    v
+}
+
+/// A smooth bump of motion: radial, `amp` px at most, about `(x0, y0)`.
+fn bump(amp: f64, x0: f64, y0: f64, width: f64) -> impl Fn([f64; 2]) -> [f64; 2] {
+    move |[x, y]| {
+        let (dx, dy) = (x - x0, y - y0);
+        let g = amp * (-(dx * dx + dy * dy) / (2.0 * width * width)).exp() / width;
+        [g * dx, g * dy]
+    }
+}
+
+/// The nearest true centre's distance to `c`.
+fn nearest(truth: &[[f64; 2]], c: [f64; 2]) -> (usize, f64) {
+    truth
+        .iter()
+        .enumerate()
+        .map(|(k, t)| (k, (t[0] - c[0]).hypot(t[1] - c[1])))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .expect("centres")
+}
+
+/// A native flow at `scale` px per cell holding `field` (full-resolution
+/// px) plus a constant error, in its cells' units.
+fn flow_of(
+    w: usize,
+    h: usize,
+    scale: usize,
+    field: &dyn Fn([f64; 2]) -> [f64; 2],
+    error: [f64; 2],
+) -> FlowField {
+    let (fw, fh) = (w.div_ceil(scale), h.div_ceil(scale));
+    let s = scale as f64;
+    let mut f = FlowField::zeros(fw, fh);
+    for i in 0..fh {
+        for j in 0..fw {
+            let p = [(j as f64 + 0.5) * s - 0.5, (i as f64 + 0.5) * s - 0.5];
+            let d = field(p);
+            f.u[[i, j]] = ((d[0] + error[0]) / s) as f32;
+            f.v[[i, j]] = ((d[1] + error[1]) / s) as f32;
+        }
+    }
+    f
+}
+
+#[test]
+fn finds_the_dots_of_grids_of_several_pitches_and_either_polarity() {
+    for (pitch, r, dark, ox, oy) in [
+        (22.0, 3.5, true, 11.3, 10.7),
+        (16.0, 2.5, true, 8.6, 9.2),
+        (30.0, 5.0, false, 14.1, 15.5),
+    ] {
+        let truth = grid(320, 240, pitch, ox, oy);
+        let img = render(320, 240, &truth, r, dark, 1.5, 3);
+        let mut t = DotTracker::new();
+        let n = t.set_reference(&img, pitch).unwrap();
+        assert!(
+            n as f64 >= 0.9 * truth.len() as f64,
+            "pitch {pitch}: {n} of {} dots",
+            truth.len()
+        );
+        let worst = t
+            .dots()
+            .iter()
+            .map(|&c| nearest(&truth, c).1)
+            .fold(0.0, f64::max);
+        assert!(worst < 0.1, "pitch {pitch}: a centre {worst} px off");
+    }
+}
+
+#[test]
+fn follows_dots_moved_by_a_smooth_field_from_an_imprecise_flow() {
+    let (w, h, pitch) = (320, 240, 22.0);
+    let truth = grid(w, h, pitch, 11.3, 10.7);
+    let reference = render(w, h, &truth, 3.5, true, 1.5, 5);
+    let field = bump(7.0, 150.0, 110.0, 25.0);
+    let moved: Vec<[f64; 2]> = truth
+        .iter()
+        .map(|&c| {
+            let d = field(c);
+            [c[0] + d[0], c[1] + d[1]]
+        })
+        .collect();
+    let largest = truth
+        .iter()
+        .map(|&c| {
+            let d = field(c);
+            d[0].hypot(d[1])
+        })
+        .fold(0.0, f64::max);
+    assert!(
+        largest > 3.0 && largest < 6.0,
+        "the bump moves dots by {largest} px"
+    );
+    let frame = render(w, h, &moved, 3.5, true, 1.5, 6);
+    let mut t = DotTracker::new();
+    t.set_reference(&reference, pitch).unwrap();
+    for scale in [1, 2, 4] {
+        let mut flow = flow_of(w, h, scale, &field, [1.2, -0.8]);
+        t.refine(&frame, &mut flow, scale).unwrap();
+        let mut errors = Vec::new();
+        for (&c, d) in t.dots().iter().zip(t.displacements()) {
+            let d = d.expect("every dot followed");
+            let (k, _) = nearest(&truth, c);
+            let want = field(truth[k]);
+            errors.push((d[0] - want[0]).hypot(d[1] - want[1]));
+        }
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let worst = errors.iter().copied().fold(0.0, f64::max);
+        assert!(
+            mean < 0.03 && worst < 0.12,
+            "scale {scale}: mean {mean}, worst {worst} px"
+        );
+    }
+}
+
+#[test]
+fn the_spread_flow_matches_a_direct_sum_over_every_dot() {
+    let (w, h, pitch) = (200, 150, 22.0);
+    let truth = grid(w, h, pitch, 11.3, 10.7);
+    let reference = render(w, h, &truth, 3.5, true, 1.0, 8);
+    let field = bump(6.0, 90.0, 70.0, 20.0);
+    let moved: Vec<[f64; 2]> = truth
+        .iter()
+        .map(|&c| {
+            let d = field(c);
+            [c[0] + d[0], c[1] + d[1]]
+        })
+        .collect();
+    let frame = render(w, h, &moved, 3.5, true, 1.0, 9);
+    let mut t = DotTracker::new();
+    t.set_reference(&reference, pitch).unwrap();
+    for scale in [1, 2, 3] {
+        let before = flow_of(w, h, scale, &|_| [0.5, 0.25], [0.0, 0.0]);
+        let mut flow = before.clone();
+        t.refine(&frame, &mut flow, scale).unwrap();
+        let s = scale as f64;
+        let sigma = SPREAD_OF_PITCH * pitch;
+        let (fh, fw) = flow.u.dim();
+        for i in 0..fh {
+            for j in 0..fw {
+                let p = [(j as f64 + 0.5) * s - 0.5, (i as f64 + 0.5) * s - 0.5];
+                let (mut sw, mut su, mut sv) = (0.0, 0.0, 0.0);
+                for (c, d) in t.dots().iter().zip(t.displacements()) {
+                    let Some(d) = d else { continue };
+                    let r2 = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2);
+                    if r2 <= (3.0 * sigma).powi(2) {
+                        let wt = (-0.5 * r2 / (sigma * sigma)).exp();
+                        sw += wt;
+                        su += wt * d[0];
+                        sv += wt * d[1];
+                    }
+                }
+                let (u, v) = if sw >= MIN_SPREAD_WEIGHT {
+                    (su / sw / s, sv / sw / s)
+                } else {
+                    (f64::from(before.u[[i, j]]), f64::from(before.v[[i, j]]))
+                };
+                assert!(
+                    (f64::from(flow.u[[i, j]]) - u).abs() < 1e-4,
+                    "scale {scale} cell {i},{j}"
+                );
+                assert!(
+                    (f64::from(flow.v[[i, j]]) - v).abs() < 1e-4,
+                    "scale {scale} cell {i},{j}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn an_image_without_dots_changes_no_flow() {
+    let plain = Array2::from_elem((120, 160), 128.0f32);
+    let mut t = DotTracker::new();
+    assert_eq!(t.set_reference(&plain, 22.0).unwrap(), 0);
+    assert!(!t.is_active());
+    let before = flow_of(160, 120, 2, &|p| [p[0] * 0.01, 0.3], [0.0, 0.0]);
+    let mut flow = before.clone();
+    t.refine(&plain, &mut flow, 2).unwrap();
+    assert_eq!(flow, before);
+}
+
+#[test]
+fn dots_that_vanish_are_lost_and_leave_the_flow_alone() {
+    let truth = grid(160, 120, 22.0, 11.3, 10.7);
+    let reference = render(160, 120, &truth, 3.5, true, 1.0, 2);
+    let mut t = DotTracker::new();
+    assert!(t.set_reference(&reference, 22.0).unwrap() > 10);
+    let blank = Array2::from_elem((120, 160), 180.0f32);
+    let before = flow_of(160, 120, 2, &|_| [0.7, -0.2], [0.0, 0.0]);
+    let mut flow = before.clone();
+    t.refine(&blank, &mut flow, 2).unwrap();
+    assert!(t.displacements().iter().all(Option::is_none));
+    assert_eq!(flow, before);
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let truth = grid(160, 120, 22.0, 11.3, 10.7);
+    let reference = render(160, 120, &truth, 3.5, true, 1.0, 2);
+    let mut t = DotTracker::new();
+    for pitch in [f64::NAN, 0.0, 3.0, 1e9, f64::INFINITY] {
+        assert!(t.set_reference(&reference, pitch).is_err(), "pitch {pitch}");
+        assert!(!t.is_active());
+    }
+    let mut bad = reference.clone();
+    bad[[5, 5]] = f32::NAN;
+    assert!(t.set_reference(&bad, 22.0).is_err());
+    t.set_reference(&reference, 22.0).unwrap();
+    let mut flow = flow_of(160, 120, 2, &|_| [0.0, 0.0], [0.0, 0.0]);
+    let small = Array2::from_elem((60, 80), 180.0f32);
+    assert!(t.refine(&small, &mut flow, 2).is_err());
+    let mut short = flow_of(80, 60, 1, &|_| [0.0, 0.0], [0.0, 0.0]);
+    assert!(t.refine(&reference, &mut short, 1).is_err());
+    // A tiny image has no dots, and no error.
+    let tiny = Array2::from_elem((2, 2), 10.0f32);
+    assert_eq!(t.set_reference(&tiny, 22.0).unwrap(), 0);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: 24,
+        rng_seed: RngSeed::Fixed(0x0D07_5EED),
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    })]
+
+    /// A grid shifted as a whole is followed to a few hundredths of a
+    /// pixel, from a flow off by up to 1.5 px.
+    #[test]
+    fn a_shifted_grid_is_followed(
+        dx in -4.0f64..4.0, dy in -4.0f64..4.0,
+        ex in -1.5f64..1.5, ey in -1.5f64..1.5,
+        ox in 8.0f64..14.0, oy in 8.0f64..14.0,
+        seed in 0u64..1000,
+    ) {
+        let truth = grid(160, 120, 22.0, ox, oy);
+        let reference = render(160, 120, &truth, 3.5, true, 1.5, seed);
+        let moved: Vec<[f64; 2]> = truth.iter().map(|c| [c[0] + dx, c[1] + dy]).collect();
+        let frame = render(160, 120, &moved, 3.5, true, 1.5, seed + 1);
+        let mut t = DotTracker::new();
+        t.set_reference(&reference, 22.0).unwrap();
+        let mut flow = flow_of(160, 120, 2, &|_| [dx, dy], [ex, ey]);
+        t.refine(&frame, &mut flow, 2).unwrap();
+        let got: Vec<[f64; 2]> = t.displacements().iter().flatten().copied().collect();
+        prop_assert!(got.len() as f64 >= 0.8 * t.dots().len() as f64);
+        let mean = got.iter().map(|d| (d[0] - dx).hypot(d[1] - dy)).sum::<f64>() / got.len() as f64;
+        prop_assert!(mean < 0.05, "mean error {} px", mean);
+    }
+}
