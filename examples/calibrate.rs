@@ -56,6 +56,12 @@
 //! only a clearly misplaced one is (`--relocation clear`, see
 //! `contact::profile::Relocation`).
 //!
+//! When the first reference shows a regular grid of markers (a dot grid on
+//! a plain gel), the dots are followed one by one and their motion written
+//! over the flow (`markers::DotTracker`); the calibration records it, so
+//! that a sensor does the same. `--dot-tracking off` leaves the flow alone,
+//! `on` asks for it whatever the reference shows.
+//!
 //! The calibration also gets a per-contact force uncertainty, fitted on the
 //! validation split (`calibration::uncertainty`): one line prints its
 //! coefficients and the fraction of the test split's errors within one
@@ -185,6 +191,11 @@ struct Cli {
     /// best without].
     #[arg(long, value_enum, value_name = "WHEN")]
     relocation: Option<RelocationArg>,
+    /// Follow the dots of a regular marker grid one by one and let their
+    /// motion replace the flow around them: `auto` when the first
+    /// reference shows a regular grid (docs/pipeline.md, step 2).
+    #[arg(long, value_enum, value_name = "WHEN", default_value = "auto")]
+    dot_tracking: DotTrackingArg,
     /// DIS flow preset [default: fine, the sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
@@ -207,6 +218,14 @@ enum PresetArg {
     Mid,
     High,
     All,
+}
+
+/// `--dot-tracking`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum DotTrackingArg {
+    Auto,
+    On,
+    Off,
 }
 
 /// `--relocation`.
@@ -247,6 +266,7 @@ struct Args {
     no_size_term: bool,
     no_profile_tail: bool,
     relocation: Option<Relocation>,
+    dot_tracking: DotTrackingArg,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     crop: Option<Roi>,
@@ -455,6 +475,7 @@ impl Cli {
             no_size_term: self.no_size_term,
             no_profile_tail: self.no_profile_tail,
             relocation: self.relocation.map(Relocation::from),
+            dot_tracking: self.dot_tracking,
             flow: self.preset,
             crop: self.crop,
             predictions: self.predictions,
@@ -505,11 +526,25 @@ fn run(args: Args) -> Result<(), Failure> {
         .contact_point
         .unwrap_or(ContactPointMethod::for_geometry(&geometry));
     // The crop the pixel coordinates refer to: given, or the whole image.
-    let crop = match args.crop {
-        Some(c) => c,
-        None => {
-            let img = io::read_gray(args.dir.join(&rows[0].reference)).map_err(err)?;
-            Roi::full(img.ncols(), img.nrows())
+    let first = io::read_gray(args.dir.join(&rows[0].reference)).map_err(err)?;
+    let crop = args
+        .crop
+        .unwrap_or_else(|| Roi::full(first.ncols(), first.nrows()));
+    let dot_tracking = match args.dot_tracking {
+        DotTrackingArg::On => true,
+        DotTrackingArg::Off => false,
+        DotTrackingArg::Auto => {
+            let pitch = crop
+                .crop(&first)
+                .ok()
+                .and_then(|v| optical_tactile::markers::grid_pitch(&v.to_owned()));
+            if let Some(p) = pitch {
+                eprintln!(
+                    "the references show a regular grid of markers ({p:.0} px apart): \
+                     its dots are followed one by one (--dot-tracking off: the flow alone)"
+                );
+            }
+            pitch.is_some()
         }
     };
     let sweeps = if args.no_sweeps {
@@ -532,8 +567,9 @@ fn run(args: Args) -> Result<(), Failure> {
     let mut table_i = Vec::new();
     let mut table_ii = Vec::new();
     for (k, preset) in args.presets.iter().enumerate() {
-        let mut config =
-            ExtractorConfig::default().with_thresholds(thresholds(preset, args.custom));
+        let mut config = ExtractorConfig::default()
+            .with_thresholds(thresholds(preset, args.custom))
+            .with_dot_tracking(dot_tracking);
         if let Some(p) = args.flow {
             config.flow = DisParams::preset(p);
         }

@@ -52,6 +52,7 @@ use crate::flow::FlowField;
 use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
 use crate::hhd::{DivergentPart, NaturalHhd};
+use crate::markers::DotTracker;
 use crate::segment::morphology::Mask;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
@@ -81,6 +82,12 @@ pub struct ExtractorConfig {
     /// side by side (default [`SplitRule::DEFAULT`]); `None` keeps every
     /// group whole.
     pub split: Option<SplitRule>,
+    /// Follow the dots of a regular marker grid one by one and let their
+    /// motion replace the flow around them ([`crate::markers::DotTracker`]),
+    /// when the reference shows a regular grid
+    /// ([`crate::markers::grid_pitch`]); off by default (and on random
+    /// markers it changes nothing).
+    pub dot_tracking: bool,
 }
 
 impl Default for ExtractorConfig {
@@ -92,6 +99,7 @@ impl Default for ExtractorConfig {
             subpixel: true,
             exposure: ExposureCompensation::default(),
             split: Some(SplitRule::DEFAULT),
+            dot_tracking: false,
         }
     }
 }
@@ -133,6 +141,13 @@ impl ExtractorConfig {
         self
     }
 
+    /// This configuration with the dots of a regular grid followed one by
+    /// one, or not ([`ExtractorConfig::dot_tracking`]).
+    pub fn with_dot_tracking(mut self, on: bool) -> Self {
+        self.dot_tracking = on;
+        self
+    }
+
     /// The settings a calibration was fitted with, so that a sensor measures
     /// the raw quantities the same way: the thresholds of `setup.thresholds`
     /// and, when recorded, the flow preset, margin, sub-pixel switch and
@@ -151,6 +166,7 @@ impl ExtractorConfig {
             config.margin_px = p.margin_px;
             config.subpixel = p.subpixel;
             config.exposure = p.exposure_compensation();
+            config.dot_tracking = p.dot_tracking;
         }
         Ok(config)
     }
@@ -415,6 +431,10 @@ pub struct ContactExtractor {
     /// The pitch of the reference's markers when they form a regular grid
     /// ([`crate::markers::grid_pitch`]).
     marker_pitch: Option<f64>,
+    /// The dots of a regular grid, followed when the configuration says so.
+    dots: DotTracker,
+    /// The native flow with the dots' motion written over it.
+    dot_flow: FlowField,
 }
 
 impl ContactExtractor {
@@ -442,6 +462,8 @@ impl ContactExtractor {
             locator: ContactLocator::new(),
             timings: StageTimings::default(),
             marker_pitch: None,
+            dots: DotTracker::new(),
+            dot_flow: FlowField::zeros(0, 0),
         })
     }
 
@@ -484,6 +506,12 @@ impl ContactExtractor {
         self.segmenter
             .set_observable(self.grid.observable(&self.dis));
         self.marker_pitch = crate::markers::grid_pitch(reference);
+        match self.marker_pitch {
+            // A pitch outside the tracker's range: the flow alone.
+            Some(p)
+                if self.config.dot_tracking && self.dots.set_reference(reference, p).is_ok() => {}
+            _ => self.dots.clear(),
+        }
         Ok(())
     }
 
@@ -524,8 +552,15 @@ impl ContactExtractor {
         self.exposure
             .compensate_into(frame, &mut self.compensated)?;
         self.dis.compute_native(&self.compensated)?;
-        let (native, _) = self.dis.native_flow().ok_or(Error::NoReference)?;
-        let seg_input = self.grid.update(native)?;
+        let (native, native_scale) = self.dis.native_flow().ok_or(Error::NoReference)?;
+        let seg_input = if self.dots.is_active() {
+            self.dot_flow.clone_from(native);
+            self.dots
+                .refine(&self.compensated, &mut self.dot_flow, native_scale)?;
+            self.grid.update(&self.dot_flow)?
+        } else {
+            self.grid.update(native)?
+        };
         self.timings.flow_ms = ms(t);
 
         let t = Instant::now();

@@ -250,9 +250,11 @@ fn extractor_settings_come_from_the_calibration() {
             contact_window_px: 400,
             contact_point: None,
             exposure: Some(optical_tactile::exposure::ExposureCompensation::GainOffset),
+            dot_tracking: true,
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();
+    assert!(c.dot_tracking);
     assert_eq!(c.flow, DisParams::preset(DisPreset::Fast));
     assert_eq!((c.margin_px, c.subpixel), (16, false));
     assert_eq!(
@@ -268,8 +270,8 @@ fn extractor_settings_come_from_the_calibration() {
     let c = ExtractorConfig::from_setup(&linear_calibration(crop, None).setup).unwrap();
     let d = ExtractorConfig::default();
     assert_eq!(
-        (c.flow, c.margin_px, c.subpixel),
-        (d.flow, d.margin_px, d.subpixel)
+        (c.flow, c.margin_px, c.subpixel, c.dot_tracking),
+        (d.flow, d.margin_px, d.subpixel, false)
     );
     // Bad settings are typed errors.
     let mut setup = cal.setup.clone();

@@ -67,6 +67,11 @@ pub struct PipelineArgs {
     /// offset or off [default: the calibration's; auto with --raw].
     #[arg(long, value_name = "MODE", value_parser = exposure)]
     pub exposure: Option<ExposureCompensation>,
+    /// Follow the dots of a regular marker grid one by one and write their
+    /// motion over the flow (docs/pipeline.md, step 4) [default: the
+    /// calibration's; off with --raw]. Changes nothing on random markers.
+    #[arg(long, value_name = "on|off", action = clap::ArgAction::Set, value_parser = super::on_off)]
+    pub dot_tracking: Option<bool>,
     /// Which channel of colour frames becomes the grey image.
     #[arg(long, value_name = "green|luma", default_value = "green", value_parser = channel)]
     pub channel: Channel,
@@ -141,6 +146,9 @@ impl PipelineArgs {
     fn override_extractor(&self, c: &mut ExtractorConfig) {
         c.thresholds = self.override_thresholds(c.thresholds);
         c.split = self.split.then_some(SplitRule::DEFAULT);
+        if let Some(on) = self.dot_tracking {
+            c.dot_tracking = on;
+        }
     }
 }
 

@@ -944,6 +944,7 @@ pub fn fit_dataset_with_sweeps(
             },
             contact_point: Some(contact_point),
             exposure: Some(config.exposure),
+            dot_tracking: config.dot_tracking,
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).

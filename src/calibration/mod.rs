@@ -306,6 +306,11 @@ pub struct PipelineSettings {
     /// without compensation ([`PipelineSettings::exposure_compensation`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure: Option<ExposureCompensation>,
+    /// Whether the dots of a regular marker grid were followed one by one
+    /// ([`crate::sensor::ExtractorConfig::dot_tracking`]). Absent (false)
+    /// in older files and when off.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub dot_tracking: bool,
 }
 
 impl SensorSetup {

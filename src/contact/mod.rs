@@ -1387,6 +1387,7 @@ mod tests {
             contact_window_px: 0,
             contact_point: None,
             exposure: None,
+            dot_tracking: false,
         };
         assert_eq!(
             p.contact_point_method(),
