@@ -5,7 +5,8 @@
 //! coarser levels. What the forces need is each dot's motion, measured
 //! precisely. [`DotTracker`] finds the dots of the reference once (the
 //! connected regions of strong contrast against the local background, each
-//! refined to its contrast-weighted centre), and in every frame starts each
+//! refined to its contrast-weighted centre; dark dots' contrast relative to
+//! the local light, so that uneven lighting does not hide them), and in every frame starts each
 //! dot where the flow moved it and moves it to the centre of its contrast
 //! there (a mean shift). The dots' motion then replaces the flow around
 //! them, spread by a Gaussian of [`SPREAD_OF_PITCH`] pitch.
@@ -65,8 +66,8 @@ pub const MAX_PITCH_PX: f64 = 200.0;
 #[derive(Debug, Clone, Default)]
 pub struct DotTracker {
     pitch: f64,
-    /// +1 for dark dots on a bright gel, -1 for bright dots on a dark one.
-    sign: f32,
+    /// How a pixel's contrast against the background is read.
+    contrast: Contrast,
     /// The reference's local background (mean over one pitch).
     background: Array2<f32>,
     floor: f32,
@@ -132,10 +133,23 @@ impl DotTracker {
         self.pitch = pitch_px;
         self.background = box_mean(reference, (pitch_px * 0.5) as usize);
         // Polarity: the stronger of the dark and the bright contrast.
-        let dark = strong(reference, &self.background, 1.0);
-        let bright = strong(reference, &self.background, -1.0);
-        self.sign = if dark >= bright { 1.0 } else { -1.0 };
-        let top = dark.max(bright);
+        let absolute = |dark| Contrast { dark, light: None };
+        let dark = strong(reference, &self.background, absolute(true));
+        let bright = strong(reference, &self.background, absolute(false));
+        self.contrast = if dark >= bright {
+            // Dark dots take a fraction of the light where they sit: read
+            // against the local light, they contrast alike under uneven
+            // lighting (in grey levels of the mean light).
+            let mean = self.background.iter().map(|&v| f64::from(v)).sum::<f64>()
+                / self.background.len() as f64;
+            Contrast {
+                dark: true,
+                light: Some(mean as f32),
+            }
+        } else {
+            absolute(false)
+        };
+        let top = strong(reference, &self.background, self.contrast);
         if top <= 0.0 {
             self.clear();
             return Ok(0);
@@ -143,7 +157,7 @@ impl DotTracker {
         let threshold = DETECT_FRACTION * top;
         self.floor = FLOOR_FRACTION * top;
         let contrast =
-            |i: usize, j: usize| self.sign * (self.background[[i, j]] - reference[[i, j]]);
+            |i: usize, j: usize| self.contrast.at(self.background[[i, j]], reference[[i, j]]);
         // Connected regions (4-neighbours) of strong contrast.
         let mut label = Array2::<u32>::zeros((h, w));
         let mut regions: Vec<(usize, f64, f64)> = Vec::new();
@@ -313,7 +327,7 @@ impl DotTracker {
             }
             let (mut sw, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
             for (i, j) in window([x, y], radius, h, w) {
-                let c = self.sign * (self.background[[i, j]] - image[[i, j]]) - self.floor;
+                let c = self.contrast.at(self.background[[i, j]], image[[i, j]]) - self.floor;
                 if c > 0.0 {
                     let c = f64::from(c);
                     sw += c;
@@ -392,13 +406,33 @@ fn box_mean(image: &ArrayRef2<f32>, r: usize) -> Array2<f32> {
     })
 }
 
-/// The strong contrast of `image` against `background` with polarity
-/// `sign`: its [`STRONG_PERCENTILE`] (0 when not positive).
-fn strong(image: &ArrayRef2<f32>, background: &Array2<f32>, sign: f32) -> f32 {
+/// How a pixel's contrast against its background is read: darker or
+/// brighter than it, in grey levels, or for dark dots relative to the local
+/// light (`light`: the mean light, which scales it back to grey levels).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Contrast {
+    dark: bool,
+    light: Option<f32>,
+}
+
+impl Contrast {
+    /// The contrast of a pixel of value `v` on background `bg`.
+    fn at(self, bg: f32, v: f32) -> f32 {
+        match (self.dark, self.light) {
+            (true, Some(mean)) => (bg - v) * mean / bg.max(0.1 * mean),
+            (true, None) => bg - v,
+            (false, _) => v - bg,
+        }
+    }
+}
+
+/// The strong contrast of `image` against `background` read by
+/// `contrast`: its [`STRONG_PERCENTILE`] (0 when not positive).
+fn strong(image: &ArrayRef2<f32>, background: &Array2<f32>, contrast: Contrast) -> f32 {
     let mut v: Vec<f32> = image
         .iter()
         .zip(background.iter())
-        .map(|(i, b)| sign * (b - i))
+        .map(|(i, b)| contrast.at(*b, *i))
         .collect();
     let k = ((v.len() as f64 * STRONG_PERCENTILE) as usize).min(v.len() - 1);
     let (_, x, _) = v.select_nth_unstable_by(k, f32::total_cmp);

@@ -23,9 +23,10 @@ impl Noise {
 }
 
 /// A `w x h` image of round dots at `centres` (radius `r`, a soft edge of
-/// 1.5 px): `dark` dots 120 grey levels below a gel lit to 180 with some
-/// vignetting, or bright dots 120 above a gel at 40; camera noise of
-/// `noise` grey levels.
+/// 1.5 px): `dark` dots taking 2/3 of the light of a gel lit to 180, or
+/// bright dots adding 120 grey levels to a gel at 40, with the light
+/// falling off by 15% towards the edges; camera noise of `noise` grey
+/// levels.
 fn render(
     w: usize,
     h: usize,
@@ -35,12 +36,27 @@ fn render(
     noise: f32,
     seed: u64,
 ) -> Array2<f32> {
+    render_lit(w, h, centres, (r, dark), noise, seed, 0.15)
+}
+
+/// [`render`] with the light falling off by `falloff` (a fraction of the
+/// centre's) towards the middle of each edge (twice that in the corners),
+/// the dots' contrast with it.
+fn render_lit(
+    w: usize,
+    h: usize,
+    centres: &[[f64; 2]],
+    (r, dark): (f64, bool),
+    noise: f32,
+    seed: u64,
+    falloff: f64,
+) -> Array2<f32> {
     let mut n = Noise(seed);
     let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
-    let mut img = Array2::from_shape_fn((h, w), |(i, j)| {
-        let v = 1.0 - 0.15 * (((j as f64 - cx) / cx).powi(2) + ((i as f64 - cy) / cy).powi(2));
-        (if dark { 180.0 * v } else { 40.0 * v }) as f32
-    });
+    let light = |i: usize, j: usize| {
+        (1.0 - falloff * (((j as f64 - cx) / cx).powi(2) + ((i as f64 - cy) / cy).powi(2))) as f32
+    };
+    let mut cover = Array2::<f32>::zeros((h, w));
     let e = 1.5;
     for c in centres {
         let reach = (r + e + 1.0).ceil() as isize;
@@ -52,13 +68,19 @@ fn render(
                 }
                 let d = ((j as f64 - c[0]).powi(2) + (i as f64 - c[1]).powi(2)).sqrt();
                 let t = ((r + e - d) / (2.0 * e)).clamp(0.0, 1.0);
-                let p = (t * t * (3.0 - 2.0 * t)) as f32;
-                img[[i as usize, j as usize]] += if dark { -120.0 * p } else { 120.0 * p };
+                cover[[i as usize, j as usize]] += (t * t * (3.0 - 2.0 * t)) as f32;
             }
         }
     }
-    img.mapv_inplace(|v| (v + noise * n.normal()).clamp(0.0, 255.0));
-    img
+    Array2::from_shape_fn((h, w), |(i, j)| {
+        let p = cover[[i, j]].min(1.0);
+        let v = if dark {
+            180.0 * light(i, j) * (1.0 - 2.0 / 3.0 * p)
+        } else {
+            light(i, j) * (40.0 + 120.0 * p)
+        };
+        (v + noise * n.normal()).clamp(0.0, 255.0)
+    })
 }
 
 /// The centres of a square grid of `pitch` px offset by `(ox, oy)`,
@@ -144,6 +166,33 @@ fn finds_the_dots_of_grids_of_several_pitches_and_either_polarity() {
             .fold(0.0, f64::max);
         assert!(worst < 0.1, "pitch {pitch}: a centre {worst} px off");
     }
+}
+
+#[test]
+fn finds_every_dot_under_strongly_uneven_light() {
+    // The light falls to 40% at the edges' middles and to nothing in the
+    // corners' reach: the dots' contrast falls with it.
+    let truth = grid(320, 240, 22.0, 11.3, 10.7);
+    let img = render_lit(320, 240, &truth, (3.5, true), 1.5, 4, 0.6);
+    let mut t = DotTracker::new();
+    let n = t.set_reference(&img, 22.0).unwrap();
+    let inner: Vec<_> = truth
+        .iter()
+        .filter(|c| ((c[0] - 160.0) / 160.0).powi(2) + ((c[1] - 120.0) / 120.0).powi(2) < 1.0)
+        .collect();
+    let found = inner
+        .iter()
+        .filter(|c| {
+            t.dots()
+                .iter()
+                .any(|d| (d[0] - c[0]).hypot(d[1] - c[1]) < 0.2)
+        })
+        .count();
+    assert!(
+        found == inner.len(),
+        "{found} of the {} dots within the lit ellipse found ({n} in all)",
+        inner.len()
+    );
 }
 
 #[test]
