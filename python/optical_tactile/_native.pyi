@@ -125,6 +125,7 @@ class Sensor:
         rereference: bool = True,
         channel: Literal["green", "luma"] = "green",
         color_order: Literal["rgb", "bgr"] = "rgb",
+        dot_tracking: Optional[bool] = None,
     ) -> Sensor:
         """A calibrated sensor; the keywords override the calibration's settings."""
     @staticmethod
@@ -136,6 +137,7 @@ class Sensor:
         exposure: Literal["auto", "gain-offset", "offset", "off"] = "auto",
         channel: Literal["green", "luma"] = "green",
         color_order: Literal["rgb", "bgr"] = "rgb",
+        dot_tracking: bool = False,
     ) -> Sensor:
         """A sensor without calibration: patches with raw quantities in px."""
     def set_reference(self, frame: Frame) -> None:

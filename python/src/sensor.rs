@@ -404,7 +404,7 @@ impl Sensor {
     #[pyo3(signature = (
         calibration, *, thresholds=None, preset=None, crop=None, force_crop=false,
         exposure=None, filter=false, hold=None, rereference=true, channel="green",
-        color_order="rgb"
+        color_order="rgb", dot_tracking=None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn from_calibration(
@@ -420,6 +420,7 @@ impl Sensor {
         rereference: bool,
         channel: &str,
         color_order: &str,
+        dot_tracking: Option<bool>,
     ) -> PyResult<Sensor> {
         let build = || -> Result<Sensor, Failure> {
             let colour = Colour::parse(channel, color_order)?;
@@ -441,6 +442,9 @@ impl Sensor {
                     if let Some(e) = exposure {
                         c.extractor.exposure = e;
                     }
+                    if let Some(on) = dot_tracking {
+                        c.extractor.dot_tracking = on;
+                    }
                     c.tracker.filter = filter.then(FilterConfig::default);
                     if let Some(h) = hold {
                         c.tracker.max_missed = h;
@@ -460,8 +464,9 @@ impl Sensor {
     #[staticmethod]
     #[pyo3(signature = (
         *, crop=None, thresholds=None, preset=None, exposure="auto", channel="green",
-        color_order="rgb"
+        color_order="rgb", dot_tracking=false
     ))]
+    #[allow(clippy::too_many_arguments)]
     fn raw(
         py: Python<'_>,
         crop: Option<(usize, usize, usize, usize)>,
@@ -470,10 +475,13 @@ impl Sensor {
         exposure: &str,
         channel: &str,
         color_order: &str,
+        dot_tracking: bool,
     ) -> PyResult<Sensor> {
         let build = || -> Result<Sensor, Failure> {
             let colour = Colour::parse(channel, color_order)?;
-            let mut config = ExtractorConfig::default().with_exposure(params::exposure(exposure)?);
+            let mut config = ExtractorConfig::default()
+                .with_exposure(params::exposure(exposure)?)
+                .with_dot_tracking(dot_tracking);
             if let Some(p) = preset {
                 config = config.with_flow(params::flow(p)?);
             }

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import optical_tactile as ot
-from conftest import CALIBRATION, PRESS, example, run, track
+from conftest import CALIBRATION, FIXTURES, PRESS, example, run, track
 
 
 def contact_fields(c: ot.Contact) -> dict:
@@ -250,3 +250,26 @@ def test_frame_larger_than_the_crop(calibration, press_frames):
     assert [[(c[0], c[3], c[4]) for c in cs] for _, cs in want] == [
         [(c[0], c[3], c[4]) for c in cs] for _, cs in strip
     ]
+
+
+def test_dot_tracking_follows_the_calibration_unless_overridden(tmp_path):
+    """The flat fingertip sensor's calibration follows its dots one by one:
+    the Python sensor does as `track` does, and `dot_tracking=False` (or a
+    raw sensor, where it is off unless asked) reads the flow alone."""
+    flat = FIXTURES / "flat_press"
+    cal_path = FIXTURES / "flat_calibration.json"
+    frames = list(ot.Sequence(flat))
+    cal = ot.Calibration.load(cal_path)
+    out = tmp_path / "flat.jsonl"
+    run([example("track"), flat, "--calibration", cal_path, "--out", out, "--quiet"])
+    expected = read_jsonl(out)
+    followed = track(ot.Sensor.from_calibration(cal), frames)
+    assert [[c.location_mm[0] for c in cs] for _, _, cs in followed] == [
+        [c["x_mm"] for c in r["contacts"]] for r in expected
+    ]
+    alone = track(ot.Sensor.from_calibration(cal, dot_tracking=False), frames)
+    xs = lambda found: [round(c.location_mm[0], 9) for _, _, cs in found for c in cs]
+    assert xs(followed) and xs(alone) != xs(followed)
+    raw = lambda **kw: [c.raw.ds1 for _, _, cs in track(ot.Sensor.raw(**kw), frames) for c in cs]
+    assert raw() == raw(dot_tracking=False)
+    assert raw() != raw(dot_tracking=True)
