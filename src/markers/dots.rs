@@ -326,13 +326,23 @@ impl DotTracker {
                 return None;
             }
             let (mut sw, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
-            for (i, j) in window([x, y], radius, h, w) {
-                let c = self.contrast.at(self.background[[i, j]], image[[i, j]]) - self.floor;
-                if c > 0.0 {
-                    let c = f64::from(c);
-                    sw += c;
-                    sx += c * j as f64;
-                    sy += c * i as f64;
+            // The pixels of `window`, in its order, a row at a time.
+            let ((i0, i1), (j0, j1)) = window_box([x, y], radius, h, w);
+            for i in i0..i1 {
+                let dy = i as f64 - y;
+                let (bg, im) = (self.background.row(i), image.row(i));
+                for j in j0..j1 {
+                    let dx = j as f64 - x;
+                    if dx * dx + dy * dy > radius * radius {
+                        continue;
+                    }
+                    let c = self.contrast.at(bg[j], im[j]) - self.floor;
+                    if c > 0.0 {
+                        let c = f64::from(c);
+                        sw += c;
+                        sx += c * j as f64;
+                        sy += c * i as f64;
+                    }
                 }
             }
             if sw <= 0.0 {
@@ -349,12 +359,19 @@ impl DotTracker {
     }
 }
 
-/// The pixels `(row, column)` of `image` (`h x w`) within `radius` of `c`.
-fn window(c: [f64; 2], radius: f64, h: usize, w: usize) -> impl Iterator<Item = (usize, usize)> {
+/// The rows `i0..i1` and columns `j0..j1` of an `h x w` image whose pixels
+/// may lie within `radius` of `c`.
+fn window_box(c: [f64; 2], radius: f64, h: usize, w: usize) -> ((usize, usize), (usize, usize)) {
     let i0 = (c[1] - radius).ceil().max(0.0) as usize;
     let i1 = ((c[1] + radius).floor().max(-1.0) + 1.0).min(h as f64) as usize;
     let j0 = (c[0] - radius).ceil().max(0.0) as usize;
     let j1 = ((c[0] + radius).floor().max(-1.0) + 1.0).min(w as f64) as usize;
+    ((i0, i1), (j0, j1))
+}
+
+/// The pixels `(row, column)` of `image` (`h x w`) within `radius` of `c`.
+fn window(c: [f64; 2], radius: f64, h: usize, w: usize) -> impl Iterator<Item = (usize, usize)> {
+    let ((i0, i1), (j0, j1)) = window_box(c, radius, h, w);
     (i0..i1).flat_map(move |i| {
         (j0..j1).filter_map(move |j| {
             let (dx, dy) = (j as f64 - c[0], i as f64 - c[1]);
