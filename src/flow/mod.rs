@@ -9,6 +9,8 @@ pub mod dis;
 mod pyramid;
 pub mod refine;
 
+pub(crate) use pyramid::sample_clamped;
+
 use ndarray::{Array2, ArrayView2, Zip};
 
 use crate::error::{Error, Result};

@@ -23,7 +23,7 @@
 //! background.
 
 use crate::error::{Error, Result};
-use crate::flow::FlowField;
+use crate::flow::{FlowField, sample_clamped};
 use ndarray::{Array2, ArrayRef2};
 
 /// Radius, in pitches, of the window over which a dot's centre is taken:
@@ -251,13 +251,21 @@ impl DotTracker {
         }
         let radius = SEARCH_RADIUS_OF_PITCH * self.pitch;
         let sf = s as f64;
+        // The flow's cells in row-major order (a copy only for a flow laid
+        // out otherwise).
+        let (layout_u, layout_v) = (flow.u.as_standard_layout(), flow.v.as_standard_layout());
+        let cells_u = layout_u.as_slice().unwrap_or_default();
+        let cells_v = layout_v.as_slice().unwrap_or_default();
         let mut moved = std::mem::take(&mut self.moved);
         moved.clear();
         for &[x0, y0] in &self.dots {
-            let start = [
-                x0 + sf * bilinear(&flow.u, sf, x0, y0),
-                y0 + sf * bilinear(&flow.v, sf, x0, y0),
-            ];
+            // The flow's cell coordinates of the dot, and its motion there.
+            let (gx, gy) = (
+                ((x0 + 0.5) / sf - 0.5) as f32,
+                ((y0 + 0.5) / sf - 0.5) as f32,
+            );
+            let at = |c: &[f32]| f64::from(sample_clamped(c, fw, fh, gx, gy));
+            let start = [x0 + sf * at(cells_u), y0 + sf * at(cells_v)];
             // No bound on how far the centre moves from the flow's guess:
             // where the flow lost a dot under strong strain, the dot's own
             // contrast still draws the window onto it (bounding the move by
@@ -386,20 +394,6 @@ fn cell_range(c: f64, reach: f64, scale: f64, n: usize) -> (usize, usize) {
     let lo = (((c - reach + 0.5) / scale) - 0.5).floor().max(0.0) as usize;
     let hi = ((((c + reach + 0.5) / scale) - 0.5).ceil() + 1.0).clamp(0.0, n as f64) as usize;
     (lo.min(n), hi)
-}
-
-/// Bilinear sample of a flow component on a grid of `scale` px per cell at
-/// full-resolution pixel `(x, y)`, clamped to the grid.
-fn bilinear(a: &Array2<f32>, scale: f64, x: f64, y: f64) -> f64 {
-    let (h, w) = a.dim();
-    let gx = ((x + 0.5) / scale - 0.5).clamp(0.0, (w - 1) as f64);
-    let gy = ((y + 0.5) / scale - 0.5).clamp(0.0, (h - 1) as f64);
-    let (j, i) = (gx.floor() as usize, gy.floor() as usize);
-    let (j1, i1) = ((j + 1).min(w - 1), (i + 1).min(h - 1));
-    let (fx, fy) = (gx - j as f64, gy - i as f64);
-    let at = |i: usize, j: usize| f64::from(a[[i, j]]);
-    (at(i, j) * (1.0 - fx) + at(i, j1) * fx) * (1.0 - fy)
-        + (at(i1, j) * (1.0 - fx) + at(i1, j1) * fx) * fy
 }
 
 /// The mean of `image` over the box of half-side `r` about each pixel

@@ -110,6 +110,17 @@ fn bump(amp: f64, x0: f64, y0: f64, width: f64) -> impl Fn([f64; 2]) -> [f64; 2]
     }
 }
 
+/// `centres`, each moved by `field`.
+fn displaced(centres: &[[f64; 2]], field: &dyn Fn([f64; 2]) -> [f64; 2]) -> Vec<[f64; 2]> {
+    centres
+        .iter()
+        .map(|&c| {
+            let d = field(c);
+            [c[0] + d[0], c[1] + d[1]]
+        })
+        .collect()
+}
+
 /// The nearest true centre's distance to `c`.
 fn nearest(truth: &[[f64; 2]], c: [f64; 2]) -> (usize, f64) {
     truth
@@ -201,13 +212,7 @@ fn follows_dots_moved_by_a_smooth_field_from_an_imprecise_flow() {
     let truth = grid(w, h, pitch, 11.3, 10.7);
     let reference = render(w, h, &truth, 3.5, true, 1.5, 5);
     let field = bump(7.0, 150.0, 110.0, 25.0);
-    let moved: Vec<[f64; 2]> = truth
-        .iter()
-        .map(|&c| {
-            let d = field(c);
-            [c[0] + d[0], c[1] + d[1]]
-        })
-        .collect();
+    let moved = displaced(&truth, &field);
     let largest = truth
         .iter()
         .map(|&c| {
@@ -247,13 +252,7 @@ fn the_spread_flow_matches_a_direct_sum_over_every_dot() {
     let truth = grid(w, h, pitch, 11.3, 10.7);
     let reference = render(w, h, &truth, 3.5, true, 1.0, 8);
     let field = bump(6.0, 90.0, 70.0, 20.0);
-    let moved: Vec<[f64; 2]> = truth
-        .iter()
-        .map(|&c| {
-            let d = field(c);
-            [c[0] + d[0], c[1] + d[1]]
-        })
-        .collect();
+    let moved = displaced(&truth, &field);
     let frame = render(w, h, &moved, 3.5, true, 1.0, 9);
     let mut t = DotTracker::new();
     t.set_reference(&reference, pitch).unwrap();
