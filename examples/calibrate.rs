@@ -193,7 +193,7 @@ struct Cli {
     relocation: Option<RelocationArg>,
     /// Follow the dots of a regular marker grid one by one and let their
     /// motion replace the flow around them: `auto` when the first
-    /// reference shows a regular grid (docs/pipeline.md, step 2).
+    /// reference shows a regular grid (docs/pipeline.md, step 4).
     #[arg(long, value_enum, value_name = "WHEN", default_value = "auto")]
     dot_tracking: DotTrackingArg,
     /// DIS flow preset [default: fine, the sensor's].
