@@ -8,8 +8,12 @@
 //! refined to its contrast-weighted centre; dark dots' contrast relative to
 //! the local light, so that uneven lighting does not hide them), and in every frame starts each
 //! dot where the flow moved it and moves it to the centre of its contrast
-//! there (a mean shift). The dots' motion then replaces the flow around
-//! them, spread by a Gaussian of [`SPREAD_OF_PITCH`] pitch.
+//! there (a mean shift). Under a small indenter pressed hard the flow can
+//! lead a dot onto its neighbour or lose it: a dot found where another one
+//! is, or moved unlike its neighbours, or not found, is looked for again
+//! about its neighbours' median motion, and taken where no neighbour holds
+//! a dot. The dots' motion then replaces the flow around them, spread by a
+//! Gaussian of [`SPREAD_OF_PITCH`] pitch.
 //!
 //! Measured on the simulated fingertip sensor (docs/results.md, "A flat
 //! fingertip sensor"): the flow at the dots is within a few hundredths of a
@@ -51,6 +55,30 @@ const STRONG_PERCENTILE: f64 = 0.995;
 const MAX_STEPS: usize = 8;
 const SETTLED_PX: f64 = 0.01;
 
+/// Dots whose reference centres lie within this many pitches of each other
+/// are neighbours: a dot's own row and column and its diagonals.
+const NEIGHBOUR_OF_PITCH: f64 = 1.5;
+
+/// Two dots whose centres, followed, come within this many pitches of each
+/// other have found the same dot: a neighbour cannot come that close
+/// without the gel's strain reaching 75%.
+const SAME_DOT_OF_PITCH: f64 = 0.25;
+
+/// A dot whose motion differs from its neighbours' median motion by more
+/// than this many pitches may have jumped onto another dot, and is looked
+/// for again.
+const JUMP_OF_PITCH: f64 = 0.5;
+
+/// A dot looked for again is taken where its motion differs from its
+/// neighbours' median motion by at most this many pitches: under a small
+/// indenter the motion of neighbouring dots differs by more than half a
+/// pitch.
+const FOUND_AGAIN_OF_PITCH: f64 = 0.75;
+
+/// Starts on a ring about a lost dot's expected place from which it is
+/// looked for again.
+const RING_STARTS: usize = 8;
+
 /// Below this total weight a flow cell keeps the optical flow's motion.
 const MIN_SPREAD_WEIGHT: f64 = 1e-3;
 
@@ -72,6 +100,9 @@ pub struct DotTracker {
     background: Array2<f32>,
     floor: f32,
     dots: Vec<[f64; 2]>,
+    /// Each dot's neighbours (indices into `dots`), within
+    /// [`NEIGHBOUR_OF_PITCH`] in the reference.
+    neighbours: Vec<Vec<u32>>,
     moved: Vec<Option<[f64; 2]>>,
     /// Per flow cell: sum of weights, of weighted u and of weighted v.
     spread: Vec<[f64; 3]>,
@@ -86,6 +117,7 @@ impl DotTracker {
     /// Forgets the reference: [`DotTracker::refine`] then changes nothing.
     pub fn clear(&mut self) {
         self.dots.clear();
+        self.neighbours.clear();
         self.moved.clear();
         self.background = Array2::zeros((0, 0));
     }
@@ -213,6 +245,7 @@ impl DotTracker {
         if self.dots.is_empty() {
             self.clear();
         }
+        self.neighbours = within(&self.dots, NEIGHBOUR_OF_PITCH * pitch_px);
         Ok(self.dots.len())
     }
 
@@ -275,6 +308,7 @@ impl DotTracker {
             moved.push(found.map(|c| [c[0] - x0, c[1] - y0]));
         }
         self.moved = moved;
+        self.mend_jumps(frame, radius);
         // Spread the dots' motion over the flow's cells.
         let sigma = SPREAD_OF_PITCH * self.pitch;
         let reach = 3.0 * sigma;
@@ -322,6 +356,98 @@ impl DotTracker {
         Ok(())
     }
 
+    /// Where the flow led a dot onto another one (two dots at one place, or
+    /// a dot moved unlike its neighbours) or lost it, looks for it again
+    /// about its neighbours' median motion; a dot that still does not fit
+    /// is lost.
+    fn mend_jumps(&mut self, frame: &ArrayRef2<f32>, radius: f64) {
+        let n_dots = self.dots.len();
+        let same = SAME_DOT_OF_PITCH * self.pitch;
+        let mut suspect: Vec<bool> = self.moved.iter().map(Option::is_none).collect();
+        for k in 0..n_dots {
+            let Some(d) = self.moved[k] else { continue };
+            let p = self.at(k, d);
+            for &n in &self.neighbours[k] {
+                let Some(e) = self.moved[n as usize] else {
+                    continue;
+                };
+                // Of two dots at one place, the one that moved farther is
+                // the one that left its own.
+                if dist(p, self.at(n as usize, e)) < same && norm(d) >= norm(e) {
+                    suspect[k] = true;
+                }
+            }
+            if let Some(m) = self.neighbours_median(k, &suspect)
+                && dist(d, m) > JUMP_OF_PITCH * self.pitch
+            {
+                suspect[k] = true;
+            }
+        }
+        // Where the suspects were first found stays a place to look.
+        let first: Vec<Option<[f64; 2]>> = (0..n_dots)
+            .map(|k| self.moved[k].filter(|_| suspect[k]))
+            .collect();
+        for (d, &s) in self.moved.iter_mut().zip(&suspect) {
+            if s {
+                *d = None;
+            }
+        }
+        // One suspect at a time, each found one trusted by those after it.
+        for k in 0..n_dots {
+            if !suspect[k] {
+                continue;
+            }
+            let Some(m) = self.neighbours_median(k, &suspect) else {
+                continue;
+            };
+            let [x0, y0] = self.dots[k];
+            let guess = [x0 + m[0], y0 + m[1]];
+            // From the neighbours' motion, from rest, and from a ring about
+            // the neighbours' motion: of the dots found there that no
+            // neighbour holds, the one that moved most like its neighbours.
+            let ring = (0..RING_STARTS).map(|a| {
+                let t = std::f64::consts::TAU * a as f64 / RING_STARTS as f64;
+                [guess[0] + radius * t.cos(), guess[1] + radius * t.sin()]
+            });
+            let starts = [guess, [x0, y0]].into_iter().chain(ring);
+            let best = starts
+                .filter_map(|start| self.centre(frame, start, radius))
+                .map(|c| [c[0] - x0, c[1] - y0])
+                .chain(first[k])
+                .filter(|&d| {
+                    let c = self.at(k, d);
+                    !self.neighbours[k].iter().any(|&n| {
+                        let n = n as usize;
+                        self.moved[n].is_some_and(|e| dist(c, self.at(n, e)) < same)
+                    })
+                })
+                .map(|d| (dist(d, m), d))
+                .filter(|&(off, _)| off <= FOUND_AGAIN_OF_PITCH * self.pitch)
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((_, d)) = best {
+                self.moved[k] = Some(d);
+                suspect[k] = false;
+            }
+        }
+    }
+
+    /// Where dot `k` is when moved by `d`.
+    fn at(&self, k: usize, d: [f64; 2]) -> [f64; 2] {
+        [self.dots[k][0] + d[0], self.dots[k][1] + d[1]]
+    }
+
+    /// The component-wise median motion of dot `k`'s followed neighbours
+    /// that are not `suspect`; `None` without any.
+    fn neighbours_median(&self, k: usize, suspect: &[bool]) -> Option<[f64; 2]> {
+        let (mut u, mut v): (Vec<f64>, Vec<f64>) = self.neighbours[k]
+            .iter()
+            .filter(|&&n| !suspect[n as usize])
+            .filter_map(|&n| self.moved[n as usize])
+            .map(|d| (d[0], d[1]))
+            .unzip();
+        Some([median(&mut u)?, median(&mut v)?])
+    }
+
     /// The contrast-weighted centre of the dot near `start` in `image`
     /// (mean shift over a disc of `radius`), against the reference's
     /// background; `None` when the window holds no contrast above the
@@ -365,6 +491,60 @@ impl DotTracker {
         }
         Some([x, y])
     }
+}
+
+/// The distance between two points (or the difference of two motions).
+fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// The length of a motion.
+fn norm(d: [f64; 2]) -> f64 {
+    d[0].hypot(d[1])
+}
+
+/// The median of `v` (reordered); `None` when empty.
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
+/// For each point, the other points within `reach` of it (by buckets of
+/// `reach` a side).
+fn within(points: &[[f64; 2]], reach: f64) -> Vec<Vec<u32>> {
+    let key = |p: [f64; 2]| ((p[0] / reach).floor() as i64, (p[1] / reach).floor() as i64);
+    let mut buckets: std::collections::HashMap<(i64, i64), Vec<u32>> = Default::default();
+    for (k, &p) in points.iter().enumerate() {
+        buckets.entry(key(p)).or_default().push(k as u32);
+    }
+    points
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| {
+            let (bx, by) = key(p);
+            let mut near = Vec::new();
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for &n in buckets.get(&(bx + dx, by + dy)).into_iter().flatten() {
+                        let q = points[n as usize];
+                        if n as usize != k && (p[0] - q[0]).hypot(p[1] - q[1]) <= reach {
+                            near.push(n);
+                        }
+                    }
+                }
+            }
+            near.sort_unstable();
+            near
+        })
+        .collect()
 }
 
 /// The rows `i0..i1` and columns `j0..j1` of an `h x w` image whose pixels
