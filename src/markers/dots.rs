@@ -75,6 +75,12 @@ const JUMP_OF_PITCH: f64 = 0.5;
 /// pitch.
 const FOUND_AGAIN_OF_PITCH: f64 = 0.75;
 
+/// Margin, px, beyond a dot's half-contrast radius of the window its centre
+/// is settled in: its blurred edge, but not a neighbour that the gel's
+/// strain brought close (within the search window, it would pull the
+/// centre towards itself).
+const EDGE_MARGIN_PX: f64 = 2.0;
+
 /// Starts on a ring about a lost dot's expected place from which it is
 /// looked for again.
 const RING_STARTS: usize = 8;
@@ -99,6 +105,9 @@ pub struct DotTracker {
     /// The reference's local background (mean over one pitch).
     background: Array2<f32>,
     floor: f32,
+    /// Radius, px, of the window a dot's centre is settled in at last (its
+    /// own contrast only), at most the search window's.
+    inner: f64,
     dots: Vec<[f64; 2]>,
     /// Each dot's neighbours (indices into `dots`), within
     /// [`NEIGHBOUR_OF_PITCH`] in the reference.
@@ -226,6 +235,15 @@ impl DotTracker {
         }
         let radius = SEARCH_RADIUS_OF_PITCH * pitch_px;
         let max_area = pitch_px * pitch_px / 3.0;
+        // A dot's own window: its typical half-contrast radius and a margin
+        // for its blurred edge.
+        let mut sizes: Vec<f64> = regions
+            .iter()
+            .map(|r| r.0 as f64)
+            .filter(|&n| n >= 3.0 && n <= max_area)
+            .collect();
+        self.inner =
+            median(&mut sizes).map_or(0.0, |n| (n / std::f64::consts::PI).sqrt() + EDGE_MARGIN_PX);
         for (k, &(n, x, y)) in regions.iter().enumerate() {
             if n < 3 || n as f64 > max_area {
                 continue;
@@ -449,10 +467,25 @@ impl DotTracker {
     }
 
     /// The contrast-weighted centre of the dot near `start` in `image`
-    /// (mean shift over a disc of `radius`), against the reference's
-    /// background; `None` when the window holds no contrast above the
-    /// floor or the centre leaves the image.
+    /// (mean shift over the dot's own window, or where that holds nothing
+    /// over a disc of `radius` first), against the reference's background;
+    /// `None` when no window holds contrast above the floor or the centre
+    /// leaves the image.
     fn centre(&self, image: &ArrayRef2<f32>, start: [f64; 2], radius: f64) -> Option<[f64; 2]> {
+        if !(self.inner > 0.0 && self.inner < radius) {
+            return self.mean_shift(image, start, radius);
+        }
+        // The dot's own window first; the search window only when that
+        // holds nothing, then the dot's own window again.
+        self.mean_shift(image, start, self.inner).or_else(|| {
+            let c = self.mean_shift(image, start, radius)?;
+            self.mean_shift(image, c, self.inner)
+        })
+    }
+
+    /// Mean shift from `start` over a disc of `radius` to the centre of
+    /// the contrast within it ([`DotTracker::centre`]).
+    fn mean_shift(&self, image: &ArrayRef2<f32>, start: [f64; 2], radius: f64) -> Option<[f64; 2]> {
         let (h, w) = image.dim();
         let [mut x, mut y] = start;
         for _ in 0..MAX_STEPS {

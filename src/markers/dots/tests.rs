@@ -294,6 +294,39 @@ fn dots_the_flow_led_astray_are_found_again() {
     }
 }
 
+/// A dot pushed within half a pitch of a neighbour that did not move (the
+/// gel squeezed by more than half) neither pulls that neighbour's centre
+/// towards itself nor is taken for it.
+#[test]
+fn a_dot_squeezed_against_a_still_one_leaves_it_still() {
+    let (w, h, pitch) = (320, 240, 22.0);
+    let truth = grid(w, h, pitch, 11.3, 10.7);
+    let reference = render(w, h, &truth, 3.5, true, 1.0, 9);
+    let (pushed, still) = (
+        nearest(&truth, [150.0, 120.0]).0,
+        nearest(&truth, [172.0, 120.0]).0,
+    );
+    assert!(dist(truth[still], [truth[pushed][0] + pitch, truth[pushed][1]]) < 1e-9);
+    let field = |p: [f64; 2]| {
+        if dist(p, truth[pushed]) < 0.3 * pitch {
+            [0.55 * pitch, 0.0]
+        } else {
+            [0.0, 0.0]
+        }
+    };
+    let frame = render(w, h, &displaced(&truth, &field), 3.5, true, 1.0, 10);
+    let mut t = DotTracker::new();
+    t.set_reference(&reference, pitch).unwrap();
+    let mut flow = flow_of(w, h, 1, &field, [0.0, 0.0]);
+    t.refine(&frame, &mut flow, 1).unwrap();
+    for (&c, d) in t.dots().iter().zip(t.displacements()) {
+        let (k, _) = nearest(&truth, c);
+        let d = d.unwrap_or_else(|| panic!("dot {c:?} lost"));
+        let off = dist(d, field(truth[k]));
+        assert!(off < 0.1, "dot {c:?} {off} px off ({d:?})");
+    }
+}
+
 #[test]
 fn the_spread_flow_matches_a_direct_sum_over_every_dot() {
     let (w, h, pitch) = (200, 150, 22.0);
