@@ -19,8 +19,8 @@
 //! fingertip sensor"): the flow at the dots is within a few hundredths of a
 //! pixel of the simulator's, but its errors follow the load and the dot's
 //! place under the contact, which no map can take out; with the dots
-//! followed, the random presses' location error halves and their forces
-//! come 20-35% closer.
+//! followed, the location error halves, and the held-out points' forces
+//! come 3 (Fx) and 2 (Fy) times closer than with the flow alone.
 //!
 //! The frame must be in the reference's exposure (the extractor
 //! compensates it first): a dot's contrast is read against the reference's
