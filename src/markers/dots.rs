@@ -81,6 +81,11 @@ const FOUND_AGAIN_OF_PITCH: f64 = 0.75;
 /// centre towards itself).
 const EDGE_MARGIN_PX: f64 = 2.0;
 
+/// Passes of looking for strayed dots again at the most: each pass can
+/// mend the edge of a region the flow moved by a whole pitch, whose dots
+/// agree with each other.
+const MEND_PASSES: usize = 4;
+
 /// Starts on a ring about a lost dot's expected place from which it is
 /// looked for again.
 const RING_STARTS: usize = 8;
@@ -326,7 +331,13 @@ impl DotTracker {
             moved.push(found.map(|c| [c[0] - x0, c[1] - y0]));
         }
         self.moved = moved;
-        self.mend_jumps(frame, radius);
+        // A region the flow moved by a whole pitch is mended from its edge
+        // inwards, a ring of dots per pass.
+        for _ in 0..MEND_PASSES {
+            if !self.mend_jumps(frame, radius) {
+                break;
+            }
+        }
         // Spread the dots' motion over the flow's cells.
         let sigma = SPREAD_OF_PITCH * self.pitch;
         let reach = 3.0 * sigma;
@@ -377,8 +388,9 @@ impl DotTracker {
     /// Where the flow led a dot onto another one (two dots at one place, or
     /// a dot moved unlike its neighbours) or lost it, looks for it again
     /// about its neighbours' median motion; a dot that still does not fit
-    /// is lost.
-    fn mend_jumps(&mut self, frame: &ArrayRef2<f32>, radius: f64) {
+    /// is lost. Returns whether any dot's motion changed.
+    fn mend_jumps(&mut self, frame: &ArrayRef2<f32>, radius: f64) -> bool {
+        let before = self.moved.clone();
         let n_dots = self.dots.len();
         let same = SAME_DOT_OF_PITCH * self.pitch;
         let mut suspect: Vec<bool> = self.moved.iter().map(Option::is_none).collect();
@@ -447,6 +459,7 @@ impl DotTracker {
                 suspect[k] = false;
             }
         }
+        self.moved != before
     }
 
     /// Where dot `k` is when moved by `d`.

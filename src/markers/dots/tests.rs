@@ -266,8 +266,9 @@ fn hex_grid(w: usize, h: usize, pitch: f64) -> Vec<[f64; 2]> {
 }
 
 /// Under a small indenter the flow can lead a dot onto its neighbour (one
-/// dot, or a row of them each onto the next) or onto the plain gel between
-/// dots: each such dot is found again where its neighbours' motion says.
+/// dot, a row of them each onto the next, or a whole block of them, which
+/// agree with each other) or onto the plain gel between dots: each such dot
+/// is found again where its neighbours' motion says.
 /// Square and hexagonal grids, dark and bright dots.
 #[test]
 fn dots_the_flow_led_astray_are_found_again() {
@@ -299,6 +300,13 @@ fn dots_the_flow_led_astray_are_found_again() {
             by_distance(160.0 - 2.0 * pitch, 120.0 - pitch),
             [0.5 * pitch; 2],
         ));
+        // A block of dots (a dot and every neighbour about it) a pitch left.
+        let block = truth[by_distance(70.0, 175.0)];
+        for (k, &c) in truth.iter().enumerate() {
+            if dist(c, block) < 1.5 * pitch {
+                astray.push((k, [-pitch, 0.0]));
+            }
+        }
         let misled = |p: [f64; 2]| {
             let d = field(p);
             let off = astray
