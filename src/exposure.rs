@@ -318,7 +318,7 @@ fn tile_stats(img: &ArrayRef2<f32>, out: &mut Vec<TileStats>) {
 }
 
 /// The median of `v` (reordered), `None` when empty or not comparable.
-fn median(v: &mut [f64]) -> Option<f64> {
+pub(crate) fn median(v: &mut [f64]) -> Option<f64> {
     if v.is_empty() || v.iter().any(|x| x.is_nan()) {
         return None;
     }

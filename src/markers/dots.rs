@@ -27,6 +27,7 @@
 //! background.
 
 use crate::error::{Error, Result};
+use crate::exposure::median;
 use crate::flow::{FlowField, sample_clamped};
 use ndarray::{Array2, ArrayRef2};
 
@@ -549,20 +550,6 @@ fn norm(d: [f64; 2]) -> f64 {
     d[0].hypot(d[1])
 }
 
-/// The median of `v` (reordered); `None` when empty.
-fn median(v: &mut [f64]) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
-}
-
 /// For each point, the other points within `reach` of it (by buckets of
 /// `reach` a side).
 fn within(points: &[[f64; 2]], reach: f64) -> Vec<Vec<u32>> {
@@ -581,7 +568,7 @@ fn within(points: &[[f64; 2]], reach: f64) -> Vec<Vec<u32>> {
                 for dy in -1..=1 {
                     for &n in buckets.get(&(bx + dx, by + dy)).into_iter().flatten() {
                         let q = points[n as usize];
-                        if n as usize != k && (p[0] - q[0]).hypot(p[1] - q[1]) <= reach {
+                        if n as usize != k && dist(p, q) <= reach {
                             near.push(n);
                         }
                     }
