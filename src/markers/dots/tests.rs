@@ -131,6 +131,23 @@ fn nearest(truth: &[[f64; 2]], c: [f64; 2]) -> (usize, f64) {
         .expect("centres")
 }
 
+/// Asserts that every dot of `t` was followed to within `tol` px of the
+/// motion `field` gives its true centre (the nearest of `truth`).
+fn every_dot_followed(
+    t: &DotTracker,
+    truth: &[[f64; 2]],
+    field: &dyn Fn([f64; 2]) -> [f64; 2],
+    tol: f64,
+    case: &str,
+) {
+    for (&c, d) in t.dots().iter().zip(t.displacements()) {
+        let (k, _) = nearest(truth, c);
+        let d = d.unwrap_or_else(|| panic!("{case}: dot {c:?} lost"));
+        let off = dist(d, field(truth[k]));
+        assert!(off < tol, "{case}: dot {c:?} {off} px off ({d:?})");
+    }
+}
+
 /// A native flow at `scale` px per cell holding `field` (full-resolution
 /// px) plus a constant error, in its cells' units.
 fn flow_of(
@@ -320,12 +337,7 @@ fn dots_the_flow_led_astray_are_found_again() {
         for scale in [1, 2] {
             let mut flow = flow_of(w, h, scale, &misled, [0.0, 0.0]);
             t.refine(&frame, &mut flow, scale).unwrap();
-            for (&c, d) in t.dots().iter().zip(t.displacements()) {
-                let (k, _) = nearest(&truth, c);
-                let d = d.unwrap_or_else(|| panic!("{name}, scale {scale}: dot {c:?} lost"));
-                let off = dist(d, field(truth[k]));
-                assert!(off < 0.15, "{name}, scale {scale}: dot {c:?} {off} px off");
-            }
+            every_dot_followed(&t, &truth, &field, 0.15, &format!("{name}, scale {scale}"));
         }
     }
 }
@@ -355,12 +367,7 @@ fn a_dot_squeezed_against_a_still_one_leaves_it_still() {
     t.set_reference(&reference, pitch).unwrap();
     let mut flow = flow_of(w, h, 1, &field, [0.0, 0.0]);
     t.refine(&frame, &mut flow, 1).unwrap();
-    for (&c, d) in t.dots().iter().zip(t.displacements()) {
-        let (k, _) = nearest(&truth, c);
-        let d = d.unwrap_or_else(|| panic!("dot {c:?} lost"));
-        let off = dist(d, field(truth[k]));
-        assert!(off < 0.1, "dot {c:?} {off} px off ({d:?})");
-    }
+    every_dot_followed(&t, &truth, &field, 0.1, "squeezed");
 }
 
 #[test]
