@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release --example calibrate -- DATASET_DIR [--thresholds low|mid|high|all]
 //!     [--thresholds-custom MAGNITUDE,SUM]
-//!     [--contact-point slope[:SIGMA]|slope2d[:SIGMA]|centroid[:HALF]|argmin]
+//!     [--contact-point slope[:SIGMA]|slope2d[:SIGMA]|lines[:SIGMA]|centroid[:HALF]|argmin]
 //!     [--geometry strip|flat:LENGTHxWIDTH] [--shear-order N]
 //!     [--preset fast|accurate|...] [--crop x,y,w,h] [--predictions FILE] --out calibration.json
 //! ```
@@ -25,10 +25,12 @@
 //! (`strip`); `flat:24x18` is a flat gel 24 mm along x (image columns) by
 //! 18 mm along y. On a flat sensor contacts are located in 2-D: both location
 //! maps take `(x2d, y2d)`, `y2d` enters the force maps and the contact point
-//! defaults to `slope2d`. `--contact-point` chooses how a contact's
+//! defaults to `lines:16`. `--contact-point` chooses how a contact's
 //! column is measured: `slope` (default on the strip, the steepest rise of the along-arc
 //! profile smoothed by a Gaussian of SIGMA px, default 8), `slope2d` (the same
-//! along both image axes, the default on a flat sensor), `centroid` (the
+//! along both image axes), `lines` (where the lines along the followed dots'
+//! motion meet, about the `slope2d` point of SIGMA px, default 16; the
+//! default on a flat sensor; without followed dots it is `slope2d`), `centroid` (the
 //! energy centroid in a window of half-width HALF px, default 400) or
 //! `argmin` (argmin of D, the paper's); `--contact-window PX` is the older
 //! spelling of `centroid:PX` (0 = argmin). `--shear-order N` the largest order of the shear ratio in `g1`
@@ -125,10 +127,11 @@ struct Cli {
     thresholds_custom: Option<(f32, f32)>,
     /// How a contact's point is measured: the steepest rise of the profile
     /// smoothed by a Gaussian of SIGMA px (along x, or along both axes with
-    /// slope2d), the energy centroid in a window of half-width HALF px
-    /// (default 400), or argmin of D (the paper's) [default: slope:8 on the
-    /// strip, slope2d:8 on a flat sensor].
-    #[arg(long, value_name = "slope[:SIGMA]|slope2d[:SIGMA]|centroid[:HALF]|argmin",
+    /// slope2d), where the lines along the followed dots' motion meet about
+    /// the slope2d point (lines), the energy centroid in a window of
+    /// half-width HALF px (default 400), or argmin of D (the paper's)
+    /// [default: slope:8 on the strip, lines:16 on a flat sensor].
+    #[arg(long, value_name = "slope[:SIGMA]|slope2d[:SIGMA]|lines[:SIGMA]|centroid[:HALF]|argmin",
           value_parser = parse_contact_point, overrides_with = "contact_window")]
     contact_point: Option<ContactPointMethod>,
     /// The sensor's surface: the paper's curved strip, or a flat gel
@@ -385,13 +388,16 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
         "slope2d" => ContactPointMethod::SlopePeak2d {
             sigma_px: num(8.0)?,
         },
+        "lines" => ContactPointMethod::MotionLines {
+            sigma_px: num(16.0)?,
+        },
         "centroid" => ContactPointMethod::EnergyCentroid {
             half_window_px: num(400.0)?,
         },
         "argmin" if !given => ContactPointMethod::PotentialMinimum,
         _ => {
             return Err(format!(
-                "expected slope[:SIGMA], slope2d[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
+                "expected slope[:SIGMA], slope2d[:SIGMA], lines[:SIGMA], centroid[:HALF] or argmin, got `{v}`"
             ));
         }
     };

@@ -435,6 +435,9 @@ pub struct ContactExtractor {
     dots: DotTracker,
     /// The native flow with the dots' motion written over it.
     dot_flow: FlowField,
+    /// Every contact's point before the dots' lines move it
+    /// ([`ContactPointMethod::MotionLines`]).
+    starts: Vec<[f64; 2]>,
 }
 
 impl ContactExtractor {
@@ -464,6 +467,7 @@ impl ContactExtractor {
             marker_pitch: None,
             dots: DotTracker::new(),
             dot_flow: FlowField::zeros(0, 0),
+            starts: Vec::new(),
         })
     }
 
@@ -494,6 +498,20 @@ impl ContactExtractor {
             flow.v.view(),
             scale as f64,
         );
+        if refined.is_ok()
+            && matches!(method, ContactPointMethod::MotionLines { .. })
+            && self.dots.is_active()
+        {
+            self.starts.clear();
+            self.starts
+                .extend(self.raws.iter().map(|r| [r.x_px, r.y_px]));
+            for (k, raw) in self.raws[..n].iter_mut().enumerate() {
+                if let Some([x, y]) = self.dots.motion_centre(raw.bbox, &self.starts, k) {
+                    raw.x_px = x;
+                    raw.y_px = y;
+                }
+            }
+        }
         self.unseen.extend(self.raws.drain(n..));
         refined?;
         Ok(&self.raws)

@@ -485,6 +485,19 @@ pub enum ContactPointMethod {
         /// Standard deviation of the smoothing, full-resolution pixels.
         sigma_px: f64,
     },
+    /// Where a normal press's dots point: the point the lines along the
+    /// followed dots' motion meet ([`crate::markers::centre`]), found
+    /// about each contact's 2-D slope peak
+    /// ([`ContactPointMethod::SlopePeak2d`] with the same smoothing). The
+    /// slope peak stands where no dots are followed (random markers, dot
+    /// tracking off) and where the dots' lines do not meet within a pitch
+    /// of it. The extractor ([`crate::sensor::ContactExtractor::locate`])
+    /// holds the dots; [`ContactLocator`] alone gives the slope peak.
+    MotionLines {
+        /// Standard deviation of the slope peak's smoothing, full-resolution
+        /// pixels.
+        sigma_px: f64,
+    },
 }
 
 /// Largest smoothing of [`ContactPointMethod::SlopePeak`], full-resolution
@@ -505,16 +518,20 @@ impl ContactPointMethod {
 
     /// The default for new calibrations of a sensor of `geometry`:
     /// [`ContactPointMethod::DEFAULT`] on the curved strip,
-    /// [`ContactPointMethod::SlopePeak2d`] with 16 px of smoothing on a
-    /// sensor that locates contacts in 2-D. Why 16: such sensors often
-    /// carry a sparse grid of dots, and the flow between the dots is
+    /// [`ContactPointMethod::MotionLines`] about the 2-D slope peak with
+    /// 16 px of smoothing on a sensor that locates contacts in 2-D (without
+    /// followed dots, the 2-D slope peak itself). Why 16: such sensors
+    /// often carry a sparse grid of dots, and the flow between the dots is
     /// interpolated; a smoothing of about 0.7 dot pitch averages the grid's
     /// phase out. On the simulated fingertip sensor (dots every 22 px, 150
     /// random presses) the raw contact point was 5.9 / 5.2 px off (x / y)
-    /// with 8 px, 3.0 / 3.4 px with 16 px and 3.7 / 4.1 px with 24 px.
+    /// with 8 px, 3.0 / 3.4 px with 16 px and 3.7 / 4.1 px with 24 px. Why
+    /// the dots' lines: a light contact moves the few dots about it, and the
+    /// slope peak between them falls towards a row of dots (docs/results.md,
+    /// "A flat fingertip sensor").
     pub fn for_geometry(geometry: &SensorGeometry) -> Self {
         if geometry.locates_in_2d() {
-            Self::SlopePeak2d { sigma_px: 16.0 }
+            Self::MotionLines { sigma_px: 16.0 }
         } else {
             Self::DEFAULT
         }
@@ -532,7 +549,8 @@ impl ContactPointMethod {
                 MAX_CENTROID_HALF_WINDOW_PX,
             ),
             ContactPointMethod::SlopePeak { sigma_px }
-            | ContactPointMethod::SlopePeak2d { sigma_px } => {
+            | ContactPointMethod::SlopePeak2d { sigma_px }
+            | ContactPointMethod::MotionLines { sigma_px } => {
                 ("sigma_px", sigma_px, MAX_SLOPE_SIGMA_PX)
             }
         };
@@ -627,7 +645,8 @@ impl ContactLocator {
                 self.slope_peak(raws, u, scale, sigma_px);
                 Ok(())
             }
-            ContactPointMethod::SlopePeak2d { sigma_px } => {
+            ContactPointMethod::SlopePeak2d { sigma_px }
+            | ContactPointMethod::MotionLines { sigma_px } => {
                 check_positive("scale", scale)?;
                 self.slope_peak_2d(raws, u, v, scale, sigma_px);
                 Ok(())

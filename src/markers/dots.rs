@@ -29,6 +29,8 @@
 use crate::error::{Error, Result};
 use crate::exposure::median;
 use crate::flow::{FlowField, sample_clamped};
+use crate::frame::Roi;
+use crate::markers::centre::motion_centre;
 use ndarray::{Array2, ArrayRef2};
 
 /// Radius, in pitches, of the window over which a dot's centre is taken:
@@ -152,6 +154,18 @@ impl DotTracker {
     /// held no contrast, or its centre left the image).
     pub fn displacements(&self) -> &[Option<[f64; 2]>] {
         &self.moved
+    }
+
+    /// The point where the lines along the dots' last motion meet, for
+    /// contact `k` of `starts` (every contact's current point) within
+    /// `region` (its box), at most one pitch from `starts[k]`; see
+    /// [`crate::markers::centre::motion_centre`]. `None` when the tracker
+    /// has no reference or the lines do not give a point.
+    pub fn motion_centre(&self, region: Roi, starts: &[[f64; 2]], k: usize) -> Option<[f64; 2]> {
+        if !self.is_active() {
+            return None;
+        }
+        motion_centre(&self.dots, &self.moved, region, starts, k, self.pitch)
     }
 
     /// Finds the dots of `reference`, a grid of `pitch_px` pixels (from

@@ -1,5 +1,6 @@
 //! The marker pattern of a reference frame: the pitch of a regular grid,
-//! and its dots followed one by one ([`DotTracker`]).
+//! its dots followed one by one ([`DotTracker`]), and a contact's point
+//! where the lines along the followed dots' motion meet ([`centre`]).
 //!
 //! A regular grid of markers (the dark dots of a GelSight-class sensor) is
 //! periodic: seen against one unloaded reference, a dot that moved by a
@@ -20,6 +21,7 @@
 
 use ndarray::ArrayRef2;
 
+pub mod centre;
 pub mod dots;
 pub use dots::DotTracker;
 use rustfft::FftPlanner;
