@@ -232,3 +232,55 @@ fn dot_tracking_leaves_random_markers_to_the_flow() {
     assert!(!raws[0].is_empty());
     assert_eq!(raws[0], raws[1]);
 }
+
+/// A light, small press moves only the few dots about it; where their
+/// motion lines meet is nearer the load than the slope peak of the flow
+/// between them, at any place against grids of several pitches.
+#[test]
+fn the_dots_motion_lines_find_a_light_press_the_slope_peak_misses() {
+    use optical_tactile::contact::ContactPointMethod;
+    use optical_tactile::segment::Thresholds;
+    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
+    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    let lines = ContactPointMethod::MotionLines { sigma_px: 16.0 };
+    let slope = ContactPointMethod::SlopePeak2d { sigma_px: 16.0 };
+    for (seed, pitch_px) in [(21, 22.0), (22, 18.0), (23, 26.0)] {
+        let mut config = SimConfig::fingertip();
+        if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
+            g.pitch_px = pitch_px;
+        }
+        let (camera, skin) = (config.camera, config.skin);
+        let mut sim = SyntheticSensor::new(config, seed).unwrap();
+        let (reference, _) = sim.render(&[]).unwrap();
+        let mut ex = ContactExtractor::new(
+            ExtractorConfig::default()
+                .with_thresholds(Thresholds::MID)
+                .with_dot_tracking(true),
+        )
+        .unwrap();
+        ex.set_reference(&reference).unwrap();
+        let (mut off_lines, mut off_slope, mut n) = (0.0, 0.0, 0.0);
+        // Places a fraction of a pitch apart, so that the load sits at
+        // every phase of the grid.
+        for k in 0..8 {
+            let (x_mm, y_mm) = (-3.0 + 0.37 * k as f64, 2.0 - 0.29 * k as f64);
+            let press = Press::sphere(x_mm, y_mm, [0.0, 0.0, -0.6], 5.0);
+            let (frame, _) = sim.render(&[press]).unwrap();
+            let truth = camera.skin_to_px(&skin, x_mm, y_mm);
+            let mut point = |method| {
+                ex.extract(&frame).unwrap();
+                let raws = ex.locate(method).unwrap();
+                assert_eq!(raws.len(), 1, "seed {seed}, press {k}: one contact");
+                (raws[0].x_px - truth.0).hypot(raws[0].y_px - truth.1)
+            };
+            off_lines += point(lines);
+            off_slope += point(slope);
+            n += 1.0;
+        }
+        let (off_lines, off_slope) = (off_lines / n, off_slope / n);
+        assert!(
+            off_lines < 0.6 * off_slope && off_lines < 0.05 * pitch_px,
+            "pitch {pitch_px}: the lines {off_lines:.2} px off, the slope peak {off_slope:.2} px"
+        );
+    }
+}

@@ -1426,6 +1426,43 @@ mod tests {
     }
 
     #[test]
+    fn motion_lines_start_at_the_2d_slope_peak() {
+        let m = ContactPointMethod::MotionLines { sigma_px: 16.0 };
+        let json = serde_json::to_string(&m).unwrap();
+        assert_eq!(json, r#"{"method":"motion_lines","sigma_px":16.0}"#);
+        assert_eq!(
+            serde_json::from_str::<ContactPointMethod>(&json).unwrap(),
+            m
+        );
+        for bad in [0.0, -1.0, f64::NAN, MAX_SLOPE_SIGMA_PX + 1.0] {
+            assert!(
+                ContactPointMethod::MotionLines { sigma_px: bad }
+                    .validate()
+                    .is_err()
+            );
+        }
+        // The locator holds no dots: it gives the 2-D slope peak.
+        let (h, w) = (20, 40);
+        let u = Array2::from_shape_fn((h, w), |(_, j)| (j as f32 - 17.0).tanh());
+        let v = Array2::from_shape_fn((h, w), |(i, _)| (i as f32 - 9.0).tanh());
+        let start = RawContact {
+            x_px: 5.0,
+            y_px: 5.0,
+            bbox: Roi::new(10, 5, 15, 10),
+            ..Default::default()
+        };
+        let (mut a, mut b) = ([start], [start]);
+        let mut locator = ContactLocator::new();
+        locator.refine(m, &mut a, u.view(), v.view(), 1.0).unwrap();
+        let slope = ContactPointMethod::SlopePeak2d { sigma_px: 16.0 };
+        locator
+            .refine(slope, &mut b, u.view(), v.view(), 1.0)
+            .unwrap();
+        assert_eq!(a, b);
+        assert_ne!([a[0].x_px, a[0].y_px], [5.0, 5.0]);
+    }
+
+    #[test]
     fn shear_ratio_guards_a_zero_normal() {
         let r = RawContact {
             ds1: 3.0,
