@@ -482,8 +482,11 @@ impl ContactExtractor {
     /// argmin of its divergence potential, which shear slides sideways; a
     /// calibrated sensor re-measures with its calibration's method, and
     /// without a calibration [`ContactPointMethod::DEFAULT`] (the slope
-    /// peak) is the one to use, as `track --raw` does. Errors on a method
-    /// parameter out of its range.
+    /// peak) is the one to use, as `track --raw` does. With
+    /// [`ContactPointMethod::MotionLines`] and the dots of a grid followed,
+    /// each contact's point then moves to where its dots' motion lines meet
+    /// ([`DotTracker::motion_centre`]), its row as well as its column.
+    /// Errors on a method parameter out of its range.
     pub fn locate(&mut self, method: ContactPointMethod) -> Result<&[RawContact]> {
         let (flow, scale) = self.grid.finest();
         // The unseen patches (motion past the skin's texture only) are not
