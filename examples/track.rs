@@ -29,7 +29,9 @@
 //! `--thresholds`), and every frame's patches are printed and written with
 //! their contact point and box in pixels, strength, shear and normal raw
 //! displacements (`ds1`, `ds2`, `dn`) and `d_pf`, in the same per-frame
-//! JSON Lines layout as calibrated contacts (docs/formats.md).
+//! JSON Lines layout as calibrated contacts (docs/formats.md). With
+//! `--dot-tracking on` on a sensor with a regular grid of dots, the
+//! contact point is where the dots' motion lines meet, in both axes.
 //!
 //! A contact whose force came from the calibration's fallback maps is marked
 //! `(fallback)`, one outside what the calibration was fitted on

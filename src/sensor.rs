@@ -536,6 +536,13 @@ impl ContactExtractor {
         Ok(())
     }
 
+    /// Whether the dots of a regular marker grid are followed one by one:
+    /// the configuration asks for it and the reference shows such a grid
+    /// ([`ExtractorConfig::dot_tracking`]).
+    pub fn follows_dots(&self) -> bool {
+        self.dots.is_active()
+    }
+
     /// The pitch, in pixels, of the reference's markers when they form a
     /// regular grid (a pattern whose autocorrelation repeats,
     /// [`crate::markers::grid_pitch`]); `None` for random markers or before

@@ -284,3 +284,46 @@ fn the_dots_motion_lines_find_a_light_press_the_slope_peak_misses() {
         );
     }
 }
+
+/// Without a calibration, a sensor that follows the dots of its grid
+/// reports each patch where its dots point, in both coordinates; without
+/// dots, the column as a calibration measures it by default.
+#[test]
+fn a_raw_sensor_on_a_dot_grid_locates_where_the_dots_point() {
+    use optical_tactile::contact::ContactPointMethod;
+    use optical_tactile::segment::Thresholds;
+    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig, RawSensor};
+    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    let config = SimConfig::fingertip();
+    let (camera, skin) = (config.camera, config.skin);
+    let mut sim = SyntheticSensor::new(config, 31).unwrap();
+    let (reference, _) = sim.render(&[]).unwrap();
+    let (x_mm, y_mm) = (1.3, -2.1);
+    let (frame, _) = sim
+        .render(&[Press::sphere(x_mm, y_mm, [0.0, 0.0, -0.7], 5.0)])
+        .unwrap();
+    let truth = camera.skin_to_px(&skin, x_mm, y_mm);
+    for dots in [true, false] {
+        let extractor = ExtractorConfig::default()
+            .with_thresholds(Thresholds::MID)
+            .with_dot_tracking(dots);
+        let mut raw = RawSensor::new(extractor.clone(), None).unwrap();
+        raw.set_reference(&reference).unwrap();
+        let got = raw.process(&frame).unwrap().to_vec();
+        assert_eq!(raw.extractor().follows_dots(), dots);
+        let mut ex = ContactExtractor::new(extractor).unwrap();
+        ex.set_reference(&reference).unwrap();
+        ex.extract(&frame).unwrap();
+        let method = if dots {
+            ContactPointMethod::MotionLines { sigma_px: 16.0 }
+        } else {
+            ContactPointMethod::DEFAULT
+        };
+        assert_eq!(got, ex.locate(method).unwrap());
+        assert_eq!(got.len(), 1);
+        if dots {
+            let off = (got[0].x_px - truth.0).hypot(got[0].y_px - truth.1);
+            assert!(off < 1.0, "{off:.2} px from the load");
+        }
+    }
+}

@@ -327,10 +327,12 @@ impl Pipeline {
                 let roi = crop.unwrap_or_else(|| Roi::full(img.ncols(), img.nrows()));
                 let view = roi.crop(img)?;
                 extractor.extract(&view)?;
-                // The contact column as a calibration measures it by default
-                // (as `track --raw`).
+                // The contact point as `track --raw` measures it: the column
+                // as a calibration measures it by default, or both
+                // coordinates where followed dots point.
+                let method = ContactPointMethod::uncalibrated(extractor.follows_dots());
                 Ok(extractor
-                    .locate(ContactPointMethod::DEFAULT)?
+                    .locate(method)?
                     .iter()
                     .enumerate()
                     .map(|(k, r)| Contact::raw_patch(k, r))

@@ -537,6 +537,20 @@ impl ContactPointMethod {
         }
     }
 
+    /// The method for patches measured without a calibration
+    /// ([`crate::sensor::RawSensor`], `track --raw`): where the dots of a
+    /// regular grid are followed, [`ContactPointMethod::MotionLines`] about
+    /// the 2-D slope peak of 16 px (the row as well as the column, where the
+    /// dots point); otherwise [`ContactPointMethod::DEFAULT`], the column
+    /// as the strip's calibration measures it.
+    pub fn uncalibrated(dots_followed: bool) -> Self {
+        if dots_followed {
+            Self::MotionLines { sigma_px: 16.0 }
+        } else {
+            Self::DEFAULT
+        }
+    }
+
     /// Errors ([`Error::InvalidParameter`]) unless the method's parameter is
     /// finite, positive and at most its bound ([`MAX_SLOPE_SIGMA_PX`],
     /// [`MAX_CENTROID_HALF_WINDOW_PX`]).

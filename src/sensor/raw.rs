@@ -11,8 +11,10 @@ use crate::viz::{self, Canvas};
 
 /// Raw patches of whole camera frames, without a calibration: the frame is
 /// cropped (to a given region, or not at all), the extractor runs on the
-/// crop, and every patch's contact column is measured by
-/// [`ContactPointMethod::DEFAULT`], as a calibration measures it by default.
+/// crop, and every patch's contact point is measured by
+/// [`ContactPointMethod::uncalibrated`]: the column as the strip's
+/// calibration measures it by default, or, where the dots of a regular grid
+/// are followed, both coordinates where the dots' motion lines meet.
 ///
 /// What [`TactileSensor`](super::TactileSensor) is to a calibrated sensor,
 /// for bringing up a sensor that has no calibration yet: the patches carry
@@ -63,7 +65,8 @@ impl RawSensor {
     pub fn process(&mut self, frame: &ArrayRef2<f32>) -> Result<&[RawContact]> {
         self.crop_from(frame)?;
         self.extractor.extract(&self.cropped)?;
-        self.extractor.locate(ContactPointMethod::DEFAULT)
+        let method = ContactPointMethod::uncalibrated(self.extractor.follows_dots());
+        self.extractor.locate(method)
     }
 
     /// The crop, `None` for the whole frame.
