@@ -198,6 +198,40 @@ fn a_non_finite_motion_is_left_out() {
     );
 }
 
+/// A press near the middle of a grid, for the property tests.
+struct Case {
+    dots: Vec<[f64; 2]>,
+    moved: Vec<Option<[f64; 2]>>,
+    /// The load's point.
+    c: [f64; 2],
+    /// Reaching 3 sigma and a pitch about the load.
+    region: Roi,
+}
+
+/// A press of `sigma_of_pitch` pitches and `amp` px with `shear` on a grid
+/// of `pitch` px: its offset `at` from the middle and the grid's `phase`
+/// in pitches.
+fn case(
+    pitch: f64,
+    phase: [f64; 2],
+    at: [f64; 2],
+    sigma_of_pitch: f64,
+    amp: f64,
+    shear: [f64; 2],
+) -> Case {
+    let dots = grid(pitch, [phase[0] * pitch, phase[1] * pitch], 260.0);
+    let c = [130.0 + at[0] * pitch, 130.0 + at[1] * pitch];
+    let sigma = sigma_of_pitch * pitch;
+    let moved = press(&dots, c, sigma, amp, shear);
+    let region = around(c, 3.0 * sigma + pitch);
+    Case {
+        dots,
+        moved,
+        c,
+        region,
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
 
@@ -212,11 +246,7 @@ proptest! {
         amp in 0.5f64..5.0,
         shear in prop::array::uniform2(-1.0f64..1.0),
     ) {
-        let dots = grid(pitch, [phase[0] * pitch, phase[1] * pitch], 260.0);
-        let c = [130.0 + at[0] * pitch, 130.0 + at[1] * pitch];
-        let sigma = sigma_of_pitch * pitch;
-        let moved = press(&dots, c, sigma, amp, shear);
-        let region = around(c, 3.0 * sigma + pitch);
+        let Case { dots, moved, c, region } = case(pitch, phase, at, sigma_of_pitch, amp, shear);
         if let Some(got) = motion_centre(&dots, &moved, region, &[c], 0, pitch) {
             let slow = twin(&dots, &moved, region, c);
             prop_assert!((got[0] - slow[0]).hypot(got[1] - slow[1]) < 1e-4 * pitch,
@@ -234,11 +264,7 @@ proptest! {
         sigma_of_pitch in 0.5f64..1.5,
         amp in 0.5f64..5.0,
     ) {
-        let dots = grid(pitch, [phase[0] * pitch, phase[1] * pitch], 260.0);
-        let c = [130.0 + at[0] * pitch, 130.0 + at[1] * pitch];
-        let sigma = sigma_of_pitch * pitch;
-        let moved = press(&dots, c, sigma, amp, [0.0, 0.0]);
-        let region = around(c, 3.0 * sigma + pitch);
+        let Case { dots, moved, c, region } = case(pitch, phase, at, sigma_of_pitch, amp, [0.0, 0.0]);
         let start = [c[0] + 0.3 * pitch, c[1] - 0.2 * pitch];
         let got = motion_centre(&dots, &moved, region, &[start], 0, pitch);
         prop_assert!(got.is_some());
