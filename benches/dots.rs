@@ -6,7 +6,10 @@
 //! - `dots/extract`: `ContactExtractor::extract` (flow, segmentation, nHHD)
 //!   with the dots followed and without: the ratio is what following them
 //!   costs per frame;
-//! - `dots/refine`: `DotTracker::refine` alone on DIS's native flow.
+//! - `dots/refine`: `DotTracker::refine` alone on DIS's native flow;
+//! - `dots/locate`: `ContactExtractor::locate` of that frame's contact with
+//!   the dots followed, by the 2-D slope peak and by the dots' motion lines
+//!   about it: the difference is what the lines cost.
 //!
 //! `cargo bench --bench dots` (on a shared machine compare ratios within one
 //! run).
@@ -15,6 +18,7 @@ use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use optical_tactile::ThresholdPreset;
+use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::markers::{DotTracker, grid_pitch};
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
 use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
@@ -43,6 +47,26 @@ fn bench(c: &mut Criterion) {
         group.bench_function(name, |b| {
             b.iter(|| ex.extract(&frame).expect("extract").len())
         });
+        if on {
+            // The frame's contact, measured once (the bench above may be
+            // filtered out).
+            assert!(!ex.extract(&frame).expect("extract").is_empty());
+            let methods = [
+                (
+                    "locate/slope peak",
+                    ContactPointMethod::SlopePeak2d { sigma_px: 16.0 },
+                ),
+                (
+                    "locate/motion lines",
+                    ContactPointMethod::MotionLines { sigma_px: 16.0 },
+                ),
+            ];
+            for (name, method) in methods {
+                group.bench_function(name, |b| {
+                    b.iter(|| ex.locate(method).expect("locate").len())
+                });
+            }
+        }
     }
     let pitch = grid_pitch(&reference).expect("a dot grid");
     let mut tracker = DotTracker::new();
