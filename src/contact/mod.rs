@@ -516,6 +516,12 @@ impl ContactPointMethod {
     /// contacts to about 0.25 mm, against 0.65 mm for the energy centroid).
     pub const DEFAULT: Self = Self::SlopePeak { sigma_px: 8.0 };
 
+    /// [`ContactPointMethod::MotionLines`] about the 2-D slope peak of
+    /// 16 px: the method of sensors that locate in 2-D
+    /// ([`ContactPointMethod::for_geometry`]) and of raw patches where dots
+    /// are followed ([`ContactPointMethod::uncalibrated`]).
+    pub const MOTION_LINES: Self = Self::MotionLines { sigma_px: 16.0 };
+
     /// The default for new calibrations of a sensor of `geometry`:
     /// [`ContactPointMethod::DEFAULT`] on the curved strip,
     /// [`ContactPointMethod::MotionLines`] about the 2-D slope peak with
@@ -531,7 +537,7 @@ impl ContactPointMethod {
     /// "A flat fingertip sensor").
     pub fn for_geometry(geometry: &SensorGeometry) -> Self {
         if geometry.locates_in_2d() {
-            Self::MotionLines { sigma_px: 16.0 }
+            Self::MOTION_LINES
         } else {
             Self::DEFAULT
         }
@@ -545,7 +551,7 @@ impl ContactPointMethod {
     /// as the strip's calibration measures it.
     pub fn uncalibrated(dots_followed: bool) -> Self {
         if dots_followed {
-            Self::MotionLines { sigma_px: 16.0 }
+            Self::MOTION_LINES
         } else {
             Self::DEFAULT
         }
