@@ -408,6 +408,18 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
     Ok(())
 }
 
+/// The largest motion, as a fraction of a dot grid's pitch, up to which a
+/// contact whose dots were all followed counts as such
+/// ([`ContactExtractor::dots_followed`]).
+///
+/// Why two thirds: on the characterizations of two simulated fingertip
+/// sensors (pitches of 22 and 18 px), 627 of the 629 tests that moved by
+/// half the pitch to two thirds of it and lost no dot in their box had
+/// every dot there within 3 px of its true motion (the other two 0.56 of
+/// the pitch); from 0.69 of the pitch on, dots were matched to a
+/// neighbour with none lost (`docs/results.md`).
+pub const FOLLOWED_PITCH_FRACTION: f64 = 2.0 / 3.0;
+
 /// Flow -> patches -> nHHD -> raw quantities, on cropped grayscale frames
 /// (see the module docs). Built once; nothing is allocated per frame once the
 /// patch sizes have been seen.
@@ -557,6 +569,35 @@ impl ContactExtractor {
     /// neighbour. Always false on random markers.
     pub fn beyond_markers(&self, raw: &RawContact) -> bool {
         self.marker_pitch.is_some_and(|p| raw.peak_px >= 0.5 * p)
+    }
+
+    /// Whether a contact's dots were all followed: the dots of a regular
+    /// grid are followed one by one, none whose reference centre lies in
+    /// the contact's box was lost in this frame
+    /// ([`DotTracker::lost_in`]), and its motion stayed under
+    /// [`FOLLOWED_PITCH_FRACTION`] of the pitch. False without followed
+    /// dots.
+    ///
+    /// A contact beyond the markers ([`ContactExtractor::beyond_markers`])
+    /// whose dots were all followed is still marked out of domain at run
+    /// time, where nothing checks its dots against the truth; a
+    /// characterization fits its maps on such tests
+    /// ([`crate::calibration::fit::Extraction::dots_followed`]), since on
+    /// the simulated sensors their dots moved as the truth did.
+    pub fn dots_followed(&self, raw: &RawContact) -> bool {
+        self.dots.is_active()
+            && self
+                .marker_pitch
+                .is_some_and(|p| raw.peak_px < FOLLOWED_PITCH_FRACTION * p)
+            && !self.dots.lost_in(raw.bbox)
+    }
+
+    /// The dots of a regular grid as the extractor follows them: their
+    /// reference centres and their motion in the last frame
+    /// ([`DotTracker::dots`], [`DotTracker::displacements`]); inactive
+    /// unless [`ContactExtractor::follows_dots`].
+    pub fn dot_tracker(&self) -> &DotTracker {
+        &self.dots
     }
 
     /// `(width, height)` of the reference, `(0, 0)` before one is set.

@@ -446,6 +446,50 @@ fn dots_that_vanish_are_lost_and_leave_the_flow_alone() {
 }
 
 #[test]
+fn a_lost_dot_is_found_only_in_the_region_that_holds_it() {
+    let truth = grid(160, 120, 22.0, 11.3, 10.7);
+    let reference = render(160, 120, &truth, 3.5, true, 1.0, 2);
+    let mut t = DotTracker::new();
+    let whole = Roi::new(0, 0, 160, 120);
+    assert!(!t.lost_in(whole), "no reference, nothing lost");
+    assert!(t.set_reference(&reference, 22.0).unwrap() > 10);
+    // Every dot followed: nothing lost anywhere.
+    let same = flow_of(160, 120, 2, &|_| [0.0, 0.0], [0.0, 0.0]);
+    let mut flow = same.clone();
+    t.refine(&reference, &mut flow, 2).unwrap();
+    assert!(t.displacements().iter().all(Option::is_some));
+    assert!(!t.lost_in(whole));
+    // One dot blotted out of the frame: lost, and only a region holding
+    // its reference centre says so.
+    let (k, _) = nearest(t.dots(), [77.0, 54.0]);
+    let gone = t.dots()[k];
+    let mut frame = reference.clone();
+    for ((i, j), v) in frame.indexed_iter_mut() {
+        if (j as f64 - gone[0]).hypot(i as f64 - gone[1]) < 8.0 {
+            *v = 180.0;
+        }
+    }
+    let mut flow = same.clone();
+    t.refine(&frame, &mut flow, 2).unwrap();
+    let lost: Vec<usize> = (0..t.dots().len())
+        .filter(|&i| t.displacements()[i].is_none())
+        .collect();
+    assert_eq!(lost, vec![k], "only the blotted dot is lost");
+    let (x, y) = (gone[0] as usize, gone[1] as usize);
+    assert!(t.lost_in(whole));
+    assert!(t.lost_in(Roi::new(x - 5, y - 5, 11, 11)));
+    assert!(
+        !t.lost_in(Roi::new(x + 6, y - 5, 20, 11)),
+        "a region beside it"
+    );
+    assert!(
+        !t.lost_in(Roi::new(x - 5, y + 6, 11, 20)),
+        "a region below it"
+    );
+    assert!(!t.lost_in(Roi::new(x, y, 0, 0)), "an empty region");
+}
+
+#[test]
 fn bad_input_is_an_error() {
     let truth = grid(160, 120, 22.0, 11.3, 10.7);
     let reference = render(160, 120, &truth, 3.5, true, 1.0, 2);
