@@ -781,7 +781,9 @@ fn run(args: Args) -> Result<(), Failure> {
 
 /// On a regular grid of markers: how many detected test rows moved by half
 /// the grid's pitch or more (marked out of domain at run time), and the
-/// test errors of the others; `None` when no test row did.
+/// test errors of the others; how many training and validation rows that
+/// moved that far the maps were fitted on (their dots all followed);
+/// `None` when no test row moved that far.
 fn beyond_markers_note(
     ex: &[Extraction],
     fit: &DatasetFit,
@@ -792,6 +794,9 @@ fn beyond_markers_note(
     if beyond == 0 {
         return Ok(None);
     }
+    let fitting = |e: &&Extraction| e.row.split != Split::Test && e.raw.is_some();
+    let far = ex.iter().filter(fitting).filter(|e| e.beyond_markers);
+    let (far_n, far_fitted) = far.fold((0, 0), |(n, k), e| (n + 1, k + usize::from(e.fits())));
     let inside: Vec<Sample> = ex
         .iter()
         .zip(&fit.samples)
@@ -803,7 +808,9 @@ fn beyond_markers_note(
         "Motion beyond the markers: {beyond} of {detected} detected test rows moved by half \
          the dot grid's pitch or more, where a dot cannot be told from its neighbour; the \
          sensor marks such contacts out of domain. The other {}: MAE x {:.2} mm, y {:.2} mm, \
-         Fx {:.4}, Fy {:.4}, Fz {:.4} N.",
+         Fx {:.4}, Fy {:.4}, Fz {:.4} N. Of the {far_n} training and validation rows that \
+         moved that far, the maps were fitted on the {far_fitted} whose dots were all followed \
+         (none lost in the contact's box, motion under two thirds of the pitch).",
         m.n, m.x_mm, m.y_mm, m.fx, m.fy, m.fz
     )))
 }
