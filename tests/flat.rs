@@ -12,6 +12,37 @@ use optical_tactile::{Calibration, TactileSensor};
 const SEQ: &str = "fixtures/flat_press";
 const CAL: &str = "fixtures/flat_calibration.json";
 
+/// The simulated fingertip sensor with its dots `pitch_px` apart and its
+/// gel lit `light` times the preset's, and its unloaded frame.
+fn fingertip(
+    seed: u64,
+    pitch_px: f64,
+    light: f32,
+) -> (optical_tactile_sim::SyntheticSensor, ndarray::Array2<f32>) {
+    let mut config = optical_tactile_sim::SimConfig::fingertip();
+    if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
+        g.pitch_px = pitch_px;
+    }
+    config.noise.background *= light;
+    let mut sim = optical_tactile_sim::SyntheticSensor::new(config, seed).unwrap();
+    let (reference, _) = sim.render(&[]).unwrap();
+    (sim, reference)
+}
+
+/// An extractor at the `mid` thresholds that follows the dots of
+/// `reference`.
+fn dot_extractor(reference: &ndarray::Array2<f32>) -> optical_tactile::sensor::ContactExtractor {
+    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
+    let mut ex = ContactExtractor::new(
+        ExtractorConfig::default()
+            .with_thresholds(optical_tactile::segment::Thresholds::MID)
+            .with_dot_tracking(true),
+    )
+    .unwrap();
+    ex.set_reference(reference).unwrap();
+    ex
+}
+
 #[test]
 fn the_flat_calibration_locates_every_bundled_press_in_both_coordinates() {
     let cal = Calibration::load(CAL).unwrap();
@@ -61,14 +92,9 @@ fn the_flat_calibration_locates_every_bundled_press_in_both_coordinates() {
 /// not, and random markers (the strip) have no pitch at all.
 #[test]
 fn motion_beyond_half_the_dot_pitch_is_out_of_domain() {
-    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    use optical_tactile_sim::Press;
     for (seed, pitch_px) in [(5, 22.0), (6, 18.0)] {
-        let mut config = SimConfig::fingertip();
-        if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
-            g.pitch_px = pitch_px;
-        }
-        let mut sim = SyntheticSensor::new(config, seed).unwrap();
-        let (reference, _) = sim.render(&[]).unwrap();
+        let (mut sim, reference) = fingertip(seed, pitch_px, 1.0);
         let mut sensor = TactileSensor::from_calibration(Calibration::load(CAL).unwrap()).unwrap();
         sensor.set_reference(&reference).unwrap();
         let pitch = sensor.marker_pitch().expect("a dot grid has a pitch");
@@ -135,7 +161,7 @@ fn followed_dots_move_as_the_simulator_moved_them() {
     use optical_tactile::flow::FlowField;
     use optical_tactile::flow::dis::{Dis, DisParams, DisPreset};
     use optical_tactile::markers::{DotTracker, grid_pitch};
-    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    use optical_tactile_sim::Press;
     let at = |f: &FlowField, k: f64, x: f64, y: f64| {
         let i = ((y + 0.5) / k - 0.5).round() as usize;
         let j = ((x + 0.5) / k - 0.5).round() as usize;
@@ -143,13 +169,7 @@ fn followed_dots_move_as_the_simulator_moved_them() {
     };
     let mut flow_lost_a_dot = false;
     for (seed, pitch_px, light) in [(11, 22.0, 1.0), (12, 18.0, 0.8), (13, 26.0, 1.15)] {
-        let mut config = SimConfig::fingertip();
-        if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
-            g.pitch_px = pitch_px;
-        }
-        config.noise.background *= light;
-        let mut sim = SyntheticSensor::new(config, seed).unwrap();
-        let (reference, _) = sim.render(&[]).unwrap();
+        let (mut sim, reference) = fingertip(seed, pitch_px, light);
         let pitch = grid_pitch(&reference).expect("a dot grid");
         let mut dots = DotTracker::new();
         assert!(dots.set_reference(&reference, pitch).unwrap() > 50);
@@ -239,26 +259,13 @@ fn dot_tracking_leaves_random_markers_to_the_flow() {
 #[test]
 fn the_dots_motion_lines_find_a_light_press_the_slope_peak_misses() {
     use optical_tactile::contact::ContactPointMethod;
-    use optical_tactile::segment::Thresholds;
-    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
-    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    use optical_tactile_sim::Press;
     let lines = ContactPointMethod::MotionLines { sigma_px: 16.0 };
     let slope = ContactPointMethod::SlopePeak2d { sigma_px: 16.0 };
     for (seed, pitch_px) in [(21, 22.0), (22, 18.0), (23, 26.0)] {
-        let mut config = SimConfig::fingertip();
-        if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
-            g.pitch_px = pitch_px;
-        }
-        let (camera, skin) = (config.camera, config.skin);
-        let mut sim = SyntheticSensor::new(config, seed).unwrap();
-        let (reference, _) = sim.render(&[]).unwrap();
-        let mut ex = ContactExtractor::new(
-            ExtractorConfig::default()
-                .with_thresholds(Thresholds::MID)
-                .with_dot_tracking(true),
-        )
-        .unwrap();
-        ex.set_reference(&reference).unwrap();
+        let (mut sim, reference) = fingertip(seed, pitch_px, 1.0);
+        let (camera, skin) = (sim.config().camera, sim.config().skin);
+        let mut ex = dot_extractor(&reference);
         let (mut off_lines, mut off_slope, mut n) = (0.0, 0.0, 0.0);
         // Places a fraction of a pitch apart, so that the load sits at
         // every phase of the grid.
@@ -338,25 +345,11 @@ fn a_raw_sensor_on_a_dot_grid_locates_where_the_dots_point() {
 #[test]
 fn dots_said_followed_beyond_half_the_pitch_moved_as_the_truth() {
     use optical_tactile::contact::ContactPointMethod;
-    use optical_tactile::segment::Thresholds;
-    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
-    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    use optical_tactile_sim::Press;
     let (mut followed, mut turned_down) = (0, 0);
     for (seed, pitch_px, light) in [(41, 22.0, 1.0), (42, 18.0, 0.85), (43, 26.0, 1.1)] {
-        let mut config = SimConfig::fingertip();
-        if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
-            g.pitch_px = pitch_px;
-        }
-        config.noise.background *= light;
-        let mut sim = SyntheticSensor::new(config, seed).unwrap();
-        let (reference, _) = sim.render(&[]).unwrap();
-        let mut ex = ContactExtractor::new(
-            ExtractorConfig::default()
-                .with_thresholds(Thresholds::MID)
-                .with_dot_tracking(true),
-        )
-        .unwrap();
-        ex.set_reference(&reference).unwrap();
+        let (mut sim, reference) = fingertip(seed, pitch_px, light);
+        let mut ex = dot_extractor(&reference);
         assert!(ex.follows_dots(), "seed {seed}: a dot grid");
         for (x, y) in [(0.0, 0.0), (2.6, -1.7), (-4.1, 2.3)] {
             for (fz, tilt) in [(2.5, 0.0), (3.0, 20.0), (3.0, -20.0)] {
