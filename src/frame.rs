@@ -119,6 +119,14 @@ impl Roi {
         Roi::new(0, 0, width, height)
     }
 
+    /// Whether the point `[x, y]` (pixels, sub-pixel) lies in the region:
+    /// from its left column and top row up to, not including, its right
+    /// and bottom edges. False for a non-finite point.
+    pub fn holds(&self, p: [f64; 2]) -> bool {
+        let (x0, y0) = (self.x as f64, self.y as f64);
+        p[0] >= x0 && p[0] < x0 + self.w as f64 && p[1] >= y0 && p[1] < y0 + self.h as f64
+    }
+
     /// The region as `"x,y,w,h"` (the form [`Roi::parse`] reads).
     pub fn to_arg(&self) -> String {
         format!("{},{},{},{}", self.x, self.y, self.w, self.h)
@@ -459,6 +467,16 @@ pub fn to_u8(image: &ArrayRef2<f32>) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_region_holds_the_points_of_its_half_open_box() {
+        let r = Roi::new(10, 20, 5, 4);
+        assert!(r.holds([10.0, 20.0]) && r.holds([14.99, 23.99]));
+        assert!(!r.holds([15.0, 21.0]) && !r.holds([12.0, 24.0]));
+        assert!(!r.holds([9.99, 21.0]) && !r.holds([12.0, 19.99]));
+        assert!(!r.holds([f64::NAN, 21.0]) && !r.holds([12.0, f64::INFINITY]));
+        assert!(!Roi::new(3, 3, 0, 0).holds([3.0, 3.0]));
+    }
 
     #[test]
     fn rgb_green_luma_and_bgr() {

@@ -374,11 +374,7 @@ fn dots_said_followed_beyond_half_the_pitch_moved_as_the_truth() {
                 let tracker = ex.dot_tracker();
                 let mut worst = 0.0f64;
                 for (c, d) in tracker.dots().iter().zip(tracker.displacements()) {
-                    let inside = c[0] >= b.x as f64
-                        && c[0] < (b.x + b.w) as f64
-                        && c[1] >= b.y as f64
-                        && c[1] < (b.y + b.h) as f64;
-                    if !inside {
+                    if !b.holds(*c) {
                         continue;
                     }
                     let d = d.expect("no dot in the box was lost");

@@ -56,8 +56,6 @@ pub fn motion_centre(
     if !(start[0].is_finite() && start[1].is_finite() && reach_px.is_finite()) {
         return None;
     }
-    let (x0, y0) = (region.x as f64, region.y as f64);
-    let (x1, y1) = (x0 + region.w as f64, y0 + region.h as f64);
     let own = |p: &[f64; 2]| {
         let d = dist2(*p, start);
         starts
@@ -68,8 +66,7 @@ pub fn motion_centre(
     let selected = || {
         dots.iter().zip(moved).filter_map(move |(p, m)| {
             let m = (*m)?;
-            let inside = p[0] >= x0 && p[0] < x1 && p[1] >= y0 && p[1] < y1;
-            (inside && m[0].is_finite() && m[1].is_finite() && own(p)).then_some((*p, m))
+            (region.holds(*p) && m[0].is_finite() && m[1].is_finite() && own(p)).then_some((*p, m))
         })
     };
     // The region's mean motion and its largest.

@@ -169,12 +169,10 @@ impl DotTracker {
     /// neighbour) also had a dot lost in the contact's box, but for two
     /// tests on the 18 px grid ([`crate::sensor::FOLLOWED_PITCH_FRACTION`]).
     pub fn lost_in(&self, region: Roi) -> bool {
-        let (x0, y0) = (region.x as f64, region.y as f64);
-        let (x1, y1) = (x0 + region.w as f64, y0 + region.h as f64);
         self.dots
             .iter()
             .zip(&self.moved)
-            .any(|(c, m)| m.is_none() && c[0] >= x0 && c[0] < x1 && c[1] >= y0 && c[1] < y1)
+            .any(|(c, m)| m.is_none() && region.holds(*c))
     }
 
     /// The point where the lines along the dots' last motion meet, for
