@@ -561,6 +561,11 @@ pub struct ContactRecord {
     /// (`Contact::out_of_domain`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_of_domain: Option<bool>,
+    /// Frames in a row the tracker has held this contact without a
+    /// detection (`Contact::missed`): 0 for a contact detected in this
+    /// frame; a held contact repeats its last reading.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub missed: Option<u32>,
     /// Standard deviation of the force error along x, N
     /// (`Contact::force_sigma_n`; absent without a fitted uncertainty).
     #[serde(default, skip_serializing_if = "Option::is_none")]

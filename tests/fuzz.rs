@@ -371,7 +371,7 @@ proptest! {
         } else {
             serde_json::json!({"frame": "000003.png", "t_s": 0.06, "latency_ms": 4.5, "contacts": [
                 {"id": 1, "x_mm": -20.0, "y_mm": 0.0, "z_mm": 150.0, "fx_n": 0.1, "fy_n": 0.0, "fz_n": -2.0,
-                 "x_px": 412.5, "y_px": 100.0, "fallback": false}]})
+                 "x_px": 412.5, "y_px": 100.0, "fallback": false, "missed": 1}]})
         };
         let mut v = line;
         let mut ptrs = Vec::new();

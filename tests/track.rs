@@ -390,3 +390,47 @@ fn the_accurate_preset_re_references_at_rest_too() {
     }
     assert!(s.reference_count() >= 2, "{}", s.reference_count());
 }
+
+#[test]
+fn held_contacts_say_so_in_their_records() {
+    // Two rods, then rest: the tracker holds both for `max_missed` (2)
+    // frames, repeating their last reading, and each record counts the
+    // frames held.
+    let (reference, rest, press) = renders();
+    let mut s = fast_sensor(CROP, ReferencePolicy::default().with_enabled(false));
+    s.set_reference(&reference).unwrap();
+    let pressed = s.process(&press, 0.02).unwrap().to_vec();
+    assert_eq!(pressed.len(), 2, "{pressed:?}");
+    let records = |cs: &[optical_tactile::Contact]| -> Vec<serde_json::Value> {
+        cs.iter()
+            .map(|c| serde_json::to_value(c.to_record()).unwrap())
+            .collect()
+    };
+    for r in records(&pressed) {
+        assert_eq!(r["missed"], 0, "{r}");
+    }
+    for k in 1..=2u32 {
+        let held = s
+            .process(&rest[k as usize], 0.02 * (k + 1) as f64)
+            .unwrap()
+            .to_vec();
+        assert_eq!(held.len(), 2, "frame {k} at rest: {held:?}");
+        for (c, r) in held.iter().zip(records(&held)) {
+            assert_eq!(r["missed"], k, "{r}");
+            let before = pressed.iter().find(|p| p.id == c.id).unwrap();
+            assert_eq!(c.force_n, before.force_n);
+            assert_eq!(r["fz_n"], before.force_n[2]);
+        }
+    }
+    assert!(s.process(&rest[0], 0.08).unwrap().is_empty());
+    // Read back, the count survives; a record without the key reads as None.
+    let line = serde_json::to_string(&pressed[0].to_record()).unwrap();
+    assert!(line.contains(r#""missed":0"#), "{line}");
+    let back: io::ContactRecord = serde_json::from_str(&line).unwrap();
+    assert_eq!(back.missed, Some(0));
+    let old: io::ContactRecord = serde_json::from_str(
+        r#"{"x_mm":1.0,"y_mm":0.0,"z_mm":0.0,"fx_n":0.0,"fy_n":0.0,"fz_n":-2.0}"#,
+    )
+    .unwrap();
+    assert_eq!(old.missed, None);
+}

@@ -32,6 +32,7 @@ def contact_fields(c: ot.Contact) -> dict:
         "area_px": r.area_px,
         "fallback": c.fallback,
         "out_of_domain": c.out_of_domain,
+        "missed": c.missed,
     } | (
         {}
         if c.force_sigma_n is None

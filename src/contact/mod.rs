@@ -171,6 +171,7 @@ impl Contact {
             area_px: Some(r.area_px),
             fallback: Some(self.fallback),
             out_of_domain: Some(self.out_of_domain),
+            missed: Some(self.missed),
             fx_sigma_n: self.force_sigma_n.map(|s| s[0]),
             fy_sigma_n: self.force_sigma_n.map(|s| s[1]),
             fz_sigma_n: self.force_sigma_n.map(|s| s[2]),
