@@ -38,6 +38,13 @@ pub struct Evaluation {
     pub misses: usize,
     /// Predicted contacts with no true contact.
     pub false_contacts: usize,
+    /// Predicted contacts the tracker held without a detection in their
+    /// frame (`missed` of 1 or more in the contacts file): they repeat an
+    /// earlier reading, and are scored like the others.
+    pub held: usize,
+    /// Of the false contacts, those held (a contact that ended, repeated
+    /// for the tracker's hold; `track --hold 0` writes none).
+    pub false_held: usize,
     /// Mean |x error|, mm.
     pub mae_x_mm: f64,
     /// Mean |y error|, mm.
@@ -159,6 +166,14 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
         e.matched += m.len();
         e.misses += t.contacts.len() - m.len();
         e.false_contacts += p.contacts.len() - m.len();
+        let held = |c: &ContactRecord| c.missed.is_some_and(|k| k > 0);
+        e.held += p.contacts.iter().filter(|c| held(c)).count();
+        e.false_held += p
+            .contacts
+            .iter()
+            .enumerate()
+            .filter(|&(i, c)| held(c) && !m.iter().any(|&(k, _)| k == i))
+            .count();
         for (i, j) in m {
             let (a, b) = (&p.contacts[i], &t.contacts[j]);
             let d = [a.x_mm - b.x_mm, a.y_mm - b.y_mm, a.z_mm - b.z_mm];
@@ -244,6 +259,12 @@ impl Evaluation {
         row("matched contacts", self.matched.to_string());
         row("misses", self.misses.to_string());
         row("false contacts", self.false_contacts.to_string());
+        if self.held > 0 {
+            row(
+                "contacts held by the tracker (missed > 0)",
+                format!("{} ({} of them false contacts)", self.held, self.false_held),
+            );
+        }
         // Errors over no pair are not zero errors: say there is none.
         let scored = self.matched > 0;
         let mut err = |k: &str, v: f64, digits: usize| {
@@ -460,5 +481,41 @@ mod tests {
         assert_eq!((e.mae_x_mm, e.mae_fz_n), (1.0, 0.5));
         assert_eq!(e.median_latency_ms, Some(3.0));
         assert!(e.to_markdown().contains("| misses | 1 |"));
+        // No record says it was held: no row for it.
+        assert_eq!((e.held, e.false_held), (0, 0));
+        assert!(!e.to_markdown().contains("held"));
+    }
+
+    #[test]
+    fn held_contacts_are_counted_matched_or_false() {
+        let held = |x: f64, fz: f64, missed: u32| ContactRecord {
+            missed: Some(missed),
+            ..c(x, fz)
+        };
+        let truth = vec![
+            f("a", vec![c(0.0, -1.0)], None),
+            f("b", vec![c(0.0, -1.2)], None),
+        ];
+        // Frame a: fresh at 0, a held one where nothing is; frame b: the
+        // one at 0 held (matched), a fresh false one, a record with
+        // `missed: 0`.
+        let pred = vec![
+            f("a", vec![c(0.5, -1.0), held(60.0, -2.0, 1)], None),
+            f(
+                "b",
+                vec![held(0.5, -1.0, 2), c(90.0, -0.5), held(-90.0, -0.5, 0)],
+                None,
+            ),
+        ];
+        let e = score(&pred, &truth, 5.0);
+        assert_eq!((e.matched, e.false_contacts), (2, 3));
+        assert_eq!((e.held, e.false_held), (2, 1));
+        assert!(
+            e.to_markdown().contains(
+                "| contacts held by the tracker (missed > 0) | 2 (1 of them false contacts) |"
+            ),
+            "{}",
+            e.to_markdown()
+        );
     }
 }
