@@ -563,7 +563,8 @@ pub struct ContactRecord {
     pub out_of_domain: Option<bool>,
     /// Frames in a row the tracker has held this contact without a
     /// detection (`Contact::missed`): 0 for a contact detected in this
-    /// frame; a held contact repeats its last reading.
+    /// frame; a held contact repeats its last reading (the filter's
+    /// prediction when the tracker filters).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub missed: Option<u32>,
     /// Standard deviation of the force error along x, N
