@@ -29,13 +29,15 @@ fn fingertip(
     (sim, reference)
 }
 
-/// An extractor at the `mid` thresholds that follows the dots of
-/// `reference`.
-fn dot_extractor(reference: &ndarray::Array2<f32>) -> optical_tactile::sensor::ContactExtractor {
+/// An extractor at `thresholds` that follows the dots of `reference`.
+fn dot_extractor(
+    reference: &ndarray::Array2<f32>,
+    thresholds: optical_tactile::segment::Thresholds,
+) -> optical_tactile::sensor::ContactExtractor {
     use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
     let mut ex = ContactExtractor::new(
         ExtractorConfig::default()
-            .with_thresholds(optical_tactile::segment::Thresholds::MID)
+            .with_thresholds(thresholds)
             .with_dot_tracking(true),
     )
     .unwrap();
@@ -265,7 +267,7 @@ fn the_dots_motion_lines_find_a_light_press_the_slope_peak_misses() {
     for (seed, pitch_px) in [(21, 22.0), (22, 18.0), (23, 26.0)] {
         let (mut sim, reference) = fingertip(seed, pitch_px, 1.0);
         let (camera, skin) = (sim.config().camera, sim.config().skin);
-        let mut ex = dot_extractor(&reference);
+        let mut ex = dot_extractor(&reference, optical_tactile::segment::Thresholds::MID);
         let (mut off_lines, mut off_slope, mut n) = (0.0, 0.0, 0.0);
         // Places a fraction of a pitch apart, so that the load sits at
         // every phase of the grid.
@@ -349,7 +351,7 @@ fn dots_said_followed_beyond_half_the_pitch_moved_as_the_truth() {
     let (mut followed, mut turned_down) = (0, 0);
     for (seed, pitch_px, light) in [(41, 22.0, 1.0), (42, 18.0, 0.85), (43, 26.0, 1.1)] {
         let (mut sim, reference) = fingertip(seed, pitch_px, light);
-        let mut ex = dot_extractor(&reference);
+        let mut ex = dot_extractor(&reference, optical_tactile::segment::Thresholds::MID);
         assert!(ex.follows_dots(), "seed {seed}: a dot grid");
         for (x, y) in [(0.0, 0.0), (2.6, -1.7), (-4.1, 2.3)] {
             for (fz, tilt) in [(2.5, 0.0), (3.0, 20.0), (3.0, -20.0)] {
@@ -396,4 +398,31 @@ fn dots_said_followed_beyond_half_the_pitch_moved_as_the_truth() {
         "{followed} strong presses had their dots followed"
     );
     assert!(turned_down >= 2, "{turned_down} strong presses turned down");
+}
+
+/// A wide flat object pressed lightly (an 11 mm punch at 0.5 N) moves the
+/// gel by less than the `mid` thresholds' 0.35 px; the `low` thresholds
+/// find it, one contact where it presses, on grids of other pitches and
+/// light.
+#[test]
+fn the_low_thresholds_find_a_light_wide_punch() {
+    use optical_tactile::contact::ContactPointMethod;
+    use optical_tactile::segment::Thresholds;
+    use optical_tactile_sim::{Press, scenario::truth_record};
+    for (seed, pitch_px, light) in [(51, 22.0, 1.0), (52, 18.0, 0.9), (53, 26.0, 1.1)] {
+        let (mut sim, reference) = fingertip(seed, pitch_px, light);
+        let mut ex = dot_extractor(&reference, Thresholds::LOW);
+        for (x, y) in [(0.0, 0.0), (-3.7, 1.9), (4.4, -2.2)] {
+            let press = Press::punch(x, y, [0.0, 0.0, -0.5], 11.0);
+            let (frame, _) = sim.render(&[press]).unwrap();
+            ex.extract(&frame).unwrap();
+            let raws = ex.locate(ContactPointMethod::MOTION_LINES).unwrap();
+            let at = format!("seed {seed}, pitch {pitch_px}, ({x}, {y}) mm");
+            assert_eq!(raws.len(), 1, "{at}: {raws:?}");
+            let t = truth_record(&sim, &press);
+            let off = (raws[0].x_px - t.x_px.unwrap()).hypot(raws[0].y_px - t.y_px.unwrap());
+            // 2 px: 0.15 mm at the sensor's 13 px/mm (measured 0.3-1.4 px).
+            assert!(off < 2.0, "{at}: the contact point {off:.2} px off");
+        }
+    }
 }
