@@ -6,9 +6,12 @@ use optical_tactile::io::{self, PoseRow};
 
 #[test]
 fn a_broken_frame_is_named_and_the_sequence_goes_on() {
-    let dir = std::env::temp_dir().join(format!("optical-tactile-seq-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when the test ends.
+    let tmp = tempfile::Builder::new()
+        .prefix("optical-tactile-seq-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     for k in [0usize, 1, 3] {
         let img = Array2::from_elem((4, 6), k as f32 * 10.0);
         io::write_gray_png(dir.join(format!("{k:06}.png")), &img).unwrap();
@@ -30,7 +33,7 @@ fn a_broken_frame_is_named_and_the_sequence_goes_on() {
     )
     .unwrap();
 
-    let mut seq = SequenceSource::open(&dir).unwrap().with_fps(10.0).unwrap();
+    let mut seq = SequenceSource::open(dir).unwrap().with_fps(10.0).unwrap();
     assert_eq!(seq.remaining(), Some(4));
     let f0 = seq.next_frame().unwrap().unwrap();
     assert_eq!((f0.name.as_str(), f0.index, f0.t_s), ("000000.png", 0, 0.0));
@@ -42,5 +45,5 @@ fn a_broken_frame_is_named_and_the_sequence_goes_on() {
     let f3 = seq.next_frame().unwrap().unwrap();
     assert_eq!((f3.index, f3.t_s), (3, 0.3));
     assert!(seq.next_frame().is_none());
-    assert!(SequenceSource::open(&dir).unwrap().with_fps(0.0).is_err());
+    assert!(SequenceSource::open(dir).unwrap().with_fps(0.0).is_err());
 }

@@ -24,10 +24,13 @@ fn config() -> ExtractorConfig {
     })
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ot_characterize_{}_{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(d.join("frames")).unwrap();
+/// A fresh directory with an empty `frames/`, removed when the test ends.
+fn scratch(name: &str) -> tempfile::TempDir {
+    let d = tempfile::Builder::new()
+        .prefix(&format!("ot-characterize-{name}-"))
+        .tempdir()
+        .unwrap();
+    std::fs::create_dir_all(d.path().join("frames")).unwrap();
     d
 }
 
@@ -71,12 +74,13 @@ fn extraction_finds_every_fixture_press_near_its_truth() {
 
 #[test]
 fn a_missing_image_is_an_error_naming_the_file() {
-    let d = scratch("missing");
+    let tmp = scratch("missing");
+    let d = tmp.path();
     let src = fixture();
     let text = std::fs::read_to_string(src.join("tests.csv")).unwrap();
     std::fs::write(d.join("tests.csv"), &text).unwrap();
     // Copy every image but the first test's loaded frame.
-    let rows = read_dataset(&d).unwrap();
+    let rows = read_dataset(d).unwrap();
     for r in &rows {
         for f in [&r.frame, &r.reference] {
             if *f != rows[0].frame {
@@ -85,7 +89,7 @@ fn a_missing_image_is_an_error_naming_the_file() {
         }
     }
     let err = extract_dataset(
-        &d,
+        d,
         &rows,
         &config(),
         ContactPointMethod::DEFAULT,
@@ -95,18 +99,18 @@ fn a_missing_image_is_an_error_naming_the_file() {
     .unwrap_err();
     let msg = err.to_string();
     assert!(msg.contains(&rows[0].frame), "{msg}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn a_malformed_tests_csv_is_an_error_naming_the_line() {
-    let d = scratch("malformed");
+    let tmp = scratch("malformed");
+    let d = tmp.path();
     let text = std::fs::read_to_string(fixture().join("tests.csv")).unwrap();
     let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
     // Line 4 (the third data row): an unknown split.
     lines[3] = lines[3].replacen(",train,", ",trian,", 1);
     std::fs::write(d.join("tests.csv"), lines.join("\n") + "\n").unwrap();
-    match read_dataset(&d) {
+    match read_dataset(d) {
         Err(Error::Format { path, line, .. }) => {
             assert!(path.ends_with("tests.csv"), "{}", path.display());
             assert_eq!(line, Some(4));
@@ -115,8 +119,7 @@ fn a_malformed_tests_csv_is_an_error_naming_the_line() {
     }
     // An empty file (header only) is an error too.
     std::fs::write(d.join("tests.csv"), format!("{}\n", lines[0])).unwrap();
-    assert!(read_dataset(&d).is_err());
-    let _ = std::fs::remove_dir_all(&d);
+    assert!(read_dataset(d).is_err());
 }
 
 #[test]
@@ -151,14 +154,15 @@ fn too_few_rows_to_fit_is_a_clear_error() {
 #[test]
 fn a_missing_sweep_image_is_an_error_naming_sweeps_csv_and_the_file() {
     use optical_tactile::calibration::fit::{extract_sweeps, read_dataset_sweeps};
-    let d = scratch("sweeps");
+    let tmp = scratch("sweeps");
+    let d = tmp.path();
     let src = fixture();
     let rows = read_dataset(&src).unwrap();
     for name in [&rows[0].frame, &rows[0].reference] {
         std::fs::copy(src.join(name), d.join(name)).unwrap();
     }
     // No sweeps.csv: no sweeps.
-    assert!(read_dataset_sweeps(&d).unwrap().is_empty());
+    assert!(read_dataset_sweeps(d).unwrap().is_empty());
     let (f, r) = (&rows[0].frame, &rows[0].reference);
     let text = format!(
         "sweep,frame,reference,indenter_mm,force_n,x_mm,y_mm,fx_n,fy_n,fz_n\n\
@@ -166,10 +170,10 @@ fn a_missing_sweep_image_is_an_error_naming_sweeps_csv_and_the_file() {
          0,frames/gone.png,{r},10,2,-99.5,0,0,0,-2\n"
     );
     std::fs::write(d.join("sweeps.csv"), text).unwrap();
-    let sweeps = read_dataset_sweeps(&d).unwrap();
+    let sweeps = read_dataset_sweeps(d).unwrap();
     assert_eq!(sweeps.len(), 2);
     let e = extract_sweeps(
-        &d,
+        d,
         &sweeps,
         &config(),
         ContactPointMethod::DEFAULT,

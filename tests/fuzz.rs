@@ -40,11 +40,15 @@ fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
 
-/// A scratch file for this test thread.
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("optical-tactile-fuzz-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d.join(format!("{:?}-{name}", std::thread::current().id()).replace(['(', ')'], ""))
+/// A scratch file of its own (its name ends in `name`), removed when the
+/// returned path is dropped.
+fn scratch(name: &str) -> tempfile::TempPath {
+    tempfile::Builder::new()
+        .prefix("optical-tactile-fuzz-")
+        .suffix(&format!("-{name}"))
+        .tempfile()
+        .unwrap()
+        .into_temp_path()
 }
 
 /// Every reader on the file at `path`; each must return.

@@ -1,18 +1,15 @@
 //! File formats round-trip exactly, and malformed files give errors that name them.
 
-use std::path::PathBuf;
-
 use ndarray::Array2;
 use optical_tactile::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
 use optical_tactile::{Error, FlowField};
 
-/// A fresh, empty directory for one test.
-fn scratch(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("optical-tactile-io-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A fresh, empty directory for one test, removed when the test ends.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("optical-tactile-io-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 fn sample_flow() -> FlowField {
@@ -24,7 +21,7 @@ fn sample_flow() -> FlowField {
 #[test]
 fn flo_round_trip_and_layout() {
     let dir = scratch("flo");
-    let p = dir.join("f.flo");
+    let p = dir.path().join("f.flo");
     let f = sample_flow();
     io::write_flo(&p, &f).unwrap();
     let bytes = std::fs::read(&p).unwrap();
@@ -39,7 +36,7 @@ fn flo_round_trip_and_layout() {
 #[test]
 fn malformed_flo_is_an_error() {
     let dir = scratch("badflo");
-    let p = dir.join("bad.flo");
+    let p = dir.path().join("bad.flo");
     std::fs::write(&p, b"PIEH").unwrap();
     assert!(matches!(io::read_flo(&p), Err(Error::Format { .. })));
     let mut bytes = Vec::new();
@@ -59,7 +56,7 @@ fn malformed_flo_is_an_error() {
     std::fs::write(&p, &bytes).unwrap();
     assert!(io::read_flo(&p).is_err());
     assert!(matches!(
-        io::read_flo(dir.join("missing.flo")),
+        io::read_flo(dir.path().join("missing.flo")),
         Err(Error::Io { .. })
     ));
 }
@@ -68,9 +65,9 @@ fn malformed_flo_is_an_error() {
 fn npy_round_trip_f32_and_f64() {
     let dir = scratch("npy");
     let a = Array2::from_shape_fn((4, 7), |(y, x)| (y * 7 + x) as f32 / 3.0);
-    io::write_npy_f32(dir.join("a.npy"), &a).unwrap();
-    assert_eq!(io::read_npy_f32(dir.join("a.npy")).unwrap(), a);
-    let bytes = std::fs::read(dir.join("a.npy")).unwrap();
+    io::write_npy_f32(dir.path().join("a.npy"), &a).unwrap();
+    assert_eq!(io::read_npy_f32(dir.path().join("a.npy")).unwrap(), a);
+    let bytes = std::fs::read(dir.path().join("a.npy")).unwrap();
     let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
     assert_eq!(
         (10 + hlen) % 64,
@@ -80,8 +77,8 @@ fn npy_round_trip_f32_and_f64() {
     let header = std::str::from_utf8(&bytes[10..10 + hlen]).unwrap();
     assert!(header.contains("'descr': '<f4'") && header.contains("(4, 7)"));
     let b = a.mapv(|x| x as f64 * std::f64::consts::PI);
-    io::write_npy_f64(dir.join("b.npy"), &b).unwrap();
-    assert_eq!(io::read_npy_f64(dir.join("b.npy")).unwrap(), b);
+    io::write_npy_f64(dir.path().join("b.npy"), &b).unwrap();
+    assert_eq!(io::read_npy_f64(dir.path().join("b.npy")).unwrap(), b);
 }
 
 #[test]
@@ -96,39 +93,39 @@ fn npy_reads_fortran_order_and_rejects_others() {
     for v in [0.0f64, 3.0, 1.0, 4.0, 2.0, 5.0] {
         bytes.extend_from_slice(&v.to_le_bytes());
     }
-    std::fs::write(dir.join("f.npy"), &bytes).unwrap();
-    let a = io::read_npy_f64(dir.join("f.npy")).unwrap();
+    std::fs::write(dir.path().join("f.npy"), &bytes).unwrap();
+    let a = io::read_npy_f64(dir.path().join("f.npy")).unwrap();
     assert_eq!(a, ndarray::arr2(&[[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]]));
     let bad = bytes.clone();
     let s = String::from_utf8_lossy(&bad).replace("<f8", "<i8");
-    std::fs::write(dir.join("i.npy"), s.as_bytes()).unwrap();
-    assert!(io::read_npy_f64(dir.join("i.npy")).is_err());
-    std::fs::write(dir.join("t.npy"), &bytes[..bytes.len() - 3]).unwrap();
-    assert!(io::read_npy_f64(dir.join("t.npy")).is_err());
-    std::fs::write(dir.join("n.npy"), b"hello").unwrap();
-    assert!(io::read_npy_f64(dir.join("n.npy")).is_err());
+    std::fs::write(dir.path().join("i.npy"), s.as_bytes()).unwrap();
+    assert!(io::read_npy_f64(dir.path().join("i.npy")).is_err());
+    std::fs::write(dir.path().join("t.npy"), &bytes[..bytes.len() - 3]).unwrap();
+    assert!(io::read_npy_f64(dir.path().join("t.npy")).is_err());
+    std::fs::write(dir.path().join("n.npy"), b"hello").unwrap();
+    assert!(io::read_npy_f64(dir.path().join("n.npy")).is_err());
 }
 
 #[test]
 fn png_gray_and_colour_and_sixteen_bit() {
     let dir = scratch("png");
     let a = Array2::from_shape_fn((6, 9), |(y, x)| (y * 30 + x * 3) as f32);
-    io::write_gray_png(dir.join("g.png"), &a).unwrap();
-    assert_eq!(io::read_gray(dir.join("g.png")).unwrap(), a);
+    io::write_gray_png(dir.path().join("g.png"), &a).unwrap();
+    assert_eq!(io::read_gray(dir.path().join("g.png")).unwrap(), a);
     // RGB: the green channel is used.
     let rgb: Vec<u8> = (0..6 * 9).flat_map(|k| [200, (k % 256) as u8, 7]).collect();
-    io::write_rgb_png(dir.join("c.png"), &rgb, 9, 6).unwrap();
-    let g = io::read_gray(dir.join("c.png")).unwrap();
+    io::write_rgb_png(dir.path().join("c.png"), &rgb, 9, 6).unwrap();
+    let g = io::read_gray(dir.path().join("c.png")).unwrap();
     assert_eq!(g[[1, 2]], 11.0);
     // 16-bit gray maps to the 8-bit scale.
     let img =
         image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 1, vec![65535u16, 257]).unwrap();
-    img.save(dir.join("s.png")).unwrap();
-    let s = io::read_gray(dir.join("s.png")).unwrap();
+    img.save(dir.path().join("s.png")).unwrap();
+    let s = io::read_gray(dir.path().join("s.png")).unwrap();
     assert_eq!(s.into_raw_vec_and_offset().0, vec![255.0, 1.0]);
     // Not a PNG.
-    std::fs::write(dir.join("x.png"), b"not an image").unwrap();
-    let e = io::read_gray(dir.join("x.png")).unwrap_err();
+    std::fs::write(dir.path().join("x.png"), b"not an image").unwrap();
+    let e = io::read_gray(dir.path().join("x.png")).unwrap_err();
     assert!(matches!(e, Error::Image { .. }) && e.to_string().contains("x.png"));
 }
 
@@ -137,19 +134,19 @@ fn sequences_are_sorted_pngs_only() {
     let dir = scratch("seq");
     let a = Array2::<f32>::zeros((2, 2));
     for n in ["000002.png", "000000.png", "000001.PNG"] {
-        io::write_gray_png(dir.join(n), &a).unwrap();
+        io::write_gray_png(dir.path().join(n), &a).unwrap();
     }
-    std::fs::write(dir.join("truth.jsonl"), "").unwrap();
-    std::fs::write(dir.join("poses.csv"), "").unwrap();
-    let names: Vec<String> = io::list_frames(&dir)
+    std::fs::write(dir.path().join("truth.jsonl"), "").unwrap();
+    std::fs::write(dir.path().join("poses.csv"), "").unwrap();
+    let names: Vec<String> = io::list_frames(dir.path())
         .unwrap()
         .iter()
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
         .collect();
     assert_eq!(names, ["000000.png", "000001.PNG", "000002.png"]);
     let empty = scratch("seq-empty");
-    assert!(io::list_frames(&empty).is_err());
-    assert!(io::list_frames(empty.join("nope")).is_err());
+    assert!(io::list_frames(empty.path()).is_err());
+    assert!(io::list_frames(empty.path().join("nope")).is_err());
 }
 
 #[test]
@@ -178,7 +175,7 @@ fn jsonl_matches_the_dataset_example() {
         serde_json::to_string(&truth.contacts[0]).unwrap(),
         r#"{"x_mm":1.0,"y_mm":0.0,"z_mm":0.0,"fx_n":0.0,"fy_n":0.0,"fz_n":-2.0}"#
     );
-    let p = dir.join("c.jsonl");
+    let p = dir.path().join("c.jsonl");
     let mut w = io::JsonlWriter::create(&p).unwrap();
     for r in [&empty, &rec, &truth] {
         w.write(r).unwrap();
@@ -224,7 +221,7 @@ fn row(test: usize, split: Split) -> TestRow {
 #[test]
 fn tests_csv_round_trip_and_the_dataset_example() {
     let dir = scratch("csv");
-    let p = dir.join("tests.csv");
+    let p = dir.path().join("tests.csv");
     let rows = vec![
         row(0, Split::Train),
         row(1, Split::Val),
@@ -246,7 +243,7 @@ fn tests_csv_round_trip_and_the_dataset_example() {
 #[test]
 fn malformed_tests_csv_names_file_and_line() {
     let dir = scratch("badcsv");
-    let p = dir.join("tests.csv");
+    let p = dir.path().join("tests.csv");
     let head = "test,frame,reference,point,indenter_mm,yaw_deg,pitch_deg,repeat,force_n,split,x_mm,y_mm,fx_n,fy_n,fz_n\n";
     let good = "0,a.png,b.png,2,10,0,15,1,1.5,train,-114.1,0.0,0.39,0.02,-1.45\n";
     let cases = [
@@ -274,7 +271,7 @@ fn malformed_tests_csv_names_file_and_line() {
 #[test]
 fn poses_csv_round_trip() {
     let dir = scratch("poses");
-    let p = dir.join("poses.csv");
+    let p = dir.path().join("poses.csv");
     let rows = vec![PoseRow {
         frame: "000000.png".into(),
         t_s: 0.0,
@@ -300,7 +297,7 @@ fn poses_csv_round_trip() {
 #[test]
 fn sweeps_csv_round_trip_and_its_errors() {
     let dir = scratch("sweeps");
-    let p = dir.join("sweeps.csv");
+    let p = dir.path().join("sweeps.csv");
     let rows: Vec<io::SweepRow> = (0..3)
         .map(|i| io::SweepRow {
             sweep: i / 2,
