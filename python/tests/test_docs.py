@@ -4,6 +4,7 @@ repository root."""
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import subprocess
 import sys
@@ -17,18 +18,25 @@ def python_blocks(path) -> list[str]:
     return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
 
 
-def run_script(code: str) -> str:
+def run_script(code: str, tmp_path) -> str:
+    # The scripts' temporary directories go under pytest's, which cleans up.
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
     p = subprocess.run(
-        [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", code],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
     )
     assert p.returncode == 0, f"exit {p.returncode}\n{p.stdout}\n{p.stderr}"
     return p.stdout
 
 
-def test_readme_python_quick_start():
+def test_readme_python_quick_start(tmp_path):
     blocks = python_blocks(REPO / "README.md")
     assert len(blocks) == 1
-    out = run_script(blocks[0])
+    out = run_script(blocks[0], tmp_path)
     lines = out.splitlines()
     assert len(lines) == 12
     assert all(re.match(r"0000\d\d\.png: contact \d+ at x = -?\d+\.\d mm, F = \(", l) for l in lines)
@@ -41,8 +49,8 @@ def _docs_script(with_plot: bool) -> str:
     return "\n".join(b for b in blocks if with_plot or "import matplotlib" not in b)
 
 
-def test_docs_python_md_runs():
-    out = run_script(_docs_script(with_plot=False))
+def test_docs_python_md_runs(tmp_path):
+    out = run_script(_docs_script(with_plot=False), tmp_path)
     assert "test split errors:" in out
     assert len(re.findall(r"^x .* mm \(true .*Fz .* N \(true", out, flags=re.M)) == 2
 
@@ -50,5 +58,5 @@ def test_docs_python_md_runs():
 @pytest.mark.skipif(
     importlib.util.find_spec("matplotlib") is None, reason="matplotlib is not installed"
 )
-def test_docs_python_md_plot_runs():
-    run_script(_docs_script(with_plot=True))
+def test_docs_python_md_plot_runs(tmp_path):
+    run_script(_docs_script(with_plot=True), tmp_path)
