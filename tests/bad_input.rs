@@ -24,14 +24,12 @@ fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "optical-tactile-bad-input-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh, empty directory, removed when the returned guard is dropped.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("optical-tactile-bad-input-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 /// Runs `f` on another thread and fails the test if it takes more than
@@ -176,7 +174,8 @@ fn readers() -> Vec<(&'static str, Reader)> {
 
 #[test]
 fn devices_fifos_and_directories_are_refused_as_files() {
-    let d = scratch("special");
+    let tmp = scratch("special");
+    let d = tmp.path();
     let fifo = d.join("poses.csv");
     let made = std::process::Command::new("mkfifo")
         .arg(&fifo)
@@ -200,11 +199,10 @@ fn devices_fifos_and_directories_are_refused_as_files() {
         }
     }
     // A sequence with a FIFO for `poses.csv` opens without waiting on it.
-    let seq = d.clone();
+    let seq = d.to_path_buf();
     within(5, move || {
         let _ = optical_tactile::SequenceSource::open(&seq);
     });
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// A PNG whose header declares `w x h` gray pixels, with a tiny (invalid)
@@ -235,7 +233,8 @@ fn png_header_only(w: u32, h: u32) -> Vec<u8> {
 
 #[test]
 fn images_and_fields_larger_than_a_frame_are_refused_from_their_headers() {
-    let d = scratch("large");
+    let tmp = scratch("large");
+    let d = tmp.path();
     for (w, h) in [(20000, 20000), (16384, 16384), (1, 100_000), (u32::MAX, 1)] {
         let p = d.join("big.png");
         std::fs::write(&p, png_header_only(w, h)).unwrap();
@@ -270,24 +269,24 @@ fn images_and_fields_larger_than_a_frame_are_refused_from_their_headers() {
     std::fs::write(&p, &npy).unwrap();
     let e = io::read_npy_f64(&p).unwrap_err().to_string();
     assert!(e.contains("header"), "{e}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn over_long_lines_are_refused() {
-    let d = scratch("long");
+    let tmp = scratch("long");
+    let d = tmp.path();
     let p = d.join("c.jsonl");
     let mut text = String::from("{\"frame\":\"a\",\"t_s\":0,\"contacts\":[]}\n");
     text.push_str(&" ".repeat(io::MAX_LINE_BYTES + 10));
     std::fs::write(&p, text).unwrap();
     let e = io::read_jsonl::<FrameRecord>(&p).unwrap_err().to_string();
     assert!(e.contains("c.jsonl:2:") && e.contains("longer than"), "{e}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn non_finite_numbers_are_not_written_as_json() {
-    let d = scratch("nonfinite");
+    let tmp = scratch("nonfinite");
+    let d = tmp.path();
     let p = d.join("c.jsonl");
     let mut w = JsonlWriter::create(&p).unwrap();
     let mut rec = FrameRecord {
@@ -306,12 +305,12 @@ fn non_finite_numbers_are_not_written_as_json() {
     drop(w);
     // Only the good record was written, and it reads back.
     assert_eq!(io::read_jsonl::<FrameRecord>(&p).unwrap().len(), 1);
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn non_finite_numbers_in_csv_are_errors() {
-    let d = scratch("csv");
+    let tmp = scratch("csv");
+    let d = tmp.path();
     let p = d.join("poses.csv");
     std::fs::write(
         &p,
@@ -332,7 +331,6 @@ fn non_finite_numbers_in_csv_are_errors() {
     std::fs::write(&p, lines.join("\n")).unwrap();
     let e = io::read_tests_csv(&p).unwrap_err().to_string();
     assert!(e.contains("tests.csv:2") && e.contains("`fz_n`"), "{e}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]

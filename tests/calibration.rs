@@ -848,20 +848,20 @@ fn last_frame_contacts(
     use optical_tactile::capture::{FrameSource, SequenceSource};
     use optical_tactile::io::{FrameRecord, read_jsonl};
     use optical_tactile_sim::scenario::{self, Common};
-    let dir = std::env::temp_dir().join(format!(
-        "optical-tactile-two-contacts-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    let mut common = Common::new(&dir);
+    // Removed when this function returns.
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!("optical-tactile-two-contacts-{name}-"))
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
+    let mut common = Common::new(dir);
     common.flow = false;
     scenario::run(scenario, &common).unwrap();
     let truth: Vec<FrameRecord> = read_jsonl(dir.join("truth.jsonl")).unwrap();
-    let mut seq = SequenceSource::open(&dir).unwrap();
+    let mut seq = SequenceSource::open(dir).unwrap();
     let frames: Vec<_> = std::iter::from_fn(|| seq.next_frame())
         .map(|f| f.unwrap())
         .collect();
-    std::fs::remove_dir_all(&dir).ok();
     sensor.set_reference(&frames[0].image).unwrap();
     let last = frames.last().unwrap();
     let contacts = sensor.process(&last.image, last.t_s).unwrap().to_vec();

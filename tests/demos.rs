@@ -16,16 +16,17 @@ mod perch_selection;
 #[path = "../examples/touch_mapping.rs"]
 mod touch_mapping;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use optical_tactile_sim::scenario::{self, Common, Mapping, Perches, Scenario};
 use serde_json::Value;
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ot-demos-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh, empty directory, removed when the returned guard is dropped.
+fn tmp(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("ot-demos-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 fn args(v: &[&str]) -> Vec<String> {
@@ -66,7 +67,8 @@ fn small_mapping(dir: &Path) {
 
 #[test]
 fn perch_selection_finds_the_stiffer_perch() {
-    let d = tmp("perch");
+    let guard = tmp("perch");
+    let d = guard.path();
     let seq = d.join("seq");
     simulate(
         Scenario::Perches(Perches {
@@ -94,12 +96,12 @@ fn perch_selection_finds_the_stiffer_perch() {
     assert_eq!(v["move_mm"].as_f64().unwrap(), sx);
     assert_eq!(keys(&v["stiffer"]), ["force_n", "x_mm"]);
     assert!(png.is_file());
-    std::fs::remove_dir_all(&d).ok();
 }
 
 #[test]
 fn multi_contact_tracks_both_rods_of_the_fixture() {
-    let d = tmp("multi");
+    let guard = tmp("multi");
+    let d = guard.path();
     let (json, png) = (d.join("out.json"), d.join("out.png"));
     // A recorded sequence (the repository's fixture) with its truth beside it.
     let ok = multi_contact::run_with(&args(&[
@@ -124,12 +126,12 @@ fn multi_contact_tracks_both_rods_of_the_fixture() {
     assert_eq!(truth_ids, [0, 1]);
     assert!(v["frames_all_true_detected"].as_u64().unwrap() >= 3);
     assert!(png.is_file());
-    std::fs::remove_dir_all(&d).ok();
 }
 
 #[test]
 fn touch_mapping_finds_both_rods() {
-    let d = tmp("map");
+    let guard = tmp("map");
+    let d = guard.path();
     let seq = d.join("seq");
     small_mapping(&seq);
     let (json, png) = (d.join("out.json"), d.join("out.png"));
@@ -194,12 +196,12 @@ fn touch_mapping_finds_both_rods() {
     assert!(run(&["--mounting", "sideways"]).is_err());
     assert!(run(&["--min-count", "0"]).is_err());
     assert!(run(&["--radius-mm", "x"]).is_err());
-    std::fs::remove_dir_all(&d).ok();
 }
 
 #[test]
 fn bad_sequences_and_options_are_clear_errors() {
-    let d = tmp("bad");
+    let guard = tmp("bad");
+    let d = guard.path();
     let missing = d.join("missing");
     // Each example has its own copy of the error type: compare messages.
     type Run = fn(&[String]) -> Result<bool, String>;
@@ -216,7 +218,7 @@ fn bad_sequences_and_options_are_clear_errors() {
         assert!(e.contains("unexpected argument '--frobnicate'"), "{e}");
         let e = run(&args(&["fixtures/press", "--json"])).unwrap_err();
         assert!(e.contains("a value is required for '--json"), "{e}");
-        let e = run(&args(&["fixtures/press", "--simulate", p(&d)])).unwrap_err();
+        let e = run(&args(&["fixtures/press", "--simulate", p(d)])).unwrap_err();
         assert!(e.contains("cannot be used with"), "{e}");
         let e = run(&args(&["fixtures/press", "--png", "-"])).unwrap_err();
         assert!(e.contains("cannot go to stdout"), "{e}");
@@ -263,5 +265,4 @@ fn bad_sequences_and_options_are_clear_errors() {
     std::fs::copy("fixtures/press/000000.png", one.join("000000.png")).unwrap();
     let e = perch_selection::run_with(&args(&[p(&one)])).unwrap_err();
     assert!(e.contains("need a reference and at least one more"), "{e}");
-    std::fs::remove_dir_all(&d).ok();
 }

@@ -143,16 +143,18 @@ fn never_re_references_while_touched() {
     assert!(cs.iter().all(|c| !ids.contains(&c.id)));
 }
 
-fn temp_dir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("optical-tactile-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh, empty directory, removed when the returned guard is dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("optical-tactile-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 #[test]
 fn broken_frames_in_the_middle_are_named_skipped_and_nothing_written_is_lost() {
-    let dir = temp_dir("broken-seq");
+    let tmp = temp_dir("broken-seq");
+    let dir = tmp.path();
     for f in io::list_frames("fixtures/press").unwrap() {
         std::fs::copy(&f, dir.join(f.file_name().unwrap())).unwrap();
     }
@@ -165,7 +167,7 @@ fn broken_frames_in_the_middle_are_named_skipped_and_nothing_written_is_lost() {
     io::write_gray_png(dir.join("000005.png"), &small).unwrap();
 
     let out = dir.join("contacts.jsonl");
-    let mut seq = SequenceSource::open(&dir).unwrap();
+    let mut seq = SequenceSource::open(dir).unwrap();
     let crop = Roi::new(0, 0, 1600, 200);
     let mut config = SensorConfig::default();
     config.extractor = ExtractorConfig::default().with_thresholds(Thresholds {
@@ -228,7 +230,6 @@ fn broken_frames_in_the_middle_are_named_skipped_and_nothing_written_is_lost() {
     );
     // The run went on past the broken frames: both rods in the last frame.
     assert_eq!(recs[4].contacts.len(), 2, "{:?}", recs[4]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
