@@ -6,6 +6,9 @@
 
 #[path = "common/png.rs"]
 mod png;
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::scratch;
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -22,14 +25,6 @@ use serde_json::{Value, json};
 
 fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
-}
-
-/// A fresh, empty directory, removed when the returned guard is dropped.
-fn scratch(name: &str) -> tempfile::TempDir {
-    tempfile::Builder::new()
-        .prefix(&format!("optical-tactile-bad-input-{name}-"))
-        .tempdir()
-        .unwrap()
 }
 
 /// Runs `f` on another thread and fails the test if it takes more than

@@ -1,6 +1,10 @@
 //! Calibration: fitting from samples, evaluation, versioned JSON and its
 //! errors, Table I/II helpers.
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::scratch;
+
 use std::path::PathBuf;
 
 use optical_tactile::Error;
@@ -848,11 +852,7 @@ fn last_frame_contacts(
     use optical_tactile::capture::{FrameSource, SequenceSource};
     use optical_tactile::io::{FrameRecord, read_jsonl};
     use optical_tactile_sim::scenario::{self, Common};
-    // Removed when this function returns.
-    let tmp = tempfile::Builder::new()
-        .prefix(&format!("optical-tactile-two-contacts-{name}-"))
-        .tempdir()
-        .unwrap();
+    let tmp = scratch(&format!("two-contacts-{name}"));
     let dir = tmp.path();
     let mut common = Common::new(dir);
     common.flow = false;

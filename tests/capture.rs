@@ -1,16 +1,16 @@
 //! The image-sequence source: order, time stamps, and a broken frame in the middle.
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::scratch;
+
 use ndarray::Array2;
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::io::{self, PoseRow};
 
 #[test]
 fn a_broken_frame_is_named_and_the_sequence_goes_on() {
-    // Removed when the test ends.
-    let tmp = tempfile::Builder::new()
-        .prefix("optical-tactile-seq-")
-        .tempdir()
-        .unwrap();
+    let tmp = scratch("seq");
     let dir = tmp.path();
     for k in [0usize, 1, 3] {
         let img = Array2::from_elem((4, 6), k as f32 * 10.0);

@@ -1,6 +1,10 @@
 //! Characterization: extraction on the committed 6-test fixture and the
 //! errors of bad datasets (missing image, malformed `tests.csv`, too few rows).
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::scratch;
+
 use std::path::{Path, PathBuf};
 
 use optical_tactile::Error;
@@ -25,11 +29,8 @@ fn config() -> ExtractorConfig {
 }
 
 /// A fresh directory with an empty `frames/`, removed when the test ends.
-fn scratch(name: &str) -> tempfile::TempDir {
-    let d = tempfile::Builder::new()
-        .prefix(&format!("ot-characterize-{name}-"))
-        .tempdir()
-        .unwrap();
+fn dataset_dir(name: &str) -> tempfile::TempDir {
+    let d = scratch(&format!("characterize-{name}"));
     std::fs::create_dir_all(d.path().join("frames")).unwrap();
     d
 }
@@ -74,7 +75,7 @@ fn extraction_finds_every_fixture_press_near_its_truth() {
 
 #[test]
 fn a_missing_image_is_an_error_naming_the_file() {
-    let tmp = scratch("missing");
+    let tmp = dataset_dir("missing");
     let d = tmp.path();
     let src = fixture();
     let text = std::fs::read_to_string(src.join("tests.csv")).unwrap();
@@ -103,7 +104,7 @@ fn a_missing_image_is_an_error_naming_the_file() {
 
 #[test]
 fn a_malformed_tests_csv_is_an_error_naming_the_line() {
-    let tmp = scratch("malformed");
+    let tmp = dataset_dir("malformed");
     let d = tmp.path();
     let text = std::fs::read_to_string(fixture().join("tests.csv")).unwrap();
     let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
@@ -154,7 +155,7 @@ fn too_few_rows_to_fit_is_a_clear_error() {
 #[test]
 fn a_missing_sweep_image_is_an_error_naming_sweeps_csv_and_the_file() {
     use optical_tactile::calibration::fit::{extract_sweeps, read_dataset_sweeps};
-    let tmp = scratch("sweeps");
+    let tmp = dataset_dir("sweeps");
     let d = tmp.path();
     let src = fixture();
     let rows = read_dataset(&src).unwrap();

@@ -12,22 +12,17 @@ mod multi_contact;
 #[allow(dead_code)]
 #[path = "../examples/perch_selection.rs"]
 mod perch_selection;
+#[path = "common/scratch.rs"]
+mod scratch;
 #[allow(dead_code)]
 #[path = "../examples/touch_mapping.rs"]
 mod touch_mapping;
+use scratch::scratch;
 
 use std::path::Path;
 
 use optical_tactile_sim::scenario::{self, Common, Mapping, Perches, Scenario};
 use serde_json::Value;
-
-/// A fresh, empty directory, removed when the returned guard is dropped.
-fn tmp(name: &str) -> tempfile::TempDir {
-    tempfile::Builder::new()
-        .prefix(&format!("ot-demos-{name}-"))
-        .tempdir()
-        .unwrap()
-}
 
 fn args(v: &[&str]) -> Vec<String> {
     v.iter().map(|s| s.to_string()).collect()
@@ -67,7 +62,7 @@ fn small_mapping(dir: &Path) {
 
 #[test]
 fn perch_selection_finds_the_stiffer_perch() {
-    let guard = tmp("perch");
+    let guard = scratch("demos-perch");
     let d = guard.path();
     let seq = d.join("seq");
     simulate(
@@ -100,7 +95,7 @@ fn perch_selection_finds_the_stiffer_perch() {
 
 #[test]
 fn multi_contact_tracks_both_rods_of_the_fixture() {
-    let guard = tmp("multi");
+    let guard = scratch("demos-multi");
     let d = guard.path();
     let (json, png) = (d.join("out.json"), d.join("out.png"));
     // A recorded sequence (the repository's fixture) with its truth beside it.
@@ -130,7 +125,7 @@ fn multi_contact_tracks_both_rods_of_the_fixture() {
 
 #[test]
 fn touch_mapping_finds_both_rods() {
-    let guard = tmp("map");
+    let guard = scratch("demos-map");
     let d = guard.path();
     let seq = d.join("seq");
     small_mapping(&seq);
@@ -200,7 +195,7 @@ fn touch_mapping_finds_both_rods() {
 
 #[test]
 fn bad_sequences_and_options_are_clear_errors() {
-    let guard = tmp("bad");
+    let guard = scratch("demos-bad");
     let d = guard.path();
     let missing = d.join("missing");
     // Each example has its own copy of the error type: compare messages.

@@ -1,16 +1,12 @@
 //! File formats round-trip exactly, and malformed files give errors that name them.
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::scratch;
+
 use ndarray::Array2;
 use optical_tactile::io::{self, ContactRecord, FrameRecord, PoseRow, Split, TestRow};
 use optical_tactile::{Error, FlowField};
-
-/// A fresh, empty directory for one test, removed when the test ends.
-fn scratch(name: &str) -> tempfile::TempDir {
-    tempfile::Builder::new()
-        .prefix(&format!("optical-tactile-io-{name}-"))
-        .tempdir()
-        .unwrap()
-}
 
 fn sample_flow() -> FlowField {
     let u = Array2::from_shape_fn((3, 5), |(y, x)| x as f32 * 0.5 - y as f32);

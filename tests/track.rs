@@ -4,7 +4,10 @@
 //! calibration-driven configuration.
 
 mod common;
+#[path = "common/scratch.rs"]
+mod scratch;
 use common::linear_calibration;
+use scratch::scratch;
 
 use ndarray::{Array2, s};
 use optical_tactile::Error;
@@ -143,17 +146,9 @@ fn never_re_references_while_touched() {
     assert!(cs.iter().all(|c| !ids.contains(&c.id)));
 }
 
-/// A fresh, empty directory, removed when the returned guard is dropped.
-fn temp_dir(name: &str) -> tempfile::TempDir {
-    tempfile::Builder::new()
-        .prefix(&format!("optical-tactile-{name}-"))
-        .tempdir()
-        .unwrap()
-}
-
 #[test]
 fn broken_frames_in_the_middle_are_named_skipped_and_nothing_written_is_lost() {
-    let tmp = temp_dir("broken-seq");
+    let tmp = scratch("broken-seq");
     let dir = tmp.path();
     for f in io::list_frames("fixtures/press").unwrap() {
         std::fs::copy(&f, dir.join(f.file_name().unwrap())).unwrap();
