@@ -44,11 +44,13 @@ fn assert_one_error_line(stderr: &str, names: &str) {
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("optical-tactile-ros2-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh, empty directory named `optical-tactile-ros2-{tag}-` and a unique
+/// suffix, removed when the guard is dropped, whether the test passed or not.
+fn temp_dir(tag: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("optical-tactile-ros2-{tag}-"))
+        .tempdir()
+        .unwrap()
 }
 
 fn press() -> PathBuf {
@@ -61,7 +63,8 @@ fn calibration() -> PathBuf {
 
 #[test]
 fn a_missing_or_malformed_calibration_is_one_error_line_and_status_1() {
-    let dir = temp_dir("cal");
+    let guard = temp_dir("cal");
+    let dir = guard.path();
     let missing = dir.join("none.json");
     let seq = press();
     let (code, err) = node(&[
@@ -83,7 +86,6 @@ fn a_missing_or_malformed_calibration_is_one_error_line_and_status_1() {
     ]);
     assert_eq!(code, Some(1), "{err}");
     assert_one_error_line(&err, "bad.json");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
@@ -143,8 +145,9 @@ fn run_in_memory(
 }
 
 /// The press with frame `k` replaced by `bytes` (written as its PNG).
-fn press_with(tag: &str, k: usize, write: impl FnOnce(&Path)) -> PathBuf {
-    let dir = temp_dir(tag);
+fn press_with(tag: &str, k: usize, write: impl FnOnce(&Path)) -> tempfile::TempDir {
+    let guard = temp_dir(tag);
+    let dir = guard.path();
     for entry in std::fs::read_dir(press()).unwrap() {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "png") {
@@ -152,7 +155,7 @@ fn press_with(tag: &str, k: usize, write: impl FnOnce(&Path)) -> PathBuf {
         }
     }
     write(&dir.join(format!("{k:06}.png")));
-    dir
+    guard
 }
 
 #[test]
@@ -160,13 +163,12 @@ fn a_frame_of_another_size_is_skipped_and_the_rest_published() {
     let seq = press_with("size", 4, |p| {
         Canvas::new(320, 40, Rgb(0, 90, 0)).save_png(p).unwrap();
     });
-    let (report, sent) = run_in_memory(&seq, |_| {});
+    let (report, sent) = run_in_memory(seq.path(), |_| {});
     let report = report.expect("the run goes on past the frame");
     assert_eq!(report.skipped, 1, "{report}");
     assert_eq!(report.published, 6, "{report}");
     assert_eq!(sent.len(), 6);
     assert!(sent.iter().all(|m| m.check_finite().is_ok()));
-    let _ = std::fs::remove_dir_all(seq);
 }
 
 #[test]
@@ -174,11 +176,10 @@ fn an_unreadable_frame_is_skipped() {
     let seq = press_with("unreadable", 3, |p| {
         std::fs::write(p, b"\x89PNG\r\n\x1a\nnot a png").unwrap();
     });
-    let (report, sent) = run_in_memory(&seq, |_| {});
+    let (report, sent) = run_in_memory(seq.path(), |_| {});
     let report = report.unwrap();
     assert_eq!((report.skipped, report.published), (1, 6), "{report}");
     assert_eq!(sent.len(), 6);
-    let _ = std::fs::remove_dir_all(seq);
 }
 
 #[test]

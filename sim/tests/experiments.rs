@@ -16,6 +16,9 @@ use optical_tactile_sim::experiments::{
 };
 use optical_tactile_sim::{SimConfig, SyntheticSensor};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+
 fn sensor(seed: u64) -> SyntheticSensor {
     SyntheticSensor::new(SimConfig::default(), seed).unwrap()
 }
@@ -294,7 +297,7 @@ fn touch_mapping_finds_each_rod_within_a_few_mm() {
         "/../fixtures/calibration.json"
     ))
     .unwrap();
-    let dir = std::env::temp_dir().join(format!("ot-experiments-mapping-{}", std::process::id()));
+    let (_dir_guard, dir) = scratch::tmp("experiments-mapping");
     let o = MappingOptions {
         scenario: Mapping {
             rods_x_m: vec![0.4, 0.9],
@@ -304,7 +307,6 @@ fn touch_mapping_finds_each_rod_within_a_few_mm() {
         ..MappingOptions::default()
     };
     let run = mapping_run(&cal, 3, &dir, &o).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
     // Two rods, two clusters, nothing else: a contact held by the tracker
     // after the body lifted off (this frame's pose, an old estimate) would
     // land 5 cm above a rod or beside it and make a false cluster.

@@ -2,8 +2,6 @@
 //! indenters, the flat characterization protocol, presses in x and y, and
 //! what bad input gives.
 
-use std::path::PathBuf;
-
 use optical_tactile::Error;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
@@ -16,11 +14,9 @@ use optical_tactile_sim::{
 };
 use proptest::prelude::*;
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ot-flat-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::tmp;
 
 fn fingertip() -> SyntheticSensor {
     SyntheticSensor::new(SimConfig::fingertip(), 3).unwrap()
@@ -239,7 +235,7 @@ fn shear_moves_the_dots_along_the_force() {
 
 #[test]
 fn the_flat_protocol_writes_a_dataset_on_its_grid() {
-    let out = tmp("char");
+    let (_out_dir, out) = tmp("char");
     let mut c = Common::new(&out);
     c.flow = false;
     c.config = SimConfig::fingertip();
@@ -290,12 +286,11 @@ fn the_flat_protocol_writes_a_dataset_on_its_grid() {
     assert!(held.iter().any(|&(c, _)| c == 2));
     assert!(held.iter().any(|&(c, _)| c == 4));
     assert!(held.iter().any(|&(_, r)| r == 3));
-    std::fs::remove_dir_all(&out).unwrap();
 }
 
 #[test]
 fn tip_presses_land_anywhere_on_the_gel() {
-    let out = tmp("presses");
+    let (_out_dir, out) = tmp("presses");
     let mut c = Common::new(&out);
     c.flow = false;
     c.config = SimConfig::fingertip();
@@ -338,7 +333,6 @@ fn tip_presses_land_anywhere_on_the_gel() {
         v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
     };
     assert!(spread(&xs) > 8.0 && spread(&ys) > 5.0, "{xs:?} {ys:?}");
-    std::fs::remove_dir_all(&out).unwrap();
 }
 
 #[test]
@@ -365,7 +359,7 @@ fn hostile_presses_are_errors() {
     }
     // Options of the presses and the protocol that cannot work: errors
     // before anything is written.
-    let out = tmp("hostile");
+    let (_out_dir, out) = tmp("hostile");
     let mut c = Common::new(&out);
     c.config = SimConfig::fingertip();
     for o in [
@@ -410,7 +404,6 @@ fn hostile_presses_are_errors() {
     let e = scenario::run(&Scenario::Characterization(Characterization::flat()), &c);
     assert!(e.is_err());
     assert!(!out.join("tests.csv").exists());
-    let _ = std::fs::remove_dir_all(&out);
     // A distortion with NaN, or a flat skin longer than its geometry.
     let mut cfg = SimConfig::fingertip();
     cfg.camera.radial = f64::NAN;

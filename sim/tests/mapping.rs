@@ -13,6 +13,9 @@ use optical_tactile_sim::mapping::{
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+
 fn config(cases: u32) -> ProptestConfig {
     ProptestConfig {
         cases,
@@ -377,7 +380,7 @@ fn frames_without_poses_and_bad_rows_are_errors() {
 
 #[test]
 fn rods_json_reads_and_rejects_bad_files() {
-    let dir = std::env::temp_dir().join(format!("ot-mapping-{}", std::process::id()));
+    let (_dir_guard, dir) = scratch::tmp("mapping");
     std::fs::create_dir_all(&dir).unwrap();
     let good = dir.join("rods.json");
     std::fs::write(
@@ -407,7 +410,6 @@ fn rods_json_reads_and_rejects_bad_files() {
         read_rods_json(dir.join("missing.json")),
         Err(Error::Io { .. })
     ));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

@@ -13,18 +13,16 @@ use optical_tactile_sim::scenario::{
 use optical_tactile_sim::{MarkerConfig, Material, NoiseConfig, Press, SimConfig, SyntheticSensor};
 use proptest::prelude::*;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::tmp;
+
 fn sensor() -> SyntheticSensor {
     SyntheticSensor::new(SimConfig::default(), 7).unwrap()
 }
 
 fn press(x: f64, f: f64) -> Press {
     Press::rod(x, [0.0, 0.0, -f], 5.0)
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ot-sim-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
 }
 
 fn norm(u: [f64; 3]) -> f64 {
@@ -393,7 +391,7 @@ fn nonsense_parameters_are_errors() {
 
 #[test]
 fn scenario_errors_and_unwritable_output() {
-    let out = tmp("errors");
+    let (_out_dir, out) = tmp("errors");
     let neg = Scenario::Single(Single {
         force_n: -1.0,
         ..Single::default()
@@ -420,12 +418,11 @@ fn scenario_errors_and_unwritable_output() {
         scenario::run(&ok, &Common::new(file.join("sub"))),
         Err(Error::Io { .. })
     ));
-    std::fs::remove_dir_all(&out).unwrap();
 }
 
 #[test]
 fn single_scenario_writes_frames_truth_and_flow() {
-    let out = tmp("single");
+    let (_out_dir, out) = tmp("single");
     let o = Single {
         frames: 3,
         pitch_deg: 15.0,
@@ -451,12 +448,11 @@ fn single_scenario_writes_frames_truth_and_flow() {
         io::read_flo(out.join("flow/000000.flo")).unwrap().u.sum(),
         0.0
     );
-    std::fs::remove_dir_all(&out).unwrap();
 }
 
 #[test]
 fn characterization_subset_follows_the_protocol() {
-    let out = tmp("char");
+    let (_out_dir, out) = tmp("char");
     let mut c = Common::new(&out);
     c.flow = false;
     let o = scenario::Characterization {
@@ -478,18 +474,16 @@ fn characterization_subset_follows_the_protocol() {
         assert_eq!(r.split == io::Split::Train, ![5, 8, 11].contains(&r.point));
     }
     // The same seed picks the same tests.
-    let out2 = tmp("char2");
+    let (_out2_dir, out2) = tmp("char2");
     c.out = out2.clone();
     scenario::run(&Scenario::Characterization(o), &c).unwrap();
     let rows2 = io::read_tests_csv(out2.join("tests.csv")).unwrap();
     assert_eq!(rows, rows2);
-    std::fs::remove_dir_all(&out).unwrap();
-    std::fs::remove_dir_all(&out2).unwrap();
 }
 
 #[test]
 fn characterization_writes_sweeps_along_the_training_points() {
-    let out = tmp("char_sweeps");
+    let (_out_dir, out) = tmp("char_sweeps");
     let mut c = Common::new(&out);
     c.flow = false;
     let o = scenario::Characterization {
@@ -518,7 +512,7 @@ fn characterization_writes_sweeps_along_the_training_points() {
         }
     }
     // A subset alone writes none; a step of 0 none either; a tiny step is refused.
-    let bare = tmp("char_no_sweeps");
+    let (_bare_dir, bare) = tmp("char_no_sweeps");
     c.out = bare.clone();
     let o = scenario::Characterization {
         subset: Some(2),
@@ -526,7 +520,7 @@ fn characterization_writes_sweeps_along_the_training_points() {
     };
     scenario::run(&Scenario::Characterization(o), &c).unwrap();
     assert!(!bare.join("sweeps.csv").exists());
-    let tiny = tmp("char_tiny_sweeps");
+    let (_tiny_dir, tiny) = tmp("char_tiny_sweeps");
     c.out = tiny.clone();
     let o = scenario::Characterization {
         subset: Some(1),
@@ -535,14 +529,11 @@ fn characterization_writes_sweeps_along_the_training_points() {
     };
     let e = scenario::run(&Scenario::Characterization(o), &c).unwrap_err();
     assert!(e.to_string().contains("sweep_step_mm"), "{e}");
-    for d in [out, bare, tiny] {
-        std::fs::remove_dir_all(&d).unwrap();
-    }
 }
 
 #[test]
 fn presses_land_anywhere_in_range_each_against_the_reference() {
-    let out = tmp("presses");
+    let (_out_dir, out) = tmp("presses");
     let mut c = Common::new(&out);
     c.flow = false;
     let o = Presses {
@@ -588,14 +579,14 @@ fn presses_land_anywhere_in_range_each_against_the_reference() {
         xs.iter().cloned().fold(f64::MIN, f64::max) - xs.iter().cloned().fold(f64::MAX, f64::min);
     assert!(spread > 20.0, "{xs:?}");
     // The same seed draws the same presses.
-    let again = tmp("presses2");
+    let (_again_dir, again) = tmp("presses2");
     c.out = again.clone();
     scenario::run(&Scenario::Presses(o.clone()), &c).unwrap();
     let truth2: Vec<FrameRecord> = io::read_jsonl(again.join("truth.jsonl")).unwrap();
     assert_eq!(truth, truth2);
     // Another press seed: other presses on the same sensor (the same
     // reference frame, so the same markers).
-    let other = tmp("presses3");
+    let (_other_dir, other) = tmp("presses3");
     c.out = other.clone();
     let o3 = Presses {
         press_seed: Some(c.seed + 1),
@@ -607,11 +598,8 @@ fn presses_land_anywhere_in_range_each_against_the_reference() {
     assert_ne!(truth3[1..], truth[1..]);
     let reference = |d: &std::path::Path| std::fs::read(d.join(&truth[0].frame)).unwrap();
     assert_eq!(reference(&out), reference(&other));
-    std::fs::remove_dir_all(&other).unwrap();
-    std::fs::remove_dir_all(&out).unwrap();
-    std::fs::remove_dir_all(&again).unwrap();
     // Bad options fail before anything is written.
-    let bad = tmp("presses-bad");
+    let (_bad_dir, bad) = tmp("presses-bad");
     c.out = bad.clone();
     for o in [
         Presses {
@@ -648,7 +636,7 @@ fn presses_land_anywhere_in_range_each_against_the_reference() {
 
 #[test]
 fn perches_and_mapping_write_their_extras() {
-    let out = tmp("perch");
+    let (_out_dir, out) = tmp("perch");
     let mut c = Common::new(&out);
     c.flow = false;
     let p = Perches {
@@ -664,9 +652,8 @@ fn perches_and_mapping_write_their_extras() {
             < 1e-9
     );
     assert!(out.join("perches.json").exists());
-    std::fs::remove_dir_all(&out).unwrap();
 
-    let out = tmp("map");
+    let (_out_dir, out) = tmp("map");
     c.out = out.clone();
     let m = Mapping {
         rods_x_m: vec![0.5, 1.0],
@@ -696,14 +683,13 @@ fn perches_and_mapping_write_their_extras() {
     }
     assert!(touched.len() >= 2);
     assert!(out.join("rods.json").exists());
-    std::fs::remove_dir_all(&out).unwrap();
 }
 
 #[test]
 fn committed_fixtures_are_what_the_simulator_makes() {
     // If this fails, the simulator changed: regenerate the fixtures with the
     // command in fixtures/README.md.
-    let out = tmp("fixtures");
+    let (_out_dir, out) = tmp("fixtures");
     scenario::fixtures(&out, 1).unwrap();
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../fixtures");
     for f in [
@@ -731,7 +717,6 @@ fn committed_fixtures_are_what_the_simulator_makes() {
         }
     }
     assert_eq!(n, 8 + 12 + 12);
-    std::fs::remove_dir_all(&out).unwrap();
 }
 
 proptest! {
@@ -791,7 +776,7 @@ proptest! {
 
 #[test]
 fn single_sweep_moves_one_load_along_the_skin() {
-    let out = tmp("sweep");
+    let (_out_dir, out) = tmp("sweep");
     let mut c = Common::new(&out);
     c.flow = false;
     let o = Single {
