@@ -121,9 +121,10 @@ pub enum DisPreset {
     /// rather than one patch's vector, so under a rod the motion profile
     /// depends less on which markers a patch happens to hold. On the
     /// simulated strip a pitched rod's located column scatters by about
-    /// 2 px along a sweep instead of 3.4, and single presses are located
-    /// and read closer, though not every two-contact sequence
-    /// (docs/results.md), at about 3 times `Fine`'s time
+    /// 2 px along a sweep instead of 3.4, and, calibrated with the
+    /// characterization's sweeps, single presses are located and read
+    /// closer, though not every two-contact sequence (without the sweeps,
+    /// worse: docs/results.md), at about 3 times `Fine`'s time
     /// for the flow (1.7-2.3 times per frame). A calibration fitted with it
     /// must run with it: the flow's magnitudes differ (under a light press
     /// it is smoother and lower, so its detection thresholds differ too).
