@@ -5,6 +5,8 @@
 //! message published. None of these starts a ROS 2 participant.
 
 mod common;
+#[path = "../../tests/common/scratch.rs"]
+mod scratch;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -16,6 +18,7 @@ use optical_tactile::viz::{Canvas, Rgb};
 use optical_tactile_ros2::args::NodeArgs;
 use optical_tactile_ros2::frame_msgs::FrameMessages;
 use optical_tactile_ros2::node::{self, Capture, Pipeline, Processing, Report, SourceSpec};
+use scratch::scratch;
 
 const NODE: &str = env!("CARGO_BIN_EXE_optical_tactile_node");
 
@@ -47,10 +50,7 @@ fn assert_one_error_line(stderr: &str, names: &str) {
 /// A fresh, empty directory named `optical-tactile-ros2-{tag}-` and a unique
 /// suffix, removed when the guard is dropped, whether the test passed or not.
 fn temp_dir(tag: &str) -> tempfile::TempDir {
-    tempfile::Builder::new()
-        .prefix(&format!("optical-tactile-ros2-{tag}-"))
-        .tempdir()
-        .unwrap()
+    scratch(&format!("ros2-{tag}"))
 }
 
 fn press() -> PathBuf {
