@@ -307,21 +307,36 @@ one rod swept every 1-2 mm (120-240 images) brings nearly all of it back (docs/c
 /// its location offsets and how far its force gains stray from 1, over the
 /// columns the sweeps reached.
 fn correction_summary(c: &ColumnCorrection, images: usize, misses: usize) -> String {
-    let reached: Vec<usize> = (0..c.location_mm.len())
-        .filter(|&i| c.location_mm[i] != 0.0 || c.force_gain[i] != 1.0)
-        .collect();
-    let rms = |v: &mut dyn Iterator<Item = f64>| {
-        let (n, s) = v.fold((0usize, 0.0), |(n, s), x| (n + 1, s + x * x));
-        (s / n.max(1) as f64).sqrt()
+    let rms = |values: &[f64], gains: &[f64]| {
+        let reached: Vec<usize> = (0..values.len())
+            .filter(|&i| values[i] != 0.0 || gains[i] != 1.0)
+            .collect();
+        let rms = |v: &mut dyn Iterator<Item = f64>| {
+            let (n, s) = v.fold((0usize, 0.0), |(n, s), x| (n + 1, s + x * x));
+            (s / n.max(1) as f64).sqrt()
+        };
+        let loc = rms(&mut reached.iter().map(|&i| values[i]));
+        let gain = rms(&mut reached.iter().map(|&i| gains[i] - 1.0));
+        (reached.len(), loc, gain)
     };
-    let loc = rms(&mut reached.iter().map(|&i| c.location_mm[i]));
-    let gain = rms(&mut reached.iter().map(|&i| c.force_gain[i] - 1.0));
-    format!(
-        "sweeps: {images} images ({misses} not read as a press); corrections over {} columns: \
+    let (reached, loc, gain) = rms(&c.location_mm, &c.force_gain);
+    let mut line = format!(
+        "sweeps: {images} images ({misses} not read as a press); corrections over {reached} columns: \
          location offset {loc:.3} mm rms, force gain {:.1}% rms",
-        reached.len(),
         100.0 * gain
-    )
+    );
+    for l in &c.layers {
+        let (_, loc, gain) = rms(&l.location_mm, &l.force_gain);
+        let mut ratios = l.shear_ratio.clone();
+        ratios.sort_by(f64::total_cmp);
+        let median = ratios.get(ratios.len() / 2).copied().unwrap_or(0.0);
+        line.push_str(&format!(
+            "; tilted layer at shear ratio {median:+.2} ({} images): {loc:.3} mm, {:.1}% rms",
+            l.images,
+            100.0 * gain
+        ));
+    }
+    line
 }
 
 /// One line on the fitted force uncertainty: sigma per axis as

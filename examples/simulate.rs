@@ -506,11 +506,17 @@ pub struct CharacterizationArgs {
     /// Load-cell noise per axis, N.
     #[arg(long = "load-cell-noise", value_name = "F", default_value_t = Characterization::default().load_cell_noise_n)]
     pub load_cell_noise_n: f64,
-    /// Arc-length step of the two sweeps written to sweeps.csv, mm; 0: no
+    /// Arc-length step of the sweeps written to sweeps.csv, mm; 0: no
     /// sweeps [default: 0.5 for the whole strip protocol; none with
     /// --subset or on the fingertip sensor].
     #[arg(long = "sweep-step-mm", value_name = "MM")]
     pub sweep_step_mm: Option<f64>,
+    /// Also sweep the 5 mm rod with its force tilted by +15 and -15 deg
+    /// along the strip (two more sweeps: twice the sweeps' images), from
+    /// which `calibrate` learns how the readings of a tilted press vary
+    /// along the skin.
+    #[arg(long = "tilted-sweeps")]
+    pub tilted_sweeps: bool,
 }
 
 /// `perches`' options.
@@ -678,6 +684,7 @@ impl Command {
                     }),
                     load_cell_noise_n: o.load_cell_noise_n,
                     sweep_step_mm: o.sweep_step_mm,
+                    tilted_sweeps: o.tilted_sweeps,
                 }),
                 &common,
                 false,

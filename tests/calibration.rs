@@ -1787,6 +1787,8 @@ fn corrected(location_mm: Vec<f64>, force_gain: Vec<f64>) -> Calibration {
         force_gain,
         smoothing_px: 2.0,
         images: 10,
+        shear_ratio: None,
+        layers: Vec::new(),
     });
     cal
 }
@@ -1827,6 +1829,45 @@ fn a_bad_column_correction_in_a_file_is_refused() {
     let step = good.replacen("\"step_px\": 1.0", "\"step_px\": 0.0", 1);
     let e = load_text("zero_step.json", &step);
     assert!(e.to_string().contains("step_px"), "{e}");
+}
+
+#[test]
+fn a_column_correction_with_tilt_layers_survives_the_file_and_is_checked() {
+    use optical_tactile::calibration::correction::CorrectionLayer;
+    let mut cal = corrected(vec![0.0; 10], vec![1.0; 10]);
+    let c = cal.column_correction.as_mut().unwrap();
+    c.shear_ratio = Some(vec![0.0; 10]);
+    c.layers = vec![CorrectionLayer {
+        shear_ratio: vec![0.3; 10],
+        location_mm: (0..10).map(|i| 0.05 * i as f64).collect(),
+        force_gain: vec![1.1; 10],
+        images: 40,
+    }];
+    let path = tmp("layered.json");
+    cal.save(&path).unwrap();
+    assert_eq!(Calibration::load(&path).unwrap(), cal);
+    // Only a contact with a matched shear ratio uses the layer.
+    let raw = |tilt| optical_tactile::contact::RawContact {
+        x_px: 704.0,
+        y_px: 100.0,
+        dn: 1.0,
+        matched_shear_ratio: tilt,
+        ..Default::default()
+    };
+    let x = |tilt| cal.location_of(&raw(tilt)).unwrap()[0];
+    assert!((x(Some(0.3)) - x(None) - 0.2).abs() < 1e-12);
+    assert!((x(Some(0.15)) - x(None) - 0.1).abs() < 1e-12);
+    assert_eq!(x(Some(0.0)), x(None));
+    // A layer of the wrong length, or without the straight ratios, is refused.
+    let good = cal.to_json_string();
+    let short = good.replacen("\"shear_ratio\": [0.3, ", "\"shear_ratio\": [", 1);
+    assert_ne!(short, good, "{good}");
+    let e = load_text("short_layer.json", &short);
+    assert!(e.to_string().contains("layers[0].shear_ratio"), "{e}");
+    let mut bare = cal.clone();
+    bare.column_correction.as_mut().unwrap().shear_ratio = None;
+    let e = load_text("bare_layers.json", &bare.to_json_string());
+    assert!(e.to_string().contains("shear_ratio"), "{e}");
 }
 
 #[test]
@@ -2031,4 +2072,60 @@ fn force_maps_of_two_frames_in_one_file_are_refused() {
     assert_ne!(mixed, text);
     let e = load_text("mixed_frames.json", &mixed);
     assert!(e.to_string().contains("`gy`"), "{e}");
+}
+
+/// A column correction's tilt layer moves a tilted press and leaves a
+/// straight one where it was: the shipped calibration with one made-up
+/// layer (every offset 1 mm, at the shear ratio of a 15 deg pitch), on a
+/// press at the strip's middle pitched 15 deg and one straight.
+#[test]
+fn a_tilt_layer_corrects_the_tilted_press_it_was_learned_for() {
+    use optical_tactile::TactileSensor;
+    use optical_tactile::calibration::correction::CorrectionLayer;
+    use optical_tactile_sim::scenario::{Scenario, Single};
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/calibration.json");
+    let cal = Calibration::load(&path).unwrap();
+    let mut layered = cal.clone();
+    let c = layered.column_correction.as_mut().unwrap();
+    let n = c.location_mm.len();
+    c.shear_ratio = Some(vec![0.0; n]);
+    c.layers = vec![CorrectionLayer {
+        shear_ratio: vec![15f64.to_radians().tan(); n],
+        location_mm: c.location_mm.iter().map(|l| l + 1.0).collect(),
+        force_gain: c.force_gain.clone(),
+        images: 0,
+    }];
+    c.validate().unwrap();
+    let press = |pitch_deg| {
+        Scenario::Single(Single {
+            x_mm: 3.0,
+            force_n: 2.0,
+            frames: 2,
+            indenter_mm: 5.0,
+            yaw_deg: 0.0,
+            pitch_deg,
+            sweep_to_mm: None,
+        })
+    };
+    for (pitch, shift) in [(15.0, 1.0), (0.0, 0.0)] {
+        let name = format!("tilt-layer-{pitch}");
+        let (plain, truth) = last_frame_contacts(
+            &press(pitch),
+            &mut TactileSensor::from_calibration(cal.clone()).unwrap(),
+            &name,
+        );
+        let (tilted, _) = last_frame_contacts(
+            &press(pitch),
+            &mut TactileSensor::from_calibration(layered.clone()).unwrap(),
+            &name,
+        );
+        let x = truth[0].x_mm;
+        let (p, t) = (contact_at(&plain, x).unwrap(), &tilted[0]);
+        assert_eq!((plain.len(), tilted.len()), (1, 1));
+        let moved = t.location_mm[0] - p.location_mm[0];
+        assert!(
+            (moved - shift).abs() < 0.15,
+            "pitch {pitch}: moved {moved} mm"
+        );
+    }
 }

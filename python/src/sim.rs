@@ -215,7 +215,8 @@ fn scenario_options(
                 subset,
                 repeats,
                 load_cell_noise_n,
-                sweep_step_mm
+                sweep_step_mm,
+                tilted_sweeps
             );
             Scenario::Characterization(s)
         }

@@ -152,6 +152,15 @@ def test_characterization_writes_sweeps(tmp_path):
     assert len(rows) == 10
     assert sorted({r[0] for r in rows}) == ["0", "1"]
     assert all((tmp_path / "c" / r[1]).exists() for r in rows)
+    # With the tilted sweeps, two more whose loads lean each way along the strip.
+    ot.simulate(
+        "characterization", tmp_path / "t", subset=2, sweep_step_mm=60.0, tilted_sweeps=True
+    )
+    lines = (tmp_path / "t" / "sweeps.csv").read_text().splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    assert sorted({r[0] for r in rows}) == ["0", "1", "2", "3"]
+    fx = {r[0]: float(r[7]) for r in rows}
+    assert fx["2"] > 0.4 and fx["3"] < -0.4 and abs(fx["0"]) < 0.05
     # A subset alone writes none; a negative step is refused.
     ot.simulate("characterization", tmp_path / "d", subset=2)
     assert not (tmp_path / "d" / "sweeps.csv").exists()

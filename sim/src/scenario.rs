@@ -172,6 +172,9 @@ pub struct Characterization {
     /// strip protocol, no sweeps with a `subset` or on a flat sensor;
     /// `Some(0.0)`: no sweeps; a negative or non-finite step is an error.
     pub sweep_step_mm: Option<f64>,
+    /// Also write the [`TILTED_SWEEPS`] after the straight ones (twice the
+    /// sweeps' images and rig time).
+    pub tilted_sweeps: bool,
 }
 
 /// The sweeps of the strip's protocol, `(indenter_mm, force_n)`: each
@@ -182,6 +185,14 @@ pub struct Characterization {
 /// readings vary with the marker pattern under the contact
 /// (`optical_tactile::calibration::correction`).
 pub const SWEEPS: [(f64, f64); 2] = [(10.0, 2.0), (5.0, 2.0)];
+/// The optional tilted sweeps (`Characterization::tilted_sweeps`),
+/// `(indenter_mm, force_n, pitch_deg)`: the 5 mm rod of [`SWEEPS`] with its
+/// force turned by 15 degrees either way along the strip, the protocol's
+/// largest pitch. Under a tilted load the contact column and the matched
+/// force follow the marker pattern otherwise than under a straight one;
+/// these sweeps let `calibrate` learn that too (corrections that depend on
+/// the contact's shear ratio, `optical_tactile::calibration::correction`).
+pub const TILTED_SWEEPS: [(f64, f64, f64); 2] = [(5.0, 2.0, 15.0), (5.0, 2.0, -15.0)];
 /// Default arc-length step of the sweeps, mm (457 images per sweep on
 /// the default strip).
 pub const SWEEP_STEP_MM: f64 = 0.5;
@@ -208,6 +219,7 @@ impl Default for Characterization {
             repeats: 5,
             load_cell_noise_n: LOAD_CELL_NOISE_N,
             sweep_step_mm: None,
+            tilted_sweeps: false,
         }
     }
 }
@@ -1372,7 +1384,8 @@ fn characterization(
     })
 }
 
-/// Writes the strip protocol's sweeps ([`SWEEPS`]) and `sweeps.csv`; frame
+/// Writes the strip protocol's sweeps ([`SWEEPS`], then [`TILTED_SWEEPS`]
+/// if asked) and `sweeps.csv`; frame
 /// indices start after the tests' (`first_id`), so that every image has
 /// its own noise. Returns the number of images written.
 fn sweeps(
@@ -1400,16 +1413,19 @@ fn sweeps(
         ));
     }
     create_dir(&c.out.join("sweeps"))?;
-    let mut rows = Vec::with_capacity(n * SWEEPS.len());
+    let straight = SWEEPS.iter().map(|&(d, f)| (d, f, 0.0));
+    let tilted = TILTED_SWEEPS.iter().copied().filter(|_| o.tilted_sweeps);
+    let plan: Vec<(f64, f64, f64)> = straight.chain(tilted).collect();
+    let mut rows = Vec::with_capacity(n * plan.len());
     let mut id = 2 * first_id;
-    let total = n * SWEEPS.len();
+    let total = n * plan.len();
     let done = AtomicUsize::new(0);
-    for (k, &(indenter, force)) in SWEEPS.iter().enumerate() {
+    for (k, &(indenter, force, pitch)) in plan.iter().enumerate() {
         let refname = format!("sweeps/s{k}_ref.png");
         let reference = sensor.render_indexed(id as u64, &[], false)?;
         io::write_gray_png(c.out.join(&refname), &reference.frame)?;
         id += 1;
-        let f = [0.0, 0.0, -force];
+        let f = tilted_force(force, 0.0, pitch);
         let part: Vec<io::SweepRow> = (0..n)
             .into_par_iter()
             .map(|i| -> Result<io::SweepRow> {
@@ -1440,7 +1456,7 @@ fn sweeps(
         rows.extend(part);
     }
     io::write_sweeps_csv(c.out.join("sweeps.csv"), &rows)?;
-    Ok(rows.len() + SWEEPS.len())
+    Ok(rows.len() + plan.len())
 }
 
 #[derive(Serialize)]

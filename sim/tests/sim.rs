@@ -511,6 +511,36 @@ fn characterization_writes_sweeps_along_the_training_points() {
             assert!(out.join(&r.frame).exists() && out.join(&r.reference).exists());
         }
     }
+    // With the tilted sweeps: the same straight sweeps, then the 5 mm rod's
+    // force turned by each tilt along the strip.
+    let (_tilted_dir, tilted) = tmp("char_tilted_sweeps");
+    c.out = tilted.clone();
+    let o = scenario::Characterization {
+        subset: Some(2),
+        sweep_step_mm: Some(40.0),
+        tilted_sweeps: true,
+        ..Default::default()
+    };
+    let summary = scenario::run(&Scenario::Characterization(o), &c).unwrap();
+    let all = io::read_sweeps_csv(tilted.join("sweeps.csv")).unwrap();
+    let sweeps = scenario::SWEEPS.len() + scenario::TILTED_SWEEPS.len();
+    assert_eq!(all.len(), 7 * sweeps);
+    assert_eq!(summary.frames, 2 * 2 + all.len() + sweeps);
+    for (k, &(indenter, force, pitch)) in scenario::TILTED_SWEEPS.iter().enumerate() {
+        let k = (scenario::SWEEPS.len() + k) as u32;
+        let sweep: Vec<_> = all.iter().filter(|r| r.sweep == k).collect();
+        assert_eq!(sweep.len(), 7);
+        let f = scenario::tilted_force(force, 0.0, pitch);
+        for r in sweep {
+            assert_eq!((r.indenter_mm, r.force_n), (indenter, force));
+            assert!(
+                (r.fx_n - f[0]).abs() < 0.02 && (r.fz_n - f[2]).abs() < 0.02 && f[0].abs() > 0.5,
+                "{r:?}"
+            );
+        }
+    }
+    // The straight sweeps come first, as without the tilted ones.
+    assert_eq!(&all[..rows.len()], &rows[..]);
     // A subset alone writes none; a step of 0 none either; a tiny step is refused.
     let (_bare_dir, bare) = tmp("char_no_sweeps");
     c.out = bare.clone();

@@ -17,13 +17,16 @@ use ndarray::{Array1, Array2};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::correction::{ColumnCorrection, DEFAULT_SMOOTHING_PX, GAIN_RANGE, smooth_on_grid};
+use super::correction::{
+    ColumnCorrection, CorrectionLayer, DEFAULT_SMOOTHING_PX, GAIN_RANGE, MAX_CORRECTION_LAYERS,
+    SHEAR_RATIO_SMOOTHING, smooth_on_grid,
+};
 use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
 use super::report::{self, DetectionLimit, PointTable, evaluate};
 use super::uncertainty::{ForceUncertainty, SpreadSample};
 use super::{
     Calibration, CalibrationReport, ForceFrame, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
-    LoadSite, PipelineSettings, Sample, SensorSetup, in_memory,
+    LoadSite, PipelineSettings, Sample, SensorSetup, in_memory, shear_ratio_of,
 };
 use crate::contact::profile::{
     ColumnMap, ForceMatcher, MAX_PROFILE_REACH_PX, ProfileModel, ProfileSample, Relocation,
@@ -927,7 +930,9 @@ pub fn fit_dataset(
 ///
 /// - the location offsets once the location maps are fitted (the first
 ///   pass), so that the profile model is matched at the corrected
-///   locations, as a sensor will match it;
+///   locations, as a sensor will match it; with sweeps at several tilts,
+///   one layer of offsets per tilt, looked up by each contact's matched
+///   shear ratio ([`super::correction`]);
 /// - the gains of the matched normal force once the profile model is
 ///   fitted: per sweep, the true normal force over the matched one,
 ///   divided by the sweep's median. Every test's matched force is
@@ -977,7 +982,7 @@ pub fn fit_dataset_with_sweeps(
         })?,
     );
     let mut pass1 = fit(&first, &setup, options)?;
-    let location_fix = location_correction(sweeps, &pass1, crop)?;
+    let mut location_fix = location_correction(sweeps, &pass1, crop)?;
     pass1.column_correction = location_fix.clone();
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
@@ -990,7 +995,16 @@ pub fn fit_dataset_with_sweeps(
         Some(p) => {
             let mut model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
             model.relocation = relocation_for(p.relocation, !sweeps.is_empty());
+            if let Some(fix) = pass1.column_correction.take() {
+                let fix = matched_layer_ratios(&model, sweeps, &pass1, fix)?;
+                location_fix = Some(fix.clone());
+                pass1.column_correction = Some(fix);
+            }
             relocated = relocate(&model, extractions, &pass1)?;
+            let moved = relocated.as_deref().unwrap_or(extractions);
+            if let Some(tilted) = with_matched_ratios(&model, moved, &pass1)? {
+                relocated = Some(tilted);
+            }
             let moved = relocated.as_deref().unwrap_or(extractions);
             let local = match_forces(&model, moved, |e, raw| {
                 Ok(match_position(&model, e, raw, &pass1)?.1)
@@ -1009,7 +1023,8 @@ pub fn fit_dataset_with_sweeps(
             for (e, f) in extractions.iter().zip(local.iter_mut()) {
                 if let (Some(raw), Some(f)) = (&e.raw, f.as_mut()) {
                     let column = match_position(model, e, raw, &pass1)?.1;
-                    *f = fix.correct_local_force(column, *f);
+                    let tilt = raw.matched_shear_ratio.unwrap_or(f64::NAN);
+                    *f = fix.correct_local_force(column, tilt, *f);
                 }
             }
             (Some(fix), sweep_local)
@@ -1084,10 +1099,73 @@ fn relocation_for(asked: Option<Relocation>, sweeps: bool) -> Relocation {
     })
 }
 
+/// Sweeps whose loads' median tilts along the strip (sensor frame,
+/// `atan2(fx, -fz)`) lie within this many degrees of each other share one
+/// layer of the correction.
+const TILT_GROUP_DEG: f64 = 3.0;
+
+/// The tilt group of each sweep image: its sweep's median tilt along the
+/// strip ([`TILT_GROUP_DEG`]), group 0 the one nearest to straight, the others
+/// by increasing tilt. Also the groups' mean tilts, degrees. The sweep
+/// number is the rows' `repeat` ([`io::SweepRow::as_test`]).
+fn tilt_groups(sweeps: &[Extraction]) -> (Vec<usize>, Vec<f64>) {
+    let mut per_sweep: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
+    for e in sweeps {
+        let r = &e.row;
+        let tilt = r.fx_n.atan2(-r.fz_n).to_degrees();
+        if tilt.is_finite() {
+            per_sweep.entry(r.repeat).or_default().push(tilt);
+        }
+    }
+    let mut medians: Vec<(u32, f64)> = per_sweep
+        .into_iter()
+        .map(|(k, mut t)| {
+            t.sort_by(f64::total_cmp);
+            (k, t[t.len() / 2])
+        })
+        .collect();
+    medians.sort_by(|a, b| a.1.total_cmp(&b.1));
+    // Clusters of consecutive tilts.
+    let mut clusters: Vec<Vec<(u32, f64)>> = Vec::new();
+    for m in medians {
+        match clusters.last_mut() {
+            Some(c) if m.1 - c[c.len() - 1].1 <= TILT_GROUP_DEG => c.push(m),
+            _ => clusters.push(vec![m]),
+        }
+    }
+    let mean = |c: &[(u32, f64)]| c.iter().map(|m| m.1).sum::<f64>() / c.len() as f64;
+    let straightest = (0..clusters.len())
+        .min_by(|&a, &b| {
+            mean(&clusters[a])
+                .abs()
+                .total_cmp(&mean(&clusters[b]).abs())
+        })
+        .unwrap_or(0);
+    if !clusters.is_empty() {
+        let first = clusters.remove(straightest);
+        clusters.insert(0, first);
+    }
+    let tilts: Vec<f64> = clusters.iter().map(|c| mean(c)).collect();
+    let group_of = |sweep: u32| {
+        clusters
+            .iter()
+            .position(|c| c.iter().any(|m| m.0 == sweep))
+            .unwrap_or(0)
+    };
+    (
+        sweeps.iter().map(|e| group_of(e.row.repeat)).collect(),
+        tilts,
+    )
+}
+
 /// The location half of the sweeps' [`ColumnCorrection`] for `cal` (gains
 /// all 1): at each detected sweep image's measured column, the true chord
-/// position minus `cal`'s. `None` without sweeps; an error if no sweep
-/// image was detected.
+/// position minus `cal`'s; one layer per tilt beyond the straightest
+/// ([`tilt_groups`]), each with its images' true shear ratios in the local
+/// frame (replaced by their matched ones once the profile model is fitted,
+/// [`matched_layer_ratios`]). `None`
+/// without sweeps; an error if no image of a tilt was detected, or if the
+/// sweeps hold more tilts than a correction may have layers.
 fn location_correction(
     sweeps: &[Extraction],
     cal: &Calibration,
@@ -1096,30 +1174,102 @@ fn location_correction(
     if sweeps.is_empty() {
         return Ok(None);
     }
-    let mut columns = Vec::with_capacity(sweeps.len());
-    let mut offsets = Vec::with_capacity(sweeps.len());
-    for e in sweeps {
-        if let Some(raw) = &e.raw {
-            columns.push(raw.x_px);
-            offsets.push(e.row.x_mm - cal.location_of(raw)?[0]);
-        }
-    }
-    if columns.is_empty() {
+    let (groups, tilts) = tilt_groups(sweeps);
+    if tilts.len() > MAX_CORRECTION_LAYERS + 1 {
         return Err(Error::param(
             "sweeps",
-            "no contact found in any sweep image",
+            format!(
+                "{} tilts of the sweeps' loads, at most {}",
+                tilts.len(),
+                MAX_CORRECTION_LAYERS + 1
+            ),
         ));
     }
-    let sigma = smoothing_for(&columns);
-    let location_mm = smooth_on_grid(&columns, &offsets, 0.0, sigma, 0.0, 1.0, crop.w)?;
+    // Per group: columns, location offsets and shear ratios of its images.
+    let geometry = cal.setup.geometry;
+    let mut per_group = vec![(Vec::new(), Vec::new(), Vec::new()); tilts.len().max(1)];
+    for (e, &g) in sweeps.iter().zip(&groups) {
+        if let Some(raw) = &e.raw {
+            let r = &e.row;
+            let (columns, offsets, ratios) = &mut per_group[g];
+            columns.push(raw.x_px);
+            offsets.push(r.x_mm - cal.location_of(raw)?[0]);
+            let truth = geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]);
+            ratios.push(shear_ratio_of(truth).unwrap_or(f64::NAN));
+        }
+    }
+    for (g, (columns, _, _)) in per_group.iter().enumerate() {
+        if columns.is_empty() {
+            let which = if tilts.len() > 1 {
+                format!(" tilted by {:.1} deg", tilts.get(g).copied().unwrap_or(0.0))
+            } else {
+                String::new()
+            };
+            return Err(Error::param(
+                "sweeps",
+                format!("no contact found in any sweep image{which}"),
+            ));
+        }
+    }
+    let sigma = smoothing_for(&per_group[0].0);
+    let n = crop.w;
+    let smooth = |columns: &[f64], values: &[f64], prior: f64, sigma: f64| {
+        smooth_on_grid(columns, values, prior, sigma, 0.0, 1.0, n)
+    };
+    let ratios_of = |columns: &[f64], ratios: &[f64]| {
+        let mut sorted: Vec<f64> = ratios.iter().copied().filter(|r| r.is_finite()).collect();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+        smooth(columns, ratios, median, SHEAR_RATIO_SMOOTHING * sigma)
+    };
+    let (columns, offsets, ratios) = &per_group[0];
+    let location_mm = smooth(columns, offsets, 0.0, sigma)?;
+    let mut layers = Vec::with_capacity(per_group.len() - 1);
+    for (columns, offsets, ratios) in &per_group[1..] {
+        // Learned as a change from the straight offsets, so that where no
+        // image of this tilt is near, the straight offsets hold.
+        let change: Vec<f64> = columns
+            .iter()
+            .zip(offsets)
+            .map(|(&c, &o)| o - grid_value(&location_mm, c))
+            .collect();
+        let mut location = smooth(columns, &change, 0.0, sigma)?;
+        for (l, base) in location.iter_mut().zip(&location_mm) {
+            *l += base;
+        }
+        layers.push(CorrectionLayer {
+            shear_ratio: ratios_of(columns, ratios)?,
+            location_mm: location,
+            force_gain: vec![1.0; n],
+            images: columns.len(),
+        });
+    }
     Ok(Some(ColumnCorrection {
         start_px: 0.0,
         step_px: 1.0,
         force_gain: vec![1.0; location_mm.len()],
         location_mm,
         smoothing_px: sigma,
-        images: columns.len(),
+        images: per_group.iter().map(|g| g.0.len()).sum(),
+        shear_ratio: if layers.is_empty() {
+            None
+        } else {
+            Some(ratios_of(columns, ratios)?)
+        },
+        layers,
     }))
+}
+
+/// `values` on the grid of columns `0, 1, ...` at column `c`, linear
+/// between samples, the nearest end beyond them.
+fn grid_value(values: &[f64], c: f64) -> f64 {
+    let Some(last) = values.len().checked_sub(1) else {
+        return 0.0;
+    };
+    let t = c.clamp(0.0, last as f64);
+    let i = (t.floor() as usize).min(last.saturating_sub(1));
+    let f = t - i as f64;
+    values[i] * (1.0 - f) + values.get(i + 1).copied().unwrap_or(values[i]) * f
 }
 
 /// The smoothing of a correction fitted at `columns`: [`DEFAULT_SMOOTHING_PX`],
@@ -1149,8 +1299,9 @@ const MIN_GAIN_FORCE_N: f64 = 0.3;
 /// as a sensor matches it (at `cal`'s column, `cal` holding the location
 /// offsets of `fix`); its gain, at that column, is its true normal force
 /// in the local frame over the matched one, divided by the median of its
-/// sweep. Images whose ratio leaves [`GAIN_RANGE`] or whose commanded
-/// force is below [`MIN_GAIN_FORCE_N`] are left out.
+/// sweep; each tilt's gains go to its own layer ([`tilt_groups`]). Images
+/// whose ratio leaves [`GAIN_RANGE`] or whose commanded force is below
+/// [`MIN_GAIN_FORCE_N`] are left out.
 fn normal_gain(
     sweeps: &[Extraction],
     cal: &Calibration,
@@ -1158,15 +1309,18 @@ fn normal_gain(
     fix: ColumnCorrection,
 ) -> Result<(ColumnCorrection, Vec<Option<[f64; 3]>>)> {
     let geometry = cal.setup.geometry;
+    let tilted = with_matched_ratios(model, sweeps, cal)?;
+    let sweeps = tilted.as_deref().unwrap_or(sweeps);
     let mut local = match_forces(model, sweeps, |_, raw| cal.match_column(model, raw))?;
     let columns_of = sweeps
         .iter()
         .map(|e| e.raw.map(|raw| cal.match_column(model, &raw)).transpose())
         .collect::<Result<Vec<_>>>()?;
-    // Per sweep: (match column, ratio) of each usable image.
-    let mut per_sweep: std::collections::BTreeMap<u32, Vec<(f64, f64)>> = Default::default();
+    let (groups, _) = tilt_groups(sweeps);
+    // Per sweep: (group, match column, ratio) of each usable image.
+    let mut per_sweep: std::collections::BTreeMap<u32, Vec<(usize, f64, f64)>> = Default::default();
     let (lo, hi) = GAIN_RANGE;
-    for ((e, f), column) in sweeps.iter().zip(&local).zip(&columns_of) {
+    for (((e, f), column), &g) in sweeps.iter().zip(&local).zip(&columns_of).zip(&groups) {
         let (Some(f), Some(column)) = (f, column) else {
             continue;
         };
@@ -1177,36 +1331,56 @@ fn normal_gain(
             per_sweep
                 .entry(r.repeat)
                 .or_default()
-                .push((*column, ratio));
+                .push((g, *column, ratio));
         }
     }
-    let mut columns = Vec::new();
-    let mut gains = Vec::new();
+    // Per group: the columns and gains of its sweeps' images.
+    let mut per_group = vec![(Vec::new(), Vec::new()); fix.layers.len() + 1];
     for images in per_sweep.values() {
-        let mut ratios: Vec<f64> = images.iter().map(|i| i.1).collect();
+        let mut ratios: Vec<f64> = images.iter().map(|i| i.2).collect();
         ratios.sort_by(f64::total_cmp);
         let median = ratios[ratios.len() / 2];
-        for &(c, r) in images {
-            columns.push(c);
-            gains.push(r / median);
+        for &(g, c, r) in images {
+            if let Some((columns, gains)) = per_group.get_mut(g) {
+                columns.push(c);
+                gains.push(r / median);
+            }
         }
     }
-    let mut force_gain = smooth_on_grid(
-        &columns,
-        &gains,
-        1.0,
+    let (sigma, start, step, n) = (
         fix.smoothing_px,
         fix.start_px,
         fix.step_px,
         fix.location_mm.len(),
-    )?;
-    for g in &mut force_gain {
-        *g = g.clamp(lo, hi);
+    );
+    let smooth = |(columns, gains): &(Vec<f64>, Vec<f64>)| -> Result<Vec<f64>> {
+        let mut g = smooth_on_grid(columns, gains, 1.0, sigma, start, step, n)?;
+        for g in &mut g {
+            *g = g.clamp(lo, hi);
+        }
+        Ok(g)
+    };
+    let mut fix = fix;
+    fix.force_gain = smooth(&per_group[0])?;
+    for (layer, (columns, gains)) in fix.layers.iter_mut().zip(&per_group[1..]) {
+        // As a factor on the straight gains, which hold where no image of
+        // this tilt is near.
+        let change: Vec<f64> = columns
+            .iter()
+            .zip(gains)
+            .map(|(&c, &g)| g / grid_value(&fix.force_gain, c))
+            .collect();
+        let factor = smooth(&(columns.clone(), change))?;
+        layer.force_gain = factor
+            .iter()
+            .zip(&fix.force_gain)
+            .map(|(f, base)| (f * base).clamp(lo, hi))
+            .collect();
     }
-    let fix = ColumnCorrection { force_gain, ..fix };
-    for (f, column) in local.iter_mut().zip(&columns_of) {
-        if let (Some(f), Some(column)) = (f.as_mut(), column) {
-            *f = fix.correct_local_force(*column, *f);
+    for ((f, column), e) in local.iter_mut().zip(&columns_of).zip(sweeps) {
+        if let (Some(f), Some(column), Some(raw)) = (f.as_mut(), column, &e.raw) {
+            let tilt = raw.matched_shear_ratio.unwrap_or(f64::NAN);
+            *f = fix.correct_local_force(*column, tilt, *f);
         }
     }
     Ok((fix, local))
@@ -1371,6 +1545,83 @@ fn match_forces<'a>(
                 .transpose()
         })
         .collect()
+}
+
+/// `fix` with the shear ratios of its straight correction and of its tilt
+/// layers taken from the sweep images' own first matches
+/// ([`with_matched_ratios`], at `cal`'s straight-corrected columns), as a
+/// sensor will measure them, instead of their true ratios: what the profile
+/// match reads of a tilt before the force maps is not exactly the tilt, and
+/// the layers are then looked up on the scale they will be looked up with.
+fn matched_layer_ratios(
+    model: &ProfileModel,
+    sweeps: &[Extraction],
+    cal: &Calibration,
+    fix: ColumnCorrection,
+) -> Result<ColumnCorrection> {
+    if fix.layers.is_empty() {
+        return Ok(fix);
+    }
+    let mut probe = cal.clone();
+    probe.column_correction = Some(fix.clone());
+    let Some(matched) = with_matched_ratios(model, sweeps, &probe)? else {
+        return Ok(fix);
+    };
+    let (groups, _) = tilt_groups(sweeps);
+    let mut per_group = vec![(Vec::new(), Vec::new()); fix.layers.len() + 1];
+    for (e, &g) in matched.iter().zip(&groups) {
+        if let (Some(raw), Some(slot)) = (&e.raw, per_group.get_mut(g)) {
+            if let Some(r) = raw.matched_shear_ratio {
+                slot.0.push(raw.x_px);
+                slot.1.push(r);
+            }
+        }
+    }
+    let n = fix.location_mm.len();
+    let sigma = SHEAR_RATIO_SMOOTHING * fix.smoothing_px;
+    let ratios = |(columns, values): &(Vec<f64>, Vec<f64>)| -> Result<Vec<f64>> {
+        let mut sorted = values.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+        smooth_on_grid(columns, values, median, sigma, fix.start_px, fix.step_px, n)
+    };
+    let mut fix = fix.clone();
+    fix.shear_ratio = Some(ratios(&per_group[0])?);
+    for (layer, group) in fix.layers.iter_mut().zip(&per_group[1..]) {
+        layer.shear_ratio = ratios(group)?;
+    }
+    Ok(fix)
+}
+
+/// With a column correction that has tilt layers, `extractions` with each
+/// detected contact's [`RawContact::matched_shear_ratio`] set from a first
+/// match at `cal`'s straight-corrected column, as a sensor sets it
+/// ([`Calibration::match_forces_with`]); `None` (nothing to set) without.
+fn with_matched_ratios(
+    model: &ProfileModel,
+    extractions: &[Extraction],
+    cal: &Calibration,
+) -> Result<Option<Vec<Extraction>>> {
+    if cal
+        .column_correction
+        .as_ref()
+        .is_none_or(|c| c.layers.is_empty())
+    {
+        return Ok(None);
+    }
+    let mut out = extractions.to_vec();
+    for e in &mut out {
+        if let Some(raw) = e.raw.as_mut() {
+            raw.matched_shear_ratio = None;
+        }
+    }
+    let first = match_forces(model, &out, |_, raw| cal.match_column(model, raw))?;
+    for (e, f) in out.iter_mut().zip(first) {
+        if let Some(raw) = e.raw.as_mut() {
+            raw.matched_shear_ratio = f.and_then(shear_ratio_of);
+        }
+    }
+    Ok(Some(out))
 }
 
 /// Fits the profile model on the detected training tests, once at their
@@ -1665,6 +1916,105 @@ mod tests {
         }
     }
 
+    /// A sweep image as [`sweep_image`], of sweep `sweep` whose load is
+    /// tilted by `pitch_deg` along the strip (sensor frame).
+    fn tilted_sweep_image(sweep: u32, pitch_deg: f64, x_mm: f64, x_px: Option<f64>) -> Extraction {
+        let mut e = sweep_image(x_mm, x_px);
+        let (s, c) = pitch_deg.to_radians().sin_cos();
+        e.row.repeat = sweep;
+        e.row.fx_n = 2.0 * s;
+        e.row.fz_n = -2.0 * c;
+        e
+    }
+
+    #[test]
+    fn sweeps_are_grouped_by_their_tilt() {
+        let sweeps = vec![
+            tilted_sweep_image(0, 0.0, 0.0, Some(800.0)),
+            tilted_sweep_image(1, 15.0, 0.0, Some(800.0)),
+            tilted_sweep_image(2, 0.4, 0.0, Some(800.0)),
+            tilted_sweep_image(3, -15.0, 0.0, Some(800.0)),
+            tilted_sweep_image(1, 15.0, 1.0, None),
+            tilted_sweep_image(4, 14.0, 0.0, Some(800.0)),
+        ];
+        let (groups, tilts) = tilt_groups(&sweeps);
+        // The straight sweeps share group 0; the others by increasing tilt;
+        // tilts within a few degrees share a group.
+        assert_eq!(groups, vec![0, 2, 0, 1, 2, 2]);
+        assert_eq!(tilts.len(), 3);
+        assert!(tilts[0].abs() < 0.5 && (tilts[1] + 15.0).abs() < 1e-9);
+        assert!((tilts[2] - 14.5).abs() < 1e-9);
+        assert_eq!(tilt_groups(&[]).1.len(), 0);
+    }
+
+    #[test]
+    fn tilted_sweeps_teach_the_location_of_a_tilted_press() {
+        let mut cal = linear_location();
+        // The measured column lags the truth by one pattern under a straight
+        // load and by another under a tilted one.
+        let straight_lag = |x_px: f64| 4.0 * (x_px / 9.0).sin();
+        let tilted_lag = |x_px: f64| 4.0 * (x_px / 7.0).cos();
+        let truth_px = |x_mm: f64| 800.0 + 5.0 * x_mm;
+        let mut sweeps = Vec::new();
+        for i in 0..=160 {
+            let x = -40.0 + 0.5 * i as f64;
+            let px = truth_px(x);
+            sweeps.push(tilted_sweep_image(0, 0.0, x, Some(px + straight_lag(px))));
+            sweeps.push(tilted_sweep_image(1, 15.0, x, Some(px + tilted_lag(px))));
+        }
+        let fix = location_correction(&sweeps, &cal, cal.setup.crop)
+            .unwrap()
+            .unwrap();
+        fix.validate().unwrap();
+        assert_eq!(fix.layers.len(), 1);
+        assert_eq!(fix.layers[0].images, 161);
+        // The layers' ratios: the loads' true shear ratios in the local frame.
+        let geometry = cal.setup.geometry;
+        let ratio_at = |x_mm: f64, pitch: f64| {
+            let (s, c) = f64::to_radians(pitch).sin_cos();
+            shear_ratio_of(geometry.sensor_to_local(x_mm, [2.0 * s, 0.0, -2.0 * c])).unwrap()
+        };
+        let layer = &fix.layers[0];
+        let base = fix.shear_ratio.as_ref().unwrap();
+        for x in [-30.0, 0.0, 25.0] {
+            let col = truth_px(x) as usize;
+            assert!((layer.shear_ratio[col] - ratio_at(x, 15.0)).abs() < 0.01);
+            assert!((base[col] - ratio_at(x, 0.0)).abs() < 0.01);
+        }
+        cal.column_correction = Some(fix);
+        // Between the images, each load's location is corrected by its own
+        // tilt's offsets when the contact carries its matched shear ratio.
+        let error = |lag: &dyn Fn(f64) -> f64, pitch: f64, tilt: bool| {
+            let errors: Vec<f64> = (0..100)
+                .map(|i| {
+                    let x = -35.0 + 0.7 * i as f64 + 0.13;
+                    let px = truth_px(x);
+                    let raw = RawContact {
+                        x_px: px + lag(px),
+                        y_px: 100.0,
+                        dn: 1.0,
+                        matched_shear_ratio: tilt.then(|| ratio_at(x, pitch)),
+                        ..Default::default()
+                    };
+                    (cal.location_of(&raw).unwrap()[0] - x).abs()
+                })
+                .collect();
+            errors.iter().sum::<f64>() / errors.len() as f64
+        };
+        let tilted_plain = error(&tilted_lag, 15.0, false);
+        let tilted = error(&tilted_lag, 15.0, true);
+        let straight = error(&straight_lag, 0.0, true);
+        assert!(tilted_plain > 0.4, "{tilted_plain}");
+        assert!(tilted < tilted_plain / 3.0, "{tilted_plain} -> {tilted}");
+        assert!(straight < 0.15, "{straight}");
+        // A tilt with no detected image is an error, as for straight sweeps.
+        let mut blind = sweeps.clone();
+        for e in blind.iter_mut().filter(|e| e.row.repeat == 1) {
+            e.raw = None;
+        }
+        assert!(location_correction(&blind, &linear_location(), cal.setup.crop).is_err());
+    }
+
     #[test]
     fn sweeps_teach_the_location_what_the_marker_pattern_does() {
         let mut cal = linear_location();
@@ -1693,7 +2043,7 @@ mod tests {
         assert_eq!(fix.smoothing_px, DEFAULT_SMOOTHING_PX);
         assert!(fix.force_gain.iter().all(|g| *g == 1.0));
         // No sweep near column 100 (x = -140 mm): no offset there.
-        assert_eq!(fix.location_mm_at(100.0), 0.0);
+        assert_eq!(fix.location_mm_at(100.0, 0.0), 0.0);
         cal.column_correction = Some(fix);
         // At positions between the sweep's images, the location error falls
         // to a small part of what it was.
@@ -1727,7 +2077,8 @@ mod tests {
         assert!(wide.smoothing_px > 10.0, "{}", wide.smoothing_px);
         let between = truth_px(2.5);
         assert!(
-            wide.location_mm_at(between).abs() > 0.1 * wide.location_mm_at(truth_px(0.0)).abs()
+            wide.location_mm_at(between, 0.0).abs()
+                > 0.1 * wide.location_mm_at(truth_px(0.0), 0.0).abs()
         );
         // Without sweeps nothing is fitted; with no detected image it is an error.
         assert!(

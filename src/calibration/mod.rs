@@ -531,6 +531,16 @@ pub struct Calibration {
     pub uncertainty: Option<ForceUncertainty>,
 }
 
+/// The tangential-to-inward-normal ratio `t / -n` of a profile-matched local
+/// force (tangential, across, outward normal); `None` unless the normal
+/// presses inward and the ratio is finite. See
+/// [`RawContact::matched_shear_ratio`].
+pub fn shear_ratio_of(local_force: [f64; 3]) -> Option<f64> {
+    let [t, _, n] = local_force;
+    let r = t / -n;
+    (n < 0.0 && r.is_finite()).then_some(r)
+}
+
 /// The press test of [`Calibration::is_press`] for a threshold `min_normal_n`
 /// and a profile-matched local force (tangential, across, outward normal):
 /// passes unless both are given and the inward normal `-local_force[2]` is
@@ -887,19 +897,40 @@ impl Calibration {
     /// ([`RawContact::shear_ratio`], [`RawContact::shear_ratio_y`]): each map
     /// takes the ones among its variables.
     /// With a [`ColumnCorrection`], its offset at `x2d` is added to `x`.
+    /// The correction's tilt layers, if any, are not used: see
+    /// [`Calibration::location_of`].
     pub fn location_with_shear(&self, x2d: f64, y2d: f64, shear: [f64; 2]) -> Result<[f64; 3]> {
+        self.location_tilted(x2d, y2d, shear, None)
+    }
+
+    /// [`Calibration::location_with_shear`], the column correction looked
+    /// up at the matched shear ratio `tilt` ([`RawContact::matched_shear_ratio`];
+    /// `None`: its straight correction).
+    fn location_tilted(
+        &self,
+        x2d: f64,
+        y2d: f64,
+        shear: [f64; 2],
+        tilt: Option<f64>,
+    ) -> Result<[f64; 3]> {
         let mut x = evaluate_location(&self.g1, x2d, y2d, shear)?;
         if let Some(c) = &self.column_correction {
-            x += c.location_mm_at(x2d);
+            x += c.location_mm_at(x2d, tilt.unwrap_or(f64::NAN));
         }
         let y = evaluate_location(&self.g2, x2d, y2d, shear)?;
         Ok(self.setup.geometry.point_at(x, y))
     }
 
     /// Contact location `[x, y, z]` in mm of a patch's raw quantities: its
-    /// contact point and both of its shear ratios.
+    /// contact point and both of its shear ratios, and its matched shear
+    /// ratio for a column correction with tilt layers.
     pub fn location_of(&self, raw: &RawContact) -> Result<[f64; 3]> {
-        self.location_with_shear(raw.x_px, raw.y_px, [raw.shear_ratio(), raw.shear_ratio_y()])
+        self.location_tilted(
+            raw.x_px,
+            raw.y_px,
+            [raw.shear_ratio(), raw.shear_ratio_y()],
+            raw.matched_shear_ratio,
+        )
     }
 
     /// The frame the force maps work in (read from `gx`'s variables;
@@ -1047,6 +1078,9 @@ impl Calibration {
         match &self.profile {
             Some(model) if !raws.is_empty() => {
                 let column_of = |r: &RawContact| self.match_column(model, r);
+                for r in raws.iter_mut() {
+                    r.matched_shear_ratio = None;
+                }
                 if model.anchor.is_some() {
                     matcher
                         .relocate_and_measure_contacts_at(model, raws, u, v, scale, column_of)?;
@@ -1054,10 +1088,31 @@ impl Calibration {
                     matcher.measure_contacts_at(model, raws, u, v, scale, column_of)?;
                 }
                 if let Some(c) = &self.column_correction {
+                    if !c.layers.is_empty() {
+                        // The first match tells how tilted each load is; matched
+                        // again at the column the tilt's correction gives.
+                        let first: Vec<Option<[f64; 3]>> =
+                            raws.iter().map(|r| r.local_force).collect();
+                        for r in raws.iter_mut() {
+                            r.matched_shear_ratio = r.local_force.and_then(shear_ratio_of);
+                        }
+                        matcher.measure_contacts_at(model, raws, u, v, scale, column_of)?;
+                        // A press the first match read as one stays one: where the
+                        // tilt's column loses it, the straight correction holds.
+                        for (r, f) in raws.iter_mut().zip(first) {
+                            if passes_press_test(self.min_normal_n, f)
+                                && !passes_press_test(self.min_normal_n, r.local_force)
+                            {
+                                r.local_force = f;
+                                r.matched_shear_ratio = None;
+                            }
+                        }
+                    }
                     for r in raws.iter_mut() {
                         if let Some(f) = r.local_force {
                             let column = self.match_column(model, r)?;
-                            r.local_force = Some(c.correct_local_force(column, f));
+                            let tilt = r.matched_shear_ratio.unwrap_or(f64::NAN);
+                            r.local_force = Some(c.correct_local_force(column, tilt, f));
                         }
                     }
                 }

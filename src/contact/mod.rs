@@ -48,6 +48,12 @@ pub struct RawContact {
     /// as the force maps' raw displacements ([`sensor_displacements`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub local_force: Option<[f64; 3]>,
+    /// The tangential-to-inward-normal ratio `t / -n` of the contact's first
+    /// profile match, before any correction: how tilted the load is along
+    /// the strip. A column correction with tilt layers looks them up with it
+    /// ([`crate::calibration::correction`]); `None` until such a match.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub matched_shear_ratio: Option<f64>,
 }
 
 impl RawContact {
