@@ -1065,8 +1065,13 @@ impl Calibration {
     /// `x_px` moved there ([`ForceMatcher::relocate_and_measure_contacts_at`]). Each contact is matched at
     /// [`Calibration::match_column`]; with a [`ColumnCorrection`], its
     /// matched normal force is then multiplied by the correction's gain at
-    /// that column ([`ColumnCorrection::correct_local_force`]). A sensor
-    /// calls this once the contact columns are measured the calibration's way.
+    /// that column ([`ColumnCorrection::correct_local_force`]). With tilt
+    /// layers in the correction, each contact's
+    /// [`RawContact::matched_shear_ratio`] is taken from that first match and
+    /// the profile matched again at the column the tilt's correction gives
+    /// (a press the first match passed is kept with it if the second would
+    /// drop it). A sensor calls this once the contact columns are measured
+    /// the calibration's way.
     pub fn match_forces_with(
         &self,
         matcher: &mut ForceMatcher,
