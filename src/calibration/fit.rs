@@ -1224,52 +1224,40 @@ fn location_correction(
     };
     let (columns, offsets, ratios) = &per_group[0];
     let location_mm = smooth(columns, offsets, 0.0, sigma)?;
-    let mut layers = Vec::with_capacity(per_group.len() - 1);
-    for (columns, offsets, ratios) in &per_group[1..] {
-        // Learned as a change from the straight offsets, so that where no
-        // image of this tilt is near, the straight offsets hold.
-        let change: Vec<f64> = columns
-            .iter()
-            .zip(offsets)
-            .map(|(&c, &o)| o - grid_value(&location_mm, c))
-            .collect();
-        let mut location = smooth(columns, &change, 0.0, sigma)?;
-        for (l, base) in location.iter_mut().zip(&location_mm) {
-            *l += base;
-        }
-        layers.push(CorrectionLayer {
-            shear_ratio: ratios_of(columns, ratios)?,
-            location_mm: location,
-            force_gain: vec![1.0; n],
-            images: columns.len(),
-        });
-    }
-    Ok(Some(ColumnCorrection {
+    let mut fix = ColumnCorrection {
         start_px: 0.0,
         step_px: 1.0,
         force_gain: vec![1.0; location_mm.len()],
         location_mm,
         smoothing_px: sigma,
         images: per_group.iter().map(|g| g.0.len()).sum(),
-        shear_ratio: if layers.is_empty() {
-            None
-        } else {
-            Some(ratios_of(columns, ratios)?)
-        },
-        layers,
-    }))
-}
-
-/// `values` on the grid of columns `0, 1, ...` at column `c`, linear
-/// between samples, the nearest end beyond them.
-fn grid_value(values: &[f64], c: f64) -> f64 {
-    let Some(last) = values.len().checked_sub(1) else {
-        return 0.0;
+        shear_ratio: None,
+        layers: Vec::new(),
     };
-    let t = c.clamp(0.0, last as f64);
-    let i = (t.floor() as usize).min(last.saturating_sub(1));
-    let f = t - i as f64;
-    values[i] * (1.0 - f) + values.get(i + 1).copied().unwrap_or(values[i]) * f
+    if per_group.len() == 1 {
+        return Ok(Some(fix));
+    }
+    for (columns, offsets, ratios) in &per_group[1..] {
+        // Learned as a change from the straight offsets, so that where no
+        // image of this tilt is near, the straight offsets hold.
+        let change: Vec<f64> = columns
+            .iter()
+            .zip(offsets)
+            .map(|(&c, &o)| o - fix.location_mm_at(c, f64::NAN))
+            .collect();
+        let mut location = smooth(columns, &change, 0.0, sigma)?;
+        for (l, base) in location.iter_mut().zip(&fix.location_mm) {
+            *l += base;
+        }
+        fix.layers.push(CorrectionLayer {
+            shear_ratio: ratios_of(columns, ratios)?,
+            location_mm: location,
+            force_gain: vec![1.0; n],
+            images: columns.len(),
+        });
+    }
+    fix.shear_ratio = Some(ratios_of(columns, ratios)?);
+    Ok(Some(fix))
 }
 
 /// The smoothing of a correction fitted at `columns`: [`DEFAULT_SMOOTHING_PX`],
@@ -1362,20 +1350,26 @@ fn normal_gain(
     };
     let mut fix = fix;
     fix.force_gain = smooth(&per_group[0])?;
-    for (layer, (columns, gains)) in fix.layers.iter_mut().zip(&per_group[1..]) {
+    let mut layer_gains = Vec::with_capacity(fix.layers.len());
+    for (columns, gains) in &per_group[1..] {
         // As a factor on the straight gains, which hold where no image of
         // this tilt is near.
         let change: Vec<f64> = columns
             .iter()
             .zip(gains)
-            .map(|(&c, &g)| g / grid_value(&fix.force_gain, c))
+            .map(|(&c, &g)| g / fix.force_gain_at(c, f64::NAN))
             .collect();
         let factor = smooth(&(columns.clone(), change))?;
-        layer.force_gain = factor
-            .iter()
-            .zip(&fix.force_gain)
-            .map(|(f, base)| (f * base).clamp(lo, hi))
-            .collect();
+        layer_gains.push(
+            factor
+                .iter()
+                .zip(&fix.force_gain)
+                .map(|(f, base)| (f * base).clamp(lo, hi))
+                .collect(),
+        );
+    }
+    for (layer, gains) in fix.layers.iter_mut().zip(layer_gains) {
+        layer.force_gain = gains;
     }
     for ((f, column), e) in local.iter_mut().zip(&columns_of).zip(sweeps) {
         if let (Some(f), Some(column), Some(raw)) = (f.as_mut(), column, &e.raw) {
