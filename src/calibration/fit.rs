@@ -995,8 +995,7 @@ pub fn fit_dataset_with_sweeps(
         Some(p) => {
             let mut model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
             model.relocation = relocation_for(p.relocation, !sweeps.is_empty());
-            if let Some(fix) = pass1.column_correction.take() {
-                let fix = matched_layer_ratios(&model, sweeps, &pass1, fix)?;
+            if let Some(fix) = matched_layer_ratios(&model, sweeps, &pass1)? {
                 location_fix = Some(fix.clone());
                 pass1.column_correction = Some(fix);
             }
@@ -1216,12 +1215,8 @@ fn location_correction(
     let smooth = |columns: &[f64], values: &[f64], prior: f64, sigma: f64| {
         smooth_on_grid(columns, values, prior, sigma, 0.0, 1.0, n)
     };
-    let ratios_of = |columns: &[f64], ratios: &[f64]| {
-        let mut sorted: Vec<f64> = ratios.iter().copied().filter(|r| r.is_finite()).collect();
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
-        smooth(columns, ratios, median, SHEAR_RATIO_SMOOTHING * sigma)
-    };
+    let ratios_of =
+        |columns: &[f64], ratios: &[f64]| smoothed_ratios(columns, ratios, (sigma, 0.0, 1.0, n));
     let (columns, offsets, ratios) = &per_group[0];
     let location_mm = smooth(columns, offsets, 0.0, sigma)?;
     let mut fix = ColumnCorrection {
@@ -1541,25 +1536,23 @@ fn match_forces<'a>(
         .collect()
 }
 
-/// `fix` with the shear ratios of its straight correction and of its tilt
-/// layers taken from the sweep images' own first matches
+/// `cal`'s column correction with the shear ratios of its straight part and
+/// of its tilt layers taken from the sweep images' own first matches
 /// ([`with_matched_ratios`], at `cal`'s straight-corrected columns), as a
 /// sensor will measure them, instead of their true ratios: what the profile
 /// match reads of a tilt before the force maps is not exactly the tilt, and
 /// the layers are then looked up on the scale they will be looked up with.
+/// `None` (nothing to change) without tilt layers.
 fn matched_layer_ratios(
     model: &ProfileModel,
     sweeps: &[Extraction],
     cal: &Calibration,
-    fix: ColumnCorrection,
-) -> Result<ColumnCorrection> {
-    if fix.layers.is_empty() {
-        return Ok(fix);
-    }
-    let mut probe = cal.clone();
-    probe.column_correction = Some(fix.clone());
-    let Some(matched) = with_matched_ratios(model, sweeps, &probe)? else {
-        return Ok(fix);
+) -> Result<Option<ColumnCorrection>> {
+    let Some(matched) = with_matched_ratios(model, sweeps, cal)? else {
+        return Ok(None);
+    };
+    let Some(mut fix) = cal.column_correction.clone() else {
+        return Ok(None);
     };
     let (groups, _) = tilt_groups(sweeps);
     let mut per_group = vec![(Vec::new(), Vec::new()); fix.layers.len() + 1];
@@ -1571,20 +1564,40 @@ fn matched_layer_ratios(
             }
         }
     }
-    let n = fix.location_mm.len();
-    let sigma = SHEAR_RATIO_SMOOTHING * fix.smoothing_px;
-    let ratios = |(columns, values): &(Vec<f64>, Vec<f64>)| -> Result<Vec<f64>> {
-        let mut sorted = values.clone();
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
-        smooth_on_grid(columns, values, median, sigma, fix.start_px, fix.step_px, n)
-    };
-    let mut fix = fix.clone();
-    fix.shear_ratio = Some(ratios(&per_group[0])?);
-    for (layer, group) in fix.layers.iter_mut().zip(&per_group[1..]) {
-        layer.shear_ratio = ratios(group)?;
+    let grid = (
+        fix.smoothing_px,
+        fix.start_px,
+        fix.step_px,
+        fix.location_mm.len(),
+    );
+    fix.shear_ratio = Some(smoothed_ratios(&per_group[0].0, &per_group[0].1, grid)?);
+    for (layer, (columns, ratios)) in fix.layers.iter_mut().zip(&per_group[1..]) {
+        layer.shear_ratio = smoothed_ratios(columns, ratios, grid)?;
     }
-    Ok(fix)
+    Ok(Some(fix))
+}
+
+/// A correction layer's shear ratios on the grid `(smoothing, start, step,
+/// samples)`: the images' `ratios` at their `columns`, smoothed along the
+/// columns [`SHEAR_RATIO_SMOOTHING`] times as widely as the offsets, their
+/// median where no image is near.
+fn smoothed_ratios(
+    columns: &[f64],
+    ratios: &[f64],
+    (sigma, start, step, n): (f64, f64, f64, usize),
+) -> Result<Vec<f64>> {
+    let mut sorted: Vec<f64> = ratios.iter().copied().filter(|r| r.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    smooth_on_grid(
+        columns,
+        ratios,
+        median,
+        SHEAR_RATIO_SMOOTHING * sigma,
+        start,
+        step,
+        n,
+    )
 }
 
 /// With a column correction that has tilt layers, `extractions` with each
