@@ -170,10 +170,12 @@ impl ColumnCorrection {
         if self.layers.is_empty() || !shear.is_finite() {
             return base;
         }
-        // (shear ratio, value) of the base and of every layer at this column.
-        let mut points = Vec::with_capacity(self.layers.len() + 1);
-        points.push((grid(ratios).unwrap_or(0.0), base));
-        for l in &self.layers {
+        // (shear ratio, value) of the base and of every layer at this column,
+        // on the stack: this runs several times per contact and frame.
+        let mut points = [(0.0, 0.0); MAX_CORRECTION_LAYERS + 1];
+        points[0] = (grid(ratios).unwrap_or(0.0), base);
+        let mut count = 1;
+        for l in self.layers.iter().take(MAX_CORRECTION_LAYERS) {
             let (Some(r), Some(loc), Some(g)) = (
                 grid(&l.shear_ratio),
                 grid(&l.location_mm),
@@ -181,9 +183,10 @@ impl ColumnCorrection {
             ) else {
                 continue;
             };
-            points.push((r, pick((loc, g))));
+            points[count] = (r, pick((loc, g)));
+            count += 1;
         }
-        interpolate_in_shear(&mut points, shear)
+        interpolate_in_shear(&mut points[..count], shear)
     }
 
     /// Checks the grid and the values: a positive, finite step; two

@@ -982,7 +982,8 @@ pub fn fit_dataset_with_sweeps(
         })?,
     );
     let mut pass1 = fit(&first, &setup, options)?;
-    let mut location_fix = location_correction(sweeps, &pass1, crop)?;
+    let groups = tilt_groups(sweeps);
+    let mut location_fix = location_correction(sweeps, &groups, &pass1, crop)?;
     pass1.column_correction = location_fix.clone();
     // The profile model (forces by matched kernels), fitted on the training
     // split with the true forces in the local frame at the true location;
@@ -995,7 +996,7 @@ pub fn fit_dataset_with_sweeps(
         Some(p) => {
             let mut model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
             model.relocation = relocation_for(p.relocation, !sweeps.is_empty());
-            if let Some(fix) = matched_layer_ratios(&model, sweeps, &pass1)? {
+            if let Some(fix) = matched_layer_ratios(&model, sweeps, &groups, &pass1)? {
                 location_fix = Some(fix.clone());
                 pass1.column_correction = Some(fix);
             }
@@ -1018,7 +1019,7 @@ pub fn fit_dataset_with_sweeps(
     let mut local = local;
     let (correction, sweep_local) = match (location_fix, &profile) {
         (Some(fix), Some(model)) => {
-            let (fix, sweep_local) = normal_gain(sweeps, &pass1, model, fix)?;
+            let (fix, sweep_local) = normal_gain(sweeps, &groups, &pass1, model, fix)?;
             for (e, f) in extractions.iter().zip(local.iter_mut()) {
                 if let (Some(raw), Some(f)) = (&e.raw, f.as_mut()) {
                     let column = match_position(model, e, raw, &pass1)?.1;
@@ -1103,11 +1104,19 @@ fn relocation_for(asked: Option<Relocation>, sweeps: bool) -> Relocation {
 /// layer of the correction.
 const TILT_GROUP_DEG: f64 = 3.0;
 
+/// The sweeps' images grouped by tilt ([`tilt_groups`]).
+struct TiltGroups {
+    /// The group of each sweep image, in the sweeps' order.
+    of_image: Vec<usize>,
+    /// Each group's mean tilt along the strip, degrees.
+    tilts_deg: Vec<f64>,
+}
+
 /// The tilt group of each sweep image: its sweep's median tilt along the
 /// strip ([`TILT_GROUP_DEG`]), group 0 the one nearest to straight, the others
 /// by increasing tilt. Also the groups' mean tilts, degrees. The sweep
 /// number is the rows' `repeat` ([`io::SweepRow::as_test`]).
-fn tilt_groups(sweeps: &[Extraction]) -> (Vec<usize>, Vec<f64>) {
+fn tilt_groups(sweeps: &[Extraction]) -> TiltGroups {
     let mut per_sweep: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
     for e in sweeps {
         let r = &e.row;
@@ -1151,10 +1160,10 @@ fn tilt_groups(sweeps: &[Extraction]) -> (Vec<usize>, Vec<f64>) {
             .position(|c| c.iter().any(|m| m.0 == sweep))
             .unwrap_or(0)
     };
-    (
-        sweeps.iter().map(|e| group_of(e.row.repeat)).collect(),
-        tilts,
-    )
+    TiltGroups {
+        of_image: sweeps.iter().map(|e| group_of(e.row.repeat)).collect(),
+        tilts_deg: tilts,
+    }
 }
 
 /// The location half of the sweeps' [`ColumnCorrection`] for `cal` (gains
@@ -1167,13 +1176,14 @@ fn tilt_groups(sweeps: &[Extraction]) -> (Vec<usize>, Vec<f64>) {
 /// sweeps hold more tilts than a correction may have layers.
 fn location_correction(
     sweeps: &[Extraction],
+    groups: &TiltGroups,
     cal: &Calibration,
     crop: Roi,
 ) -> Result<Option<ColumnCorrection>> {
     if sweeps.is_empty() {
         return Ok(None);
     }
-    let (groups, tilts) = tilt_groups(sweeps);
+    let tilts = &groups.tilts_deg;
     if tilts.len() > MAX_CORRECTION_LAYERS + 1 {
         return Err(Error::param(
             "sweeps",
@@ -1187,7 +1197,7 @@ fn location_correction(
     // Per group: columns, location offsets and shear ratios of its images.
     let geometry = cal.setup.geometry;
     let mut per_group = vec![(Vec::new(), Vec::new(), Vec::new()); tilts.len().max(1)];
-    for (e, &g) in sweeps.iter().zip(&groups) {
+    for (e, &g) in sweeps.iter().zip(&groups.of_image) {
         if let Some(raw) = &e.raw {
             let r = &e.row;
             let (columns, offsets, ratios) = &mut per_group[g];
@@ -1235,11 +1245,12 @@ fn location_correction(
     for (columns, offsets, ratios) in &per_group[1..] {
         // Learned as a change from the straight offsets, so that where no
         // image of this tilt is near, the straight offsets hold.
-        let change: Vec<f64> = columns
+        let mut change: Vec<f64> = columns
             .iter()
             .zip(offsets)
             .map(|(&c, &o)| o - fix.location_mm_at(c, f64::NAN))
             .collect();
+        clip_outliers(&mut change, LAYER_LOCATION_FLOOR_MM);
         let mut location = smooth(columns, &change, 0.0, sigma)?;
         for (l, base) in location.iter_mut().zip(&fix.location_mm) {
             *l += base;
@@ -1253,6 +1264,44 @@ fn location_correction(
     }
     fix.shear_ratio = Some(ratios_of(columns, ratios)?);
     Ok(Some(fix))
+}
+
+/// How many robust standard deviations (1.4826 times the median absolute
+/// deviation) a tilt layer's change at one image may lie from the median
+/// change before it is clipped ([`clip_outliers`]).
+const LAYER_CLIP_SIGMAS: f64 = 3.0;
+
+/// The least half-width of the band [`clip_outliers`] keeps a tilt layer's
+/// location changes in, mm.
+const LAYER_LOCATION_FLOOR_MM: f64 = 0.1;
+
+/// The least half-width of the band [`clip_outliers`] keeps a tilt layer's
+/// gain factors in.
+const LAYER_GAIN_FLOOR: f64 = 0.05;
+
+/// Clips each value to the median plus or minus [`LAYER_CLIP_SIGMAS`]
+/// robust standard deviations (at least `floor`); NaN values stay NaN.
+///
+/// Why: a tilted rod's raw column does not follow its place smoothly but
+/// jumps with the marker pattern (a few images read several millimetres
+/// off where their neighbours do not), and smoothed as they are, those few
+/// images made a layer that moved a nearly straight press by over a
+/// millimetre. The clip bounds what a handful of images can teach a layer
+/// while the place-to-place pattern within the band is kept.
+fn clip_outliers(values: &mut [f64], floor: f64) {
+    let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if sorted.is_empty() {
+        return;
+    }
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let mut deviations: Vec<f64> = sorted.iter().map(|v| (v - median).abs()).collect();
+    deviations.sort_by(f64::total_cmp);
+    let mad = deviations[deviations.len() / 2];
+    let band = (LAYER_CLIP_SIGMAS * 1.4826 * mad).max(floor);
+    for v in values.iter_mut().filter(|v| v.is_finite()) {
+        *v = v.clamp(median - band, median + band);
+    }
 }
 
 /// The smoothing of a correction fitted at `columns`: [`DEFAULT_SMOOTHING_PX`],
@@ -1287,6 +1336,7 @@ const MIN_GAIN_FORCE_N: f64 = 0.3;
 /// [`MIN_GAIN_FORCE_N`] are left out.
 fn normal_gain(
     sweeps: &[Extraction],
+    groups: &TiltGroups,
     cal: &Calibration,
     model: &ProfileModel,
     fix: ColumnCorrection,
@@ -1299,11 +1349,15 @@ fn normal_gain(
         .iter()
         .map(|e| e.raw.map(|raw| cal.match_column(model, &raw)).transpose())
         .collect::<Result<Vec<_>>>()?;
-    let (groups, _) = tilt_groups(sweeps);
     // Per sweep: (group, match column, ratio) of each usable image.
     let mut per_sweep: std::collections::BTreeMap<u32, Vec<(usize, f64, f64)>> = Default::default();
     let (lo, hi) = GAIN_RANGE;
-    for (((e, f), column), &g) in sweeps.iter().zip(&local).zip(&columns_of).zip(&groups) {
+    for (((e, f), column), &g) in sweeps
+        .iter()
+        .zip(&local)
+        .zip(&columns_of)
+        .zip(&groups.of_image)
+    {
         let (Some(f), Some(column)) = (f, column) else {
             continue;
         };
@@ -1349,11 +1403,12 @@ fn normal_gain(
     for (columns, gains) in &per_group[1..] {
         // As a factor on the straight gains, which hold where no image of
         // this tilt is near.
-        let change: Vec<f64> = columns
+        let mut change: Vec<f64> = columns
             .iter()
             .zip(gains)
             .map(|(&c, &g)| g / fix.force_gain_at(c, f64::NAN))
             .collect();
+        clip_outliers(&mut change, LAYER_GAIN_FLOOR);
         let factor = smooth(&(columns.clone(), change))?;
         layer_gains.push(
             factor
@@ -1546,6 +1601,7 @@ fn match_forces<'a>(
 fn matched_layer_ratios(
     model: &ProfileModel,
     sweeps: &[Extraction],
+    groups: &TiltGroups,
     cal: &Calibration,
 ) -> Result<Option<ColumnCorrection>> {
     let Some(matched) = with_matched_ratios(model, sweeps, cal)? else {
@@ -1554,9 +1610,8 @@ fn matched_layer_ratios(
     let Some(mut fix) = cal.column_correction.clone() else {
         return Ok(None);
     };
-    let (groups, _) = tilt_groups(sweeps);
     let mut per_group = vec![(Vec::new(), Vec::new()); fix.layers.len() + 1];
-    for (e, &g) in matched.iter().zip(&groups) {
+    for (e, &g) in matched.iter().zip(&groups.of_image) {
         if let (Some(raw), Some(slot)) = (&e.raw, per_group.get_mut(g)) {
             if let Some(r) = raw.matched_shear_ratio {
                 slot.0.push(raw.x_px);
@@ -1935,6 +1990,42 @@ mod tests {
     }
 
     #[test]
+    fn a_layers_few_wild_images_are_clipped_and_the_rest_kept() {
+        // A smooth place-to-place pattern, three images read 3 mm off, one NaN.
+        let mut values: Vec<f64> = (0..200).map(|i| 0.2 * (i as f64 * 0.1).sin()).collect();
+        let pattern = values.clone();
+        for i in [50, 51, 52] {
+            values[i] = -3.0;
+        }
+        values[100] = f64::NAN;
+        clip_outliers(&mut values, LAYER_LOCATION_FLOOR_MM);
+        // The band: median +- 3 robust sigmas of a sine of amplitude 0.2
+        // (MAD about 0.14), so about 0.6 mm; the wild images end at its edge.
+        for i in [50, 51, 52] {
+            assert!(values[i] > -0.8 && values[i] < -0.3, "{}", values[i]);
+        }
+        assert!(values[100].is_nan());
+        for (i, (v, p)) in values.iter().zip(&pattern).enumerate() {
+            if ![50, 51, 52, 100].contains(&i) {
+                assert_eq!(v, p, "image {i} moved");
+            }
+        }
+        // Values all alike: the floor keeps the band open, nothing moves
+        // within it, a value beyond it is clipped to it.
+        let mut flat = vec![1.0; 20];
+        flat[3] = 1.05;
+        flat[4] = 2.0;
+        clip_outliers(&mut flat, LAYER_GAIN_FLOOR);
+        assert_eq!(flat[3], 1.05);
+        assert!((flat[4] - (1.0 + LAYER_GAIN_FLOOR)).abs() < 1e-12);
+        // Nothing finite: nothing to do, no panic.
+        let mut none = vec![f64::NAN; 3];
+        clip_outliers(&mut none, 0.1);
+        assert!(none.iter().all(|v| v.is_nan()));
+        clip_outliers(&mut [], 0.1);
+    }
+
+    #[test]
     fn sweeps_are_grouped_by_their_tilt() {
         let sweeps = vec![
             tilted_sweep_image(0, 0.0, 0.0, Some(800.0)),
@@ -1944,14 +2035,17 @@ mod tests {
             tilted_sweep_image(1, 15.0, 1.0, None),
             tilted_sweep_image(4, 14.0, 0.0, Some(800.0)),
         ];
-        let (groups, tilts) = tilt_groups(&sweeps);
+        let TiltGroups {
+            of_image: groups,
+            tilts_deg: tilts,
+        } = tilt_groups(&sweeps);
         // The straight sweeps share group 0; the others by increasing tilt;
         // tilts within a few degrees share a group.
         assert_eq!(groups, vec![0, 2, 0, 1, 2, 2]);
         assert_eq!(tilts.len(), 3);
         assert!(tilts[0].abs() < 0.5 && (tilts[1] + 15.0).abs() < 1e-9);
         assert!((tilts[2] - 14.5).abs() < 1e-9);
-        assert_eq!(tilt_groups(&[]).1.len(), 0);
+        assert_eq!(tilt_groups(&[]).tilts_deg.len(), 0);
     }
 
     #[test]
@@ -1969,7 +2063,7 @@ mod tests {
             sweeps.push(tilted_sweep_image(0, 0.0, x, Some(px + straight_lag(px))));
             sweeps.push(tilted_sweep_image(1, 15.0, x, Some(px + tilted_lag(px))));
         }
-        let fix = location_correction(&sweeps, &cal, cal.setup.crop)
+        let fix = location_correction(&sweeps, &tilt_groups(&sweeps), &cal, cal.setup.crop)
             .unwrap()
             .unwrap();
         fix.validate().unwrap();
@@ -2019,7 +2113,15 @@ mod tests {
         for e in blind.iter_mut().filter(|e| e.row.repeat == 1) {
             e.raw = None;
         }
-        assert!(location_correction(&blind, &linear_location(), cal.setup.crop).is_err());
+        assert!(
+            location_correction(
+                &blind,
+                &tilt_groups(&blind),
+                &linear_location(),
+                cal.setup.crop
+            )
+            .is_err()
+        );
     }
 
     #[test]
@@ -2043,7 +2145,7 @@ mod tests {
                 (cal.location(truth_px(x) + lag(truth_px(x)), 100.0).unwrap()[0] - x).abs()
             })
             .collect();
-        let fix = location_correction(&sweeps, &cal, cal.setup.crop)
+        let fix = location_correction(&sweeps, &tilt_groups(&sweeps), &cal, cal.setup.crop)
             .unwrap()
             .unwrap();
         assert_eq!(fix.images, 161 - 5);
@@ -2078,9 +2180,14 @@ mod tests {
                 sweep_image(x, Some(truth_px(x) + lag(truth_px(x))))
             })
             .collect();
-        let wide = location_correction(&coarse, &linear_location(), cal.setup.crop)
-            .unwrap()
-            .unwrap();
+        let wide = location_correction(
+            &coarse,
+            &tilt_groups(&coarse),
+            &linear_location(),
+            cal.setup.crop,
+        )
+        .unwrap()
+        .unwrap();
         assert!(wide.smoothing_px > 10.0, "{}", wide.smoothing_px);
         let between = truth_px(2.5);
         assert!(
@@ -2089,12 +2196,12 @@ mod tests {
         );
         // Without sweeps nothing is fitted; with no detected image it is an error.
         assert!(
-            location_correction(&[], &cal, cal.setup.crop)
+            location_correction(&[], &tilt_groups(&[]), &cal, cal.setup.crop)
                 .unwrap()
                 .is_none()
         );
         let blind = vec![sweep_image(0.0, None); 3];
-        assert!(location_correction(&blind, &cal, cal.setup.crop).is_err());
+        assert!(location_correction(&blind, &tilt_groups(&blind), &cal, cal.setup.crop).is_err());
     }
 
     #[test]
