@@ -848,7 +848,6 @@ fn the_shipped_fixture_loads_with_its_settings() {
 #[test]
 fn the_dense_tilted_fixture_reads_a_tilted_press_closer() {
     use optical_tactile::TactileSensor;
-    use optical_tactile_sim::scenario::{Scenario, Single};
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures");
     let tilted = Calibration::load(dir.join("calibration_dense_tilted.json")).unwrap();
     assert_eq!(tilted.setup.pipeline.as_ref().unwrap().flow_preset, "dense");
@@ -873,15 +872,7 @@ fn the_dense_tilted_fixture_reads_a_tilted_press_closer() {
     let bundled = Calibration::load(dir.join("calibration.json")).unwrap();
     let mut worst_bundled: f64 = 0.0;
     for (x_mm, pitch_deg) in [(-60.0, -15.0), (75.0, 15.0)] {
-        let press = Scenario::Single(Single {
-            x_mm,
-            force_n: 2.0,
-            frames: 2,
-            indenter_mm: 5.0,
-            yaw_deg: 0.0,
-            pitch_deg,
-            sweep_to_mm: None,
-        });
+        let press = rod_press(x_mm, 2.0, 5.0, pitch_deg);
         let mut errors = Vec::new();
         for cal in [&bundled, &tilted] {
             let mut sensor = TactileSensor::from_calibration(cal.clone()).unwrap();
@@ -898,6 +889,26 @@ fn the_dense_tilted_fixture_reads_a_tilted_press_closer() {
         assert!(dx < 0.3 && dfz < 0.15, "at {x_mm} mm: {errors:?}");
     }
     assert!(worst_bundled >= 0.3, "{worst_bundled}");
+}
+
+/// One rod pressed once (a reference frame, then the loaded one), its
+/// force pitched along the strip by `pitch_deg`.
+fn rod_press(
+    x_mm: f64,
+    force_n: f64,
+    indenter_mm: f64,
+    pitch_deg: f64,
+) -> optical_tactile_sim::scenario::Scenario {
+    use optical_tactile_sim::scenario::{Scenario, Single};
+    Scenario::Single(Single {
+        x_mm,
+        force_n,
+        frames: 2,
+        indenter_mm,
+        yaw_deg: 0.0,
+        pitch_deg,
+        sweep_to_mm: None,
+    })
 }
 
 /// The contacts of a simulated sequence's last frame (fully loaded) by
@@ -952,21 +963,12 @@ fn pair_against_alone(
     mut sensor: optical_tactile::TactileSensor,
     name: &str,
 ) -> (usize, Vec<f64>) {
-    use optical_tactile_sim::scenario::{Scenario, Single};
     let (pair, truth) = last_frame_contacts(&scenario, &mut sensor, name);
     assert_eq!(truth.len(), 2);
     let gaps = truth
         .iter()
         .map(|t| {
-            let alone = Scenario::Single(Single {
-                x_mm: t.x_mm,
-                force_n: -t.fz_n,
-                frames: 2,
-                indenter_mm: 10.0,
-                yaw_deg: 0.0,
-                pitch_deg: 0.0,
-                sweep_to_mm: None,
-            });
+            let alone = rod_press(t.x_mm, -t.fz_n, 10.0, 0.0);
             let (one, _) = last_frame_contacts(&alone, &mut sensor, name);
             match (contact_at(&pair, t.x_mm), contact_at(&one, t.x_mm)) {
                 (Some(p), Some(o)) => (0..3)
@@ -1044,20 +1046,11 @@ fn the_shipped_calibration_reads_two_contacts_as_each_alone() {
 #[test]
 fn presses_beyond_the_characterization_keep_rising_with_the_load() {
     use optical_tactile::TactileSensor;
-    use optical_tactile_sim::scenario::{Scenario, Single};
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/calibration.json");
     let cal = Calibration::load(&path).unwrap();
     let mut sensor = TactileSensor::from_calibration(cal.clone()).unwrap();
     for (x_mm, force_n) in [(-80.0, 4.5), (80.0, 4.5), (-80.0, 6.0), (80.0, 6.0)] {
-        let press = Scenario::Single(Single {
-            x_mm,
-            force_n,
-            frames: 2,
-            indenter_mm: 10.0,
-            yaw_deg: 0.0,
-            pitch_deg: 0.0,
-            sweep_to_mm: None,
-        });
+        let press = rod_press(x_mm, force_n, 10.0, 0.0);
         let name = format!("strong{x_mm}_{force_n}");
         let (contacts, truth) = last_frame_contacts(&press, &mut sensor, &name);
         let t = &truth[0];
@@ -2138,7 +2131,6 @@ fn force_maps_of_two_frames_in_one_file_are_refused() {
 fn a_tilt_layer_corrects_the_tilted_press_it_was_learned_for() {
     use optical_tactile::TactileSensor;
     use optical_tactile::calibration::correction::CorrectionLayer;
-    use optical_tactile_sim::scenario::{Scenario, Single};
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/calibration.json");
     let cal = Calibration::load(&path).unwrap();
     let mut layered = cal.clone();
@@ -2152,17 +2144,7 @@ fn a_tilt_layer_corrects_the_tilted_press_it_was_learned_for() {
         images: 0,
     }];
     c.validate().unwrap();
-    let press = |pitch_deg| {
-        Scenario::Single(Single {
-            x_mm: 3.0,
-            force_n: 2.0,
-            frames: 2,
-            indenter_mm: 5.0,
-            yaw_deg: 0.0,
-            pitch_deg,
-            sweep_to_mm: None,
-        })
-    };
+    let press = |pitch_deg| rod_press(3.0, 2.0, 5.0, pitch_deg);
     for (pitch, shift) in [(15.0, 1.0), (0.0, 0.0)] {
         let name = format!("tilt-layer-{pitch}");
         let (plain, truth) = last_frame_contacts(
