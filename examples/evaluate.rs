@@ -1,10 +1,15 @@
 //! Scores predicted contacts against the truth.
 //!
 //! ```text
-//! cargo run --release --example evaluate -- contacts.jsonl truth.jsonl [--gate MM] [--json FILE|-]
+//! cargo run --release --example evaluate -- contacts.jsonl truth.jsonl [--gate MM] \
+//!     [--beyond N] [--worst K] [--json FILE|-]
 //! ```
 //! Prints a markdown table: location and force MAE over matched contacts,
-//! misses, false contacts, and per-frame latency if the prediction recorded it.
+//! misses, false contacts, how many contacts are off by more than `--beyond`
+//! newtons on each axis (0.3 by default), and per-frame latency if the
+//! prediction recorded it; then the `--worst` contacts of largest 3-D force
+//! error (5 by default, 0 for none), with their frames, so that the tail
+//! behind a mean can be looked at.
 //! `--json -` writes the scores to stdout and the table to stderr. With no
 //! frame in common or no matched contact there is nothing to score: the
 //! table is printed, no scores are written and the exit status is 1.
@@ -19,7 +24,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::io::{FrameRecord, read_jsonl};
-use optical_tactile_sim::evaluate::score;
+use optical_tactile_sim::evaluate::{ScoreOptions, score_with};
 
 /// Scores predicted contacts (JSON Lines, docs/formats.md) against the truth:
 /// location and force MAE over matched contacts, misses, false contacts and
@@ -36,16 +41,32 @@ struct Cli {
     /// A prediction matches a true contact within this distance, mm.
     #[arg(long, value_name = "MM", default_value_t = 10.0, value_parser = cli_support::positive)]
     gate: f64,
+    /// Count the contacts whose error on an axis exceeds this, N.
+    #[arg(long, value_name = "N", default_value_t = ScoreOptions::default().beyond_n,
+          value_parser = cli_support::positive)]
+    beyond: f64,
+    /// List this many contacts of largest 3-D force error (0: none).
+    #[arg(long, value_name = "K", default_value_t = ScoreOptions::default().worst as u32,
+          value_parser = clap::value_parser!(u32).range(0..=MAX_WORST as i64))]
+    worst: u32,
     /// Write the scores as JSON to FILE, or to stdout with `-` (the table
     /// then goes to stderr).
     #[arg(long, value_name = "FILE|-")]
     json: Option<TextOut>,
 }
 
+/// Most contacts `--worst` lists (a longer list is no longer a summary).
+const MAX_WORST: u32 = 1000;
+
 fn run(a: &Cli) -> Result<(), Failure> {
     let pred: Vec<FrameRecord> = read_jsonl(&a.contacts)?;
     let truth: Vec<FrameRecord> = read_jsonl(&a.truth)?;
-    let e = score(&pred, &truth, a.gate);
+    let options = ScoreOptions {
+        gate_mm: a.gate,
+        beyond_n: a.beyond,
+        worst: a.worst as usize,
+    };
+    let e = score_with(&pred, &truth, &options);
     let mut report = Sink::report(a.json.as_ref().is_some_and(TextOut::is_stdout));
     write!(report, "{}", e.to_markdown())?;
     // Errors over no pair would read as perfect scores: nothing to score is

@@ -73,6 +73,14 @@ pub struct Evaluation {
     pub in_domain: Option<DomainErrors>,
     /// Largest |error| of Fx, Fy and Fz over the matched contacts, N.
     pub max_force_error_n: [f64; 3],
+    /// The bar of [`Evaluation::beyond`], N ([`ScoreOptions::beyond_n`]).
+    pub beyond_n: f64,
+    /// Matched contacts whose |Fx|, |Fy|, |Fz| error exceeds
+    /// [`Evaluation::beyond_n`]: the tail a mean hides.
+    pub beyond: [usize; 3],
+    /// The matched contacts of largest 3-D force error, largest first, at
+    /// most [`ScoreOptions::worst`] of them.
+    pub worst: Vec<WorstContact>,
     /// How the matched predictions' force sigmas (`fx_sigma_n` ... in the
     /// contacts file) cover their errors, when some carry them.
     pub sigma_coverage: Option<SigmaCoverage>,
@@ -89,6 +97,50 @@ pub struct SigmaCoverage {
     pub within_one: [f64; 3],
     /// Fraction within two sigmas.
     pub within_two: [f64; 3],
+}
+
+/// What [`score_with`] reports besides the means.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScoreOptions {
+    /// A prediction matches a true contact within this distance, mm.
+    pub gate_mm: f64,
+    /// Count the matched contacts whose error on an axis exceeds this, N
+    /// ([`Evaluation::beyond`]).
+    pub beyond_n: f64,
+    /// List this many matched contacts of largest 3-D force error
+    /// ([`Evaluation::worst`]; 0: none).
+    pub worst: usize,
+}
+
+impl Default for ScoreOptions {
+    /// A 10 mm gate, errors beyond 0.3 N counted, the five worst listed.
+    fn default() -> Self {
+        ScoreOptions {
+            gate_mm: 10.0,
+            beyond_n: 0.3,
+            worst: 5,
+        }
+    }
+}
+
+/// One matched contact of [`Evaluation::worst`]: where it was and how far
+/// off its prediction was.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct WorstContact {
+    /// The frame's name.
+    pub frame: String,
+    /// The true contact's x and y, mm.
+    pub true_mm: [f64; 2],
+    /// The true force, N.
+    pub true_force_n: [f64; 3],
+    /// Predicted minus true x, y and z, mm.
+    pub location_error_mm: [f64; 3],
+    /// Predicted minus true Fx, Fy and Fz, N.
+    pub force_error_n: [f64; 3],
+    /// Length of the force error, N.
+    pub force_error_3d_n: f64,
+    /// Whether the sensor marked the prediction out of domain.
+    pub out_of_domain: bool,
 }
 
 /// Location and force errors of a subset of the matched contacts.
@@ -142,11 +194,32 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[k]
 }
 
-/// Scores `pred` against `truth` (frames paired by name).
+/// Scores `pred` against `truth` (frames paired by name), with a gate of
+/// `gate_mm` and the other [`ScoreOptions`] at their defaults.
 pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evaluation {
+    score_with(
+        pred,
+        truth,
+        &ScoreOptions {
+            gate_mm,
+            ..ScoreOptions::default()
+        },
+    )
+}
+
+/// Scores `pred` against `truth` (frames paired by name) as `options` say.
+pub fn score_with(
+    pred: &[FrameRecord],
+    truth: &[FrameRecord],
+    options: &ScoreOptions,
+) -> Evaluation {
+    let gate_mm = options.gate_mm;
     let by_name: HashMap<&str, &FrameRecord> =
         truth.iter().map(|f| (f.frame.as_str(), f)).collect();
-    let mut e = Evaluation::default();
+    let mut e = Evaluation {
+        beyond_n: options.beyond_n,
+        ..Evaluation::default()
+    };
     let mut sums = [0.0f64; 8];
     // Over the pairs whose prediction is not out of domain: x, y, Fx, Fy, Fz.
     let mut inside = [0.0f64; 5];
@@ -185,8 +258,26 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
             for (k, err) in errors.iter().enumerate() {
                 sums[4 + k] += err.abs();
                 e.max_force_error_n[k] = e.max_force_error_n[k].max(err.abs());
+                e.beyond[k] += usize::from(err.abs() > options.beyond_n);
             }
-            sums[7] += errors.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let error_3d = errors.iter().map(|x| x * x).sum::<f64>().sqrt();
+            sums[7] += error_3d;
+            if options.worst > 0 {
+                e.worst.push(WorstContact {
+                    frame: p.frame.clone(),
+                    true_mm: [b.x_mm, b.y_mm],
+                    true_force_n: [b.fx_n, b.fy_n, b.fz_n],
+                    location_error_mm: d,
+                    force_error_n: errors,
+                    force_error_3d_n: error_3d,
+                    out_of_domain: a.out_of_domain == Some(true),
+                });
+                // Kept short as it goes: sorted, largest first, cut at
+                // twice the count before it is sorted again.
+                if e.worst.len() >= 2 * options.worst {
+                    keep_worst(&mut e.worst, options.worst);
+                }
+            }
             if let (Some(sx), Some(sy), Some(sz)) = (a.fx_sigma_n, a.fy_sigma_n, a.fz_sigma_n) {
                 with_sigma += 1;
                 for (k, (err, sigma)) in errors.iter().zip([sx, sy, sz]).enumerate() {
@@ -203,6 +294,7 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
             }
         }
     }
+    keep_worst(&mut e.worst, options.worst);
     if with_sigma > 0 {
         let k = with_sigma as f64;
         e.sigma_coverage = Some(SigmaCoverage {
@@ -240,6 +332,13 @@ pub fn score(pred: &[FrameRecord], truth: &[FrameRecord], gate_mm: f64) -> Evalu
         e.p95_latency_ms = Some(quantile(&latencies, 0.95));
     }
     e
+}
+
+/// Sorts `worst` by 3-D force error, largest first (ties in frame order),
+/// and keeps the first `n`.
+fn keep_worst(worst: &mut Vec<WorstContact>, n: usize) {
+    worst.sort_by(|a, b| b.force_error_3d_n.total_cmp(&a.force_error_3d_n));
+    worst.truncate(n);
 }
 
 impl Evaluation {
@@ -295,6 +394,14 @@ impl Evaluation {
                 "largest error Fx / Fy / Fz (N)",
                 format!("{x:.3} / {y:.3} / {z:.3}"),
             );
+            let [x, y, z] = self.beyond;
+            row(
+                &format!(
+                    "contacts off by more than {} N, Fx / Fy / Fz",
+                    self.beyond_n
+                ),
+                format!("{x} / {y} / {z}"),
+            );
         }
         if let Some(c) = &self.sigma_coverage {
             let pct = |v: [f64; 3]| {
@@ -328,6 +435,30 @@ impl Evaluation {
         }
         if let (Some(m), Some(p)) = (self.median_latency_ms, self.p95_latency_ms) {
             row("latency median / p95 (ms)", format!("{m:.2} / {p:.2}"));
+        }
+        if !self.worst.is_empty() {
+            s.push_str(
+                "\n| worst contacts (3-D force error) | true x, y (mm) | true Fx / Fy / Fz (N) \
+                 | location error x / y / z (mm) | force error Fx / Fy / Fz (N) | 3-D (N) |\n\
+                 |---|---|---|---|---|---|\n",
+            );
+            for w in &self.worst {
+                let [x, y] = w.true_mm;
+                let [fx, fy, fz] = w.true_force_n;
+                let [ex, ey, ez] = w.location_error_mm;
+                let [gx, gy, gz] = w.force_error_n;
+                let mark = if w.out_of_domain {
+                    " (out of domain)"
+                } else {
+                    ""
+                };
+                let _ = writeln!(
+                    s,
+                    "| {}{mark} | {x:.1}, {y:.1} | {fx:.2} / {fy:.2} / {fz:.2} | {ex:+.2} / {ey:+.2} / {ez:+.2} \
+                     | {gx:+.3} / {gy:+.3} / {gz:+.3} | {:.3} |",
+                    w.frame, w.force_error_3d_n
+                );
+            }
         }
         s
     }
@@ -462,6 +593,97 @@ mod tests {
             e.to_markdown()
                 .contains("| mean 3-D force error (N) | 0.3150 |")
         );
+    }
+
+    #[test]
+    fn the_tail_is_counted_per_axis_and_the_worst_are_listed_largest_first() {
+        // Fz errors 0.1, 0.5, 0.31, 0.25 and one Fx error of 0.4, over two
+        // frames.
+        let force = |x: f64, fx: f64, fz: f64| ContactRecord {
+            fx_n: fx,
+            ..c(x, fz)
+        };
+        let truth = vec![
+            f("a", vec![c(0.0, -1.0), c(50.0, -1.0)], None),
+            f("b", vec![c(0.0, -2.0), c(50.0, -2.0)], None),
+        ];
+        let pred = vec![
+            f("a", vec![c(0.0, -1.1), force(50.0, 0.4, -1.5)], None),
+            f("b", vec![c(0.2, -2.31), c(50.0, -1.75)], None),
+        ];
+        let e = score(&pred, &truth, 5.0);
+        assert_eq!(e.beyond_n, 0.3);
+        assert_eq!(e.beyond, [1, 0, 2]);
+        let listed: Vec<(&str, f64)> = e
+            .worst
+            .iter()
+            .map(|w| (w.frame.as_str(), w.true_mm[0]))
+            .collect();
+        assert_eq!(
+            listed,
+            [("a", 50.0), ("b", 0.0), ("b", 50.0), ("a", 0.0)],
+            "{:?}",
+            e.worst
+        );
+        let w = &e.worst[0];
+        assert!((w.force_error_3d_n - 0.41f64.sqrt()).abs() < 1e-12);
+        assert!(
+            (w.force_error_n[0] - 0.4).abs() < 1e-12 && (w.force_error_n[2] + 0.5).abs() < 1e-12
+        );
+        assert!((e.worst[1].location_error_mm[0] - 0.2).abs() < 1e-12);
+        let md = e.to_markdown();
+        assert!(
+            md.contains("| contacts off by more than 0.3 N, Fx / Fy / Fz | 1 / 0 / 2 |"),
+            "{md}"
+        );
+        assert!(md.contains("| worst contacts (3-D force error) |"), "{md}");
+
+        // Another bar, a shorter list, and none.
+        let opts = |beyond_n, worst| ScoreOptions {
+            gate_mm: 5.0,
+            beyond_n,
+            worst,
+        };
+        // The bar is strict: the Fz error of exactly 0.25 is not beyond it.
+        assert_eq!(score_with(&pred, &truth, &opts(0.25, 5)).beyond, [1, 0, 2]);
+        let e = score_with(&pred, &truth, &opts(0.05, 2));
+        assert_eq!(e.beyond, [1, 0, 4]);
+        assert_eq!(e.worst.len(), 2);
+        assert_eq!(
+            (e.worst[0].frame.as_str(), e.worst[1].frame.as_str()),
+            ("a", "b")
+        );
+        let e = score_with(&pred, &truth, &opts(0.3, 0));
+        assert!(e.worst.is_empty() && !e.to_markdown().contains("worst contacts"));
+    }
+
+    #[test]
+    fn the_worst_list_is_the_same_however_long_the_sequence() {
+        // Many frames, errors in no order: the list kept short as it goes
+        // must be the list a full sort gives.
+        let n = 200;
+        let err = |i: usize| ((i * 37) % n) as f64 / n as f64;
+        let truth: Vec<FrameRecord> = (0..n)
+            .map(|i| f(&format!("{i:03}"), vec![c(0.0, -1.0)], None))
+            .collect();
+        let pred: Vec<FrameRecord> = (0..n)
+            .map(|i| f(&format!("{i:03}"), vec![c(0.0, -1.0 - err(i))], None))
+            .collect();
+        let e = score_with(
+            &pred,
+            &truth,
+            &ScoreOptions {
+                worst: 7,
+                ..ScoreOptions::default()
+            },
+        );
+        let mut all: Vec<f64> = (0..n).map(err).collect();
+        all.sort_by(|a, b| b.total_cmp(a));
+        let got: Vec<f64> = e.worst.iter().map(|w| w.force_error_3d_n).collect();
+        assert_eq!(got.len(), 7);
+        for (g, want) in got.iter().zip(&all) {
+            assert!((g - want).abs() < 1e-12, "{got:?} against {:?}", &all[..7]);
+        }
     }
 
     #[test]
