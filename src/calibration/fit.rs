@@ -1127,10 +1127,7 @@ fn tilt_groups(sweeps: &[Extraction]) -> TiltGroups {
     }
     let mut medians: Vec<(u32, f64)> = per_sweep
         .into_iter()
-        .map(|(k, mut t)| {
-            t.sort_by(f64::total_cmp);
-            (k, t[t.len() / 2])
-        })
+        .filter_map(|(k, t)| Some((k, upper_median(t)?)))
         .collect();
     medians.sort_by(|a, b| a.1.total_cmp(&b.1));
     // Clusters of consecutive tilts.
@@ -1266,6 +1263,19 @@ fn location_correction(
     Ok(Some(fix))
 }
 
+/// The upper median of the finite `values` (the middle one of an odd
+/// count, the upper of the middle two of an even one); `None` when none is
+/// finite.
+fn upper_median(values: impl IntoIterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let n = v.len();
+    let (_, &mut m, _) = v.select_nth_unstable_by(n / 2, f64::total_cmp);
+    Some(m)
+}
+
 /// How many robust standard deviations (1.4826 times the median absolute
 /// deviation) a tilt layer's change at one image may lie from the median
 /// change before it is clipped ([`clip_outliers`]).
@@ -1289,15 +1299,10 @@ const LAYER_GAIN_FLOOR: f64 = 0.05;
 /// millimetre. The clip bounds what a handful of images can teach a layer
 /// while the place-to-place pattern within the band is kept.
 fn clip_outliers(values: &mut [f64], floor: f64) {
-    let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-    if sorted.is_empty() {
+    let Some(median) = upper_median(values.iter().copied()) else {
         return;
-    }
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
-    let mut deviations: Vec<f64> = sorted.iter().map(|v| (v - median).abs()).collect();
-    deviations.sort_by(f64::total_cmp);
-    let mad = deviations[deviations.len() / 2];
+    };
+    let mad = upper_median(values.iter().map(|v| (v - median).abs())).unwrap_or(0.0);
     let band = (LAYER_CLIP_SIGMAS * 1.4826 * mad).max(floor);
     for v in values.iter_mut().filter(|v| v.is_finite()) {
         *v = v.clamp(median - band, median + band);
@@ -1374,9 +1379,9 @@ fn normal_gain(
     // Per group: the columns and gains of its sweeps' images.
     let mut per_group = vec![(Vec::new(), Vec::new()); fix.layers.len() + 1];
     for images in per_sweep.values() {
-        let mut ratios: Vec<f64> = images.iter().map(|i| i.2).collect();
-        ratios.sort_by(f64::total_cmp);
-        let median = ratios[ratios.len() / 2];
+        let Some(median) = upper_median(images.iter().map(|i| i.2)) else {
+            continue;
+        };
         for &(g, c, r) in images {
             if let Some((columns, gains)) = per_group.get_mut(g) {
                 columns.push(c);
@@ -1641,9 +1646,7 @@ fn smoothed_ratios(
     ratios: &[f64],
     (sigma, start, step, n): (f64, f64, f64, usize),
 ) -> Result<Vec<f64>> {
-    let mut sorted: Vec<f64> = ratios.iter().copied().filter(|r| r.is_finite()).collect();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    let median = upper_median(ratios.iter().copied()).unwrap_or(0.0);
     smooth_on_grid(
         columns,
         ratios,
@@ -1987,6 +1990,17 @@ mod tests {
         e.row.fx_n = 2.0 * s;
         e.row.fz_n = -2.0 * c;
         e
+    }
+
+    #[test]
+    fn the_upper_median_skips_what_is_not_finite() {
+        assert_eq!(upper_median([3.0, 1.0, 2.0]), Some(2.0));
+        // Even counts: the upper of the middle two, as a sorted slice's
+        // `len / 2`-th element.
+        assert_eq!(upper_median([4.0, 1.0, 3.0, 2.0]), Some(3.0));
+        assert_eq!(upper_median([f64::NAN, 5.0, f64::INFINITY, 1.0]), Some(5.0));
+        assert_eq!(upper_median([f64::NAN]), None);
+        assert_eq!(upper_median(std::iter::empty()), None);
     }
 
     #[test]
