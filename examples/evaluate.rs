@@ -93,6 +93,15 @@ fn run(a: &Cli) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Runs `evaluate` on the command-line arguments `args` (without the
+/// program name), for tests.
+pub fn run_with(args: &[String]) -> Result<(), Failure> {
+    match cli_support::try_parse::<Cli>("evaluate", args)? {
+        Some(cli) => run(&cli),
+        None => Ok(()),
+    }
+}
+
 fn main() -> ExitCode {
     cli_support::finish(run(&Cli::parse()).map(|()| ExitCode::SUCCESS))
 }
