@@ -249,6 +249,7 @@ pub fn score_with(
             .count();
         for (i, j) in m {
             let (a, b) = (&p.contacts[i], &t.contacts[j]);
+            let out_of_domain = a.out_of_domain == Some(true);
             let d = [a.x_mm - b.x_mm, a.y_mm - b.y_mm, a.z_mm - b.z_mm];
             sums[0] += d[0].abs();
             sums[1] += d[1].abs();
@@ -270,7 +271,7 @@ pub fn score_with(
                     location_error_mm: d,
                     force_error_n: errors,
                     force_error_3d_n: error_3d,
-                    out_of_domain: a.out_of_domain == Some(true),
+                    out_of_domain,
                 });
                 // Kept short as it goes: sorted, largest first, cut at
                 // twice the count before it is sorted again.
@@ -285,7 +286,7 @@ pub fn score_with(
                     two[k] += usize::from(err.abs() <= 2.0 * sigma);
                 }
             }
-            if a.out_of_domain == Some(true) {
+            if out_of_domain {
                 e.matched_out_of_domain += 1;
             } else {
                 for (acc, err) in inside.iter_mut().zip([d[0], d[1]].iter().chain(&errors)) {
