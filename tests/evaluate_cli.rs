@@ -9,6 +9,7 @@ mod scratch;
 
 use std::path::Path;
 
+use optical_tactile::io::{ContactRecord, FrameRecord};
 use scratch::scratch;
 use serde_json::Value;
 
@@ -22,16 +23,22 @@ fn p(path: &Path) -> &str {
 
 /// One frame per press, one contact each at `x` mm with force `fz` N.
 fn write_frames(path: &Path, presses: &[(f64, f64)]) {
-    let lines: Vec<String> = presses
-        .iter()
-        .enumerate()
-        .map(|(i, (x, fz))| {
-            format!(
-                r#"{{"frame":"{i:06}.png","t_s":0,"contacts":[{{"x_mm":{x},"y_mm":0,"z_mm":0,"fx_n":0,"fy_n":0,"fz_n":{fz}}}]}}"#
-            )
-        })
-        .collect();
-    std::fs::write(path, lines.join("\n") + "\n").unwrap();
+    let mut text = String::new();
+    for (i, &(x_mm, fz_n)) in presses.iter().enumerate() {
+        let frame = FrameRecord {
+            frame: format!("{i:06}.png"),
+            t_s: 0.0,
+            contacts: vec![ContactRecord {
+                x_mm,
+                fz_n,
+                ..Default::default()
+            }],
+            latency_ms: None,
+        };
+        text += &serde_json::to_string(&frame).unwrap();
+        text.push('\n');
+    }
+    std::fs::write(path, text).unwrap();
 }
 
 #[test]
