@@ -418,8 +418,9 @@ pub struct PressesArgs {
     /// for the fingertip sensor's spheres and punches].
     #[arg(long, value_name = "T")]
     pub max_tilt_deg: Option<f64>,
-    /// Seed of the presses' places, forces, tilts and rods [default: --seed];
-    /// another value gives other presses on the same sensor (the strip).
+    /// Seed of the presses' places, forces, tilts and rods (tips and shears
+    /// on the fingertip sensor) [default: --seed]; another value gives other
+    /// presses on the same sensor.
     #[arg(long, value_name = "N")]
     pub press_seed: Option<u64>,
     /// Rod diameters drawn from, mm (the strip).
@@ -643,6 +644,7 @@ impl Command {
                     sphere_mm: (o.sphere_mm.0[0], o.sphere_mm.0[1]),
                     punch_mm: (o.punch_mm.0[0], o.punch_mm.0[1]),
                     fingertip_mm: (o.fingertip_mm.0[0], o.fingertip_mm.0[1]),
+                    press_seed: o.press_seed,
                 }),
                 &common,
                 true,

@@ -116,6 +116,8 @@ fn the_fingertip_sensor_and_its_scenarios() {
         panic!("{sc:?}")
     };
     assert_eq!((o.punch_mm, o.sphere_mm), ((3.0, 12.0), (4.0, 4.0)));
+    let (sc, _) = run("presses --sensor fingertip --out d --press-seed 4");
+    assert!(matches!(sc, Scenario::TipPresses(ref o) if o.press_seed == Some(4)));
     usage_error("presses --sensor fingertip --out d --punch-mm 12,3");
     usage_error("presses --sensor fingertip --out d --fingertip-mm 15");
     let (sc, _) = run("presses --out d");

@@ -163,7 +163,8 @@ fn scenario_options(
                 margin_mm,
                 sphere_mm,
                 punch_mm,
-                fingertip_mm
+                fingertip_mm,
+                press_seed
             );
             Scenario::TipPresses(s)
         }

@@ -128,6 +128,11 @@ def test_simulated_fingertip_sensor(tmp_path):
     assert len(loaded) == 3
     assert any(c["y_mm"] != 0.0 for c in loaded)
     assert all(abs(c["x_mm"]) < 12.0 and abs(c["y_mm"]) < 9.0 for c in loaded)
+    # Another press seed: other presses on the same sensor.
+    ot.simulate("presses", tmp_path / "q", sensor="fingertip", presses=3, seed=2, press_seed=3)
+    other = [c for r in map(json.loads, open(tmp_path / "q" / "truth.jsonl")) for c in r["contacts"]]
+    assert len(other) == 3 and other != loaded
+    assert (tmp_path / "q" / "000000.png").read_bytes() == (tmp_path / "p" / "000000.png").read_bytes()
     # The flat protocol writes the geometry `calibrate` reads.
     ot.simulate("characterization", tmp_path / "c", sensor="fingertip", subset=2)
     geometry = json.loads((tmp_path / "c" / "geometry.json").read_text())

@@ -312,6 +312,10 @@ pub struct TipPresses {
     pub punch_mm: (f64, f64),
     /// Fingertip diameters, mm.
     pub fingertip_mm: (f64, f64),
+    /// Seed of the draws (tips, places, forces, tilts, shears); `None`: the
+    /// sensor's seed ([`Common::seed`]). Another press seed gives other
+    /// presses on the same sensor (same dots or markers).
+    pub press_seed: Option<u64>,
 }
 
 impl Default for TipPresses {
@@ -326,6 +330,7 @@ impl Default for TipPresses {
             sphere_mm: (3.0, 12.0),
             punch_mm: (6.0, 12.0),
             fingertip_mm: (15.0, 20.0),
+            press_seed: None,
         }
     }
 }
@@ -965,7 +970,8 @@ fn tip_presses(
     // All draws first, from their own stream; every press is checked before
     // anything is written.
     let mat = c.config.material;
-    let mut rng = SplitMix64::new(mix64(c.seed ^ 0x7469_7070_7265_7373));
+    let seed = o.press_seed.unwrap_or(c.seed);
+    let mut rng = SplitMix64::new(mix64(seed ^ 0x7469_7070_7265_7373));
     let mut plan = Vec::with_capacity(o.presses);
     for _ in 0..o.presses {
         let tip = match rng.below(3) {

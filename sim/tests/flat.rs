@@ -333,6 +333,27 @@ fn tip_presses_land_anywhere_on_the_gel() {
         v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
     };
     assert!(spread(&xs) > 8.0 && spread(&ys) > 5.0, "{xs:?} {ys:?}");
+    // The press seed stated as the sensor's seed draws the same presses;
+    // another one other presses on the same sensor (the same reference).
+    let run_with = |name: &str, press_seed: Option<u64>| {
+        let (dir, out) = tmp(name);
+        let mut c2 = c.clone();
+        c2.out = out.clone();
+        let o2 = TipPresses {
+            press_seed,
+            ..o.clone()
+        };
+        scenario::run(&Scenario::TipPresses(o2), &c2).unwrap();
+        let t: Vec<FrameRecord> = io::read_jsonl(out.join("truth.jsonl")).unwrap();
+        let reference = std::fs::read(out.join(&t[0].frame)).unwrap();
+        (dir, t, reference)
+    };
+    let (_same_dir, same, _) = run_with("presses-same", Some(c.seed));
+    assert_eq!(same, truth);
+    let (_other_dir, other, other_ref) = run_with("presses-other", Some(c.seed + 1));
+    assert_eq!(other.len(), truth.len());
+    assert_ne!(other[1..], truth[1..]);
+    assert_eq!(other_ref, std::fs::read(out.join(&truth[0].frame)).unwrap());
 }
 
 #[test]
