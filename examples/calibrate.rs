@@ -551,14 +551,17 @@ fn run(args: Args) -> Result<(), Failure> {
     let crop = args
         .crop
         .unwrap_or_else(|| Roi::full(first.ncols(), first.nrows()));
+    // A regular grid's pitch: what tells a motion beyond the markers (half
+    // of it, against a torn flow on random markers) and whether the dots
+    // can be followed.
+    let pitch = crop
+        .crop(&first)
+        .ok()
+        .and_then(|v| optical_tactile::markers::grid_pitch(&v.to_owned()));
     let dot_tracking = match args.dot_tracking {
         DotTrackingArg::On => true,
         DotTrackingArg::Off => false,
         DotTrackingArg::Auto => {
-            let pitch = crop
-                .crop(&first)
-                .ok()
-                .and_then(|v| optical_tactile::markers::grid_pitch(&v.to_owned()));
             if let Some(p) = pitch {
                 eprintln!(
                     "the references show a regular grid of markers ({p:.0} px apart): \
@@ -757,7 +760,7 @@ fn run(args: Args) -> Result<(), Failure> {
             Split::Test,
         )
         .map_err(err)?;
-        let beyond = beyond_markers_note(&ex, &fit).map_err(err)?;
+        let beyond = beyond_markers_note(&ex, &fit, pitch.is_some()).map_err(err)?;
         table_ii.push((preset.to_string(), fit.test_table, (by_load, beyond)));
     }
     writeln!(out, "## Table I: test-set errors per threshold preset\n")?;
@@ -794,14 +797,17 @@ fn run(args: Args) -> Result<(), Failure> {
     Ok(())
 }
 
-/// On a regular grid of markers: how many detected test rows moved by half
-/// the grid's pitch or more (marked out of domain at run time), and the
-/// test errors of the others; how many training and validation rows that
-/// moved that far the maps were fitted on (their dots all followed);
-/// `None` when no test row moved that far.
+/// How many detected test rows moved beyond what the markers can tell
+/// (marked out of domain at run time): on a regular grid (`grid`), by half
+/// its pitch or more; on random markers, with a torn flow
+/// ([`optical_tactile::sensor::TORN_STRAIN`]). Then the test errors of the
+/// others, and how many training and validation rows that far the maps were
+/// fitted on (on a grid, those whose dots were all followed; on random
+/// markers none). `None` when no test row moved that far.
 fn beyond_markers_note(
     ex: &[Extraction],
     fit: &DatasetFit,
+    grid: bool,
 ) -> optical_tactile::Result<Option<String>> {
     let test = |e: &&Extraction| e.row.split == Split::Test && e.raw.is_some();
     let detected = ex.iter().filter(test).count();
@@ -819,15 +825,30 @@ fn beyond_markers_note(
         .filter_map(|(_, s)| *s)
         .collect();
     let m = report::evaluate(&fit.calibration, &inside, Split::Test)?.total;
-    Ok(Some(format!(
-        "Motion beyond the markers: {beyond} of {detected} detected test rows moved by half \
-         the dot grid's pitch or more, where a dot cannot be told from its neighbour; the \
-         sensor marks such contacts out of domain. The other {}: MAE x {:.2} mm, y {:.2} mm, \
-         Fx {:.4}, Fy {:.4}, Fz {:.4} N. Of the {far_n} training and validation rows that \
-         moved that far, the maps were fitted on the {far_fitted} whose dots were all followed \
-         (none lost in the contact's box, motion under two thirds of the pitch).",
+    let others = format!(
+        "The other {}: MAE x {:.2} mm, y {:.2} mm, Fx {:.4}, Fy {:.4}, Fz {:.4} N.",
         m.n, m.x_mm, m.y_mm, m.fx, m.fy, m.fz
-    )))
+    );
+    Ok(Some(if grid {
+        format!(
+            "Motion beyond the markers: {beyond} of {detected} detected test rows moved by half \
+             the dot grid's pitch or more, where a dot cannot be told from its neighbour; the \
+             sensor marks such contacts out of domain. {others} Of the {far_n} training and \
+             validation rows that moved that far, the maps were fitted on the {far_fitted} whose \
+             dots were all followed (none lost in the contact's box, motion under two thirds of \
+             the pitch)."
+        )
+    } else {
+        format!(
+            "Motion beyond the markers: {beyond} of {detected} detected test rows tore the flow \
+             ({:.0}% of the contact's moving flow or more stretched by {:.0}% or more across \
+             one flow patch, where the random markers no longer match the reference); the \
+             sensor marks such contacts out of domain. {others} The maps were fitted without \
+             the {far_n} training and validation rows that tore it.",
+            100.0 * optical_tactile::sensor::TORN_FRACTION,
+            100.0 * optical_tactile::sensor::TORN_STRAIN
+        )
+    }))
 }
 
 fn main() -> ExitCode {

@@ -420,6 +420,34 @@ fn pool_into(flow: &FlowField, factor: usize, out: &mut FlowField) -> Result<()>
 /// neighbour with none lost (`docs/results.md`).
 pub const FOLLOWED_PITCH_FRACTION: f64 = 2.0 / 3.0;
 
+/// On random markers, the stretch of the flow over one flow patch (the
+/// change of motion across a patch's side, over that side) from which a
+/// flow cell counts as torn ([`ContactExtractor::beyond_markers`]).
+///
+/// Why: the flow follows each patch of the reference's texture as one
+/// piece. Where the gel's surface stretches so much that the motion changes
+/// across a patch by most of the patch's side, the markers of that patch
+/// end up spread far apart and the patch no longer matches anything: the
+/// flow tears (vectors in every direction, one contact cut in two or three,
+/// a contact point at the image's edge). Measured with [`TORN_FRACTION`]
+/// on the simulated fingertip sensor with random markers (a thin, stiff
+/// gel; `simulate characterization --sensor fingertip --random-markers`,
+/// seeds 1 and 5): the 5 mm sphere's tests from 1.5 N on all tear, at
+/// 1 N about three in four, at 0.5 N one in a hundred; the 8 mm punch and
+/// the 18 mm fingertip never (at most 6% of their moving cells stretched
+/// that far, up to 3 N); every test whose contact point landed more than
+/// 20 px off had 30% or more. On the paper's strip (a thick, soft gel) no
+/// test of its characterizations came near (at most 6%, a 2 mm rod at
+/// 3 N). Fitted without the torn tests, the fingertip sensor's other
+/// held-out rows read forces within 0.03 N (`docs/results.md`).
+pub const TORN_STRAIN: f64 = 0.75;
+
+/// The fraction of a contact's moving flow cells that must stretch by
+/// [`TORN_STRAIN`] or more for its flow to count as torn: a tenth, so that
+/// a seam of cells where a thin rod's edge cuts sharply into a soft gel
+/// (the strip: at most 6%) does not.
+pub const TORN_FRACTION: f64 = 0.1;
+
 /// Flow -> patches -> nHHD -> raw quantities, on cropped grayscale frames
 /// (see the module docs). Built once; nothing is allocated per frame once the
 /// patch sizes have been seen.
@@ -566,9 +594,43 @@ impl ContactExtractor {
     /// Whether a contact's motion is beyond what the reference's markers can
     /// tell: on a regular grid, a flow of half the pitch or more
     /// ([`RawContact::peak_px`]), where a marker cannot be told from its
-    /// neighbour. Always false on random markers.
+    /// neighbour; on random markers, a torn flow: at least [`TORN_FRACTION`]
+    /// of the moving cells in the contact's box (motion of the segmentation's
+    /// magnitude threshold or more) stretch by [`TORN_STRAIN`] or more over
+    /// one flow patch ([`ContactExtractor::flow_strain_fraction`]). Read on
+    /// the last frame's flow: call it before the next frame.
     pub fn beyond_markers(&self, raw: &RawContact) -> bool {
-        self.marker_pitch.is_some_and(|p| raw.peak_px >= 0.5 * p)
+        match self.marker_pitch {
+            Some(p) => raw.peak_px >= 0.5 * p,
+            None => self.flow_strain_fraction(raw.bbox, TORN_STRAIN) >= TORN_FRACTION,
+        }
+    }
+
+    /// The fraction of the moving cells of the last frame's finest flow
+    /// within `bbox` (full-resolution pixels of the cropped image; cells
+    /// whose motion reaches the segmentation's magnitude threshold) whose
+    /// flow stretches by `strain` or more over one flow patch: the change of
+    /// `(u, v)` to the cell one patch side further along x and along y (where
+    /// it is inside the image), `sqrt(|du/dx|^2 + |dv/dx|^2 + |du/dy|^2 +
+    /// |dv/dy|^2)` with the differences taken over the patch side
+    /// ([`FlowField::stretched_fraction`]; cells sampled every half patch
+    /// side, a sixteenth of them at full resolution and 8 px patches: on the
+    /// strip a contact's box of 900 x 200 px costs about 25 us). 0 when no
+    /// sampled cell moves.
+    pub fn flow_strain_fraction(&self, bbox: Roi, strain: f64) -> f64 {
+        let (flow, scale) = self.grid.finest();
+        let scale = scale.max(1);
+        let lag = (self.config.flow.patch_size as f64 / scale as f64)
+            .round()
+            .max(1.0) as usize;
+        let (x0, y0) = (bbox.x / scale, bbox.y / scale);
+        let cells = Roi {
+            x: x0,
+            y: y0,
+            w: (bbox.x + bbox.w).div_ceil(scale).saturating_sub(x0),
+            h: (bbox.y + bbox.h).div_ceil(scale).saturating_sub(y0),
+        };
+        flow.stretched_fraction(cells, scale, lag, self.config.thresholds.magnitude, strain)
     }
 
     /// Whether a contact's dots were all followed: the dots of a regular

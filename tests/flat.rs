@@ -255,6 +255,63 @@ fn dot_tracking_leaves_random_markers_to_the_flow() {
     assert_eq!(raws[0], raws[1]);
 }
 
+/// On random markers under the fingertip sensor's thin, stiff gel, a small
+/// sphere pressed hard stretches the gel so much that the flow tears
+/// (markers spread apart and no patch matches): beyond what the markers can
+/// tell, so out of domain. Broad presses, even strong and sheared, and the
+/// small sphere pressed lightly are not; on sensors of other seeds, marker
+/// densities and light.
+#[test]
+fn a_torn_flow_on_random_markers_is_beyond_the_markers() {
+    use optical_tactile::contact::ContactPointMethod;
+    use optical_tactile::segment::Thresholds;
+    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
+    use optical_tactile_sim::{MarkerLayout, Press, SimConfig, SyntheticSensor};
+    let (mut torn, mut strong) = (0, 0);
+    for (seed, coverage, light) in [(61, 0.3, 1.0), (62, 0.2, 0.85), (63, 0.4, 1.1)] {
+        let mut config = SimConfig::fingertip_with(MarkerLayout::Random);
+        config.markers.coverage = coverage;
+        config.noise.background *= light;
+        let mut sim = SyntheticSensor::new(config, seed).unwrap();
+        let (reference, _) = sim.render(&[]).unwrap();
+        let mut ex =
+            ContactExtractor::new(ExtractorConfig::default().with_thresholds(Thresholds::MID))
+                .unwrap();
+        ex.set_reference(&reference).unwrap();
+        assert_eq!(ex.marker_pitch(), None);
+        for (x, y) in [(0.0, 0.0), (3.1, -2.2), (-4.4, 1.7)] {
+            let presses = [
+                (Press::sphere(x, y, [0.4, 0.0, -2.5], 4.0), true),
+                (Press::sphere(x, y, [0.0, 0.3, -3.0], 5.0), true),
+                (Press::sphere(x, y, [0.0, 0.0, -0.5], 5.0), false),
+                (Press::punch(x, y, [0.0, 0.0, -3.0], 8.0), false),
+                (Press::fingertip(x, y, [1.2, -0.8, -2.5], 18.0), false),
+            ];
+            for (press, hard) in presses {
+                let (frame, _) = sim.render(&[press]).unwrap();
+                ex.extract(&frame).unwrap();
+                let raws = ex
+                    .locate(ContactPointMethod::MOTION_LINES)
+                    .unwrap()
+                    .to_vec();
+                let at = format!("seed {seed}, coverage {coverage}, {press:?}");
+                assert!(!raws.is_empty(), "{at}: not found");
+                let beyond = raws.iter().any(|r| ex.beyond_markers(r));
+                if hard {
+                    strong += 1;
+                    torn += usize::from(beyond);
+                } else {
+                    assert!(!beyond, "{at}: said torn");
+                }
+            }
+        }
+    }
+    assert!(
+        torn * 10 >= strong * 9,
+        "{torn} of {strong} hard small presses said torn"
+    );
+}
+
 /// A light, small press moves only the few dots about it; where their
 /// motion lines meet is nearer the load than the slope peak of the flow
 /// between them, at any place against grids of several pitches.

@@ -540,3 +540,49 @@ fn the_sensor_applies_the_calibrations_column_correction() {
         );
     }
 }
+
+/// The strip's random markers on its thick, soft gel: even its hardest
+/// presses (a 2 mm rod at 3 N, pitched 15 deg either way, at the ends and
+/// in the middle; a 10 mm rod at 3 N) stretch the flow far less than a torn
+/// flow does, so none is beyond the markers, with the bundled calibration's
+/// settings and the dense flow, on other seeds.
+#[test]
+fn the_strips_hardest_presses_do_not_tear_the_flow() {
+    use optical_tactile::contact::ContactPointMethod;
+    use optical_tactile::sensor::{TORN_FRACTION, TORN_STRAIN};
+    use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
+    let thresholds = Thresholds {
+        magnitude: 0.2,
+        sum: 600.0,
+        ..Thresholds::LOW
+    };
+    for (seed, preset) in [(71, DisPreset::Fine), (72, DisPreset::Dense)] {
+        let mut sim = SyntheticSensor::new(SimConfig::default(), seed).unwrap();
+        let (reference, _) = sim.render(&[]).unwrap();
+        let mut ex = ContactExtractor::new(
+            ExtractorConfig::default()
+                .with_flow(DisParams::preset(preset))
+                .with_thresholds(thresholds),
+        )
+        .unwrap();
+        ex.set_reference(&reference).unwrap();
+        assert_eq!(ex.marker_pitch(), None);
+        let mut worst = 0.0f64;
+        for x in [-112.0, -60.0, 0.0, 75.0, 112.0] {
+            for (d, pitch) in [(2.0, 15.0), (2.0, -15.0), (10.0, 0.0)] {
+                let t = f64::to_radians(pitch);
+                let press = Press::rod(x, [3.0 * t.sin(), 0.0, -3.0 * t.cos()], d);
+                let (frame, _) = sim.render(&[press]).unwrap();
+                ex.extract(&frame).unwrap();
+                let raws = ex.locate(ContactPointMethod::DEFAULT).unwrap().to_vec();
+                assert!(!raws.is_empty(), "seed {seed}: {press:?} not found");
+                for r in &raws {
+                    assert!(!ex.beyond_markers(r), "seed {seed}: {press:?} said torn");
+                    worst = worst.max(ex.flow_strain_fraction(r.bbox, TORN_STRAIN));
+                }
+            }
+        }
+        // Well below the bar, not just under it.
+        assert!(worst < 0.5 * TORN_FRACTION, "seed {seed}: {worst}");
+    }
+}

@@ -688,8 +688,8 @@ pub struct Extraction {
     pub scale: f64,
     /// Whether the strongest patch moved beyond what the reference's
     /// markers can tell ([`ContactExtractor::beyond_markers`]: half the
-    /// pitch of a regular grid or more); such a contact is marked out of
-    /// domain at run time.
+    /// pitch of a regular grid or more, or a torn flow on random markers);
+    /// such a contact is marked out of domain at run time.
     pub beyond_markers: bool,
     /// Whether the strongest patch's dots were all followed
     /// ([`ContactExtractor::dots_followed`]: none lost in its box, motion
@@ -892,8 +892,8 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
 /// training or validation row whose motion went beyond what the markers can
 /// tell ([`Extraction::beyond_markers`]) unless its dots were all followed
 /// ([`Extraction::fits`]): otherwise its flow may have matched each dot to a
-/// neighbour, and a map fitted on it would be wrong for every other
-/// contact. The sensor marks contacts beyond the markers out of domain; the
+/// neighbour, or torn apart on random markers, and a map fitted on it would
+/// be wrong for every other contact. The sensor marks contacts beyond the markers out of domain; the
 /// test split keeps them, so that the test errors count them.
 fn trusted(ex: &[Extraction], s: &[Option<Sample>]) -> Vec<Sample> {
     ex.iter()

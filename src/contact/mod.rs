@@ -130,9 +130,11 @@ pub struct Contact {
     /// guard's margin, [`crate::calibration::GUARD_BOX_MARGIN`];
     /// [`crate::calibration::ForceGuard::knows`]), a location off
     /// the sensor's surface ([`crate::geometry::SensorGeometry::contains`]),
-    /// or, on a regular grid of markers, motion of half the grid's pitch or
-    /// more ([`crate::sensor::ContactExtractor::beyond_markers`]), where a
-    /// marker cannot be told from its neighbour.
+    /// or motion beyond what the markers can tell
+    /// ([`crate::sensor::ContactExtractor::beyond_markers`]): on a regular
+    /// grid of markers, half the grid's pitch or more, where a marker cannot
+    /// be told from its neighbour; on random markers, a torn flow (the gel
+    /// stretched by a flow patch's side across one patch).
     /// Its location and force are extrapolations: use them with care (a
     /// calibration from another sensor, a crop that is not the calibration's,
     /// a press far stronger than any in the characterization).
