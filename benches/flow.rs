@@ -2,7 +2,10 @@
 //! at 1920x1080 and on a 1600x200 strip, on 1 and 2 threads, on synthetic
 //! marker frames (press-like motion up to ~5 px). `set_reference` is outside
 //! the timed loop: a tactile sensor compares every frame with one fixed
-//! reference. Also a short sequence of frames against that reference.
+//! reference. Also a short sequence of frames against that reference, and
+//! the torn-flow check (`FlowField::stretched_fraction`) over a strip
+//! contact's box of 900x200 px beside the `fine` flow of the whole strip it
+//! is read from (the ratio is what it adds to a frame's flow).
 //!
 //! `cargo bench --bench flow` (short measurement times; on a shared machine
 //! compare ratios within one run).
@@ -89,5 +92,29 @@ fn bench_sequence(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_presets, bench_sequence);
+fn bench_stretch(c: &mut Criterion) {
+    use optical_tactile::frame::Roi;
+    let (w, h) = (1600usize, 200usize);
+    let motion = support::press_motion(w, h, 4.0, 5);
+    let (r, cur, _) = support::marker_pair(w, h, &motion, 5);
+    let mut dis = Dis::with_preset(DisPreset::Fine);
+    dis.set_reference(&r).expect("reference");
+    let mut out = FlowField::zeros(w, h);
+    dis.compute_into(&cur, &mut out).expect("flow");
+    let mut g = c.benchmark_group("stretched_fraction");
+    g.sample_size(20)
+        .warm_up_time(Duration::from_millis(300))
+        .measurement_time(Duration::from_secs(2));
+    let p = pool(1);
+    g.bench_function("fine_flow_1600x200_t1", |b| {
+        p.install(|| b.iter(|| dis.compute_into(&cur, &mut out).expect("flow")))
+    });
+    let cells = Roi::new(350, 0, 900, 200);
+    g.bench_function("box_900x200_lag8", |b| {
+        b.iter(|| std::hint::black_box(out.stretched_fraction(cells, 1, 8, 0.2, 0.75)))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_presets, bench_sequence, bench_stretch);
 criterion_main!(benches);
