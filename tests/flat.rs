@@ -255,6 +255,41 @@ fn dot_tracking_leaves_random_markers_to_the_flow() {
     assert_eq!(raws[0], raws[1]);
 }
 
+/// Dots off their lattice places (printed or hand-made grids are never
+/// exact) on fingertip sensors of several pitches, seeds and light: the
+/// pitch measured on the reference is still the grid's, not its diagonal or
+/// a longer lattice vector, so the dots are followed with it and motion of
+/// half of it is what is marked out of domain.
+#[test]
+fn a_jittered_dot_grid_gives_its_own_pitch() {
+    for (seed, pitch_px, light) in [
+        (1, 22.0, 1.0),
+        (2, 22.0, 0.9),
+        (81, 22.0, 1.0),
+        (82, 18.0, 0.85),
+        (83, 26.0, 1.1),
+    ] {
+        for jitter in [0.0, 1.0, 2.0, 3.0, 4.0] {
+            if jitter > pitch_px / 5.5 {
+                continue; // beyond a fifth of the pitch the grid fades into random dots
+            }
+            let mut config = optical_tactile_sim::SimConfig::fingertip();
+            if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
+                g.pitch_px = pitch_px;
+                g.jitter_px = jitter;
+            }
+            config.noise.background *= light;
+            let mut sim = optical_tactile_sim::SyntheticSensor::new(config, seed).unwrap();
+            let (reference, _) = sim.render(&[]).unwrap();
+            let p = optical_tactile::markers::grid_pitch(&reference);
+            assert!(
+                p.is_some_and(|p| (p - pitch_px).abs() <= 1.0),
+                "seed {seed}, pitch {pitch_px}, jitter {jitter}: measured {p:?}"
+            );
+        }
+    }
+}
+
 /// On random markers under the fingertip sensor's thin, stiff gel, a small
 /// sphere pressed hard stretches the gel so much that the flow tears
 /// (markers spread apart and no patch matches): beyond what the markers can
