@@ -433,7 +433,7 @@ pub const FOLLOWED_PITCH_FRACTION: f64 = 2.0 / 3.0;
 /// on the simulated fingertip sensor with random markers (a thin, stiff
 /// gel; `simulate characterization --sensor fingertip --random-markers`,
 /// seeds 1 and 5): the 5 mm sphere's tests from 1.5 N on all tear, at
-/// 1 N about three in four, at 0.5 N one in a hundred; the 8 mm punch and
+/// 1 N about three in four, at 0.5 N one or two in 240; the 8 mm punch and
 /// the 18 mm fingertip never (at most 6% of their moving cells stretched
 /// that far, up to 3 N); every test whose contact point landed more than
 /// 20 px off had 30% or more. On the paper's strip (a thick, soft gel) no
@@ -613,17 +613,18 @@ impl ContactExtractor {
     /// `(u, v)` to the cell one patch side further along x and along y (where
     /// it is inside the image), `sqrt(|du/dx|^2 + |dv/dx|^2 + |du/dy|^2 +
     /// |dv/dy|^2)` with the differences taken over the patch side
-    /// ([`FlowField::stretched_fraction`]; cells sampled every half patch
-    /// side, a sixteenth of them at full resolution and 8 px patches: a
+    /// ([`FlowField::stretched_fraction`] on the flow's finest level, whose
+    /// patch spans `patch_size` cells; cells sampled every half patch side,
+    /// a sixteenth of them with 8 px patches: a
     /// strip contact's box of 900 x 200 px takes 17 us, half a percent of the
     /// strip's `fine` flow, `cargo bench --bench flow -- stretched_fraction`).
     /// 0 when no sampled cell moves.
     pub fn flow_strain_fraction(&self, bbox: Roi, strain: f64) -> f64 {
+        // The native flow: one cell per pixel of the flow's finest level,
+        // where a patch spans `patch_size` cells.
         let (flow, scale) = self.grid.finest();
         let scale = scale.max(1);
-        let lag = (self.config.flow.patch_size as f64 / scale as f64)
-            .round()
-            .max(1.0) as usize;
+        let lag = self.config.flow.patch_size.max(1);
         let (x0, y0) = (bbox.x / scale, bbox.y / scale);
         let cells = Roi {
             x: x0,
