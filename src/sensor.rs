@@ -629,8 +629,16 @@ impl ContactExtractor {
         let cells = Roi {
             x: x0,
             y: y0,
-            w: (bbox.x + bbox.w).div_ceil(scale).saturating_sub(x0),
-            h: (bbox.y + bbox.h).div_ceil(scale).saturating_sub(y0),
+            w: bbox
+                .x
+                .saturating_add(bbox.w)
+                .div_ceil(scale)
+                .saturating_sub(x0),
+            h: bbox
+                .y
+                .saturating_add(bbox.h)
+                .div_ceil(scale)
+                .saturating_sub(y0),
         };
         flow.stretched_fraction(cells, scale, lag, self.config.thresholds.magnitude, strain)
     }

@@ -582,6 +582,9 @@ fn the_strips_hardest_presses_do_not_tear_the_flow() {
                 }
             }
         }
+        // A box of any size reads the field it overlaps, without overflow.
+        let huge = Roi::new(usize::MAX - 3, usize::MAX - 3, usize::MAX, usize::MAX);
+        assert_eq!(ex.flow_strain_fraction(huge, TORN_STRAIN), 0.0);
         // Well below the bar, not just under it.
         assert!(worst < 0.5 * TORN_FRACTION, "seed {seed}: {worst}");
     }

@@ -166,7 +166,7 @@ impl FlowField {
         let y1 = cells.y.saturating_add(cells.h).min(h);
         let moving = moving_px * moving_px;
         // Compared squared, over the lag in full-resolution pixels.
-        let limit = (strain * (lag * scale.max(1)) as f64).powi(2) as f32;
+        let limit = (strain * lag as f64 * scale.max(1) as f64).powi(2) as f32;
         let (u, v) = (self.u.as_standard_layout(), self.v.as_standard_layout());
         let (u, v) = (
             u.as_slice().expect("standard layout"),
@@ -182,10 +182,11 @@ impl FlowField {
                 }
                 sampled += 1;
                 let mut d2 = 0.0f32;
-                if j + lag < w {
+                // `w - j > lag`: `j + lag < w` without overflow at any lag.
+                if w - j > lag {
                     d2 += (u[k + lag] - a).powi(2) + (v[k + lag] - b).powi(2);
                 }
-                if i + lag < h {
+                if h - i > lag {
                     let k2 = k + lag * w;
                     d2 += (u[k2] - a).powi(2) + (v[k2] - b).powi(2);
                 }
@@ -394,6 +395,12 @@ mod tests {
             empty.stretched_fraction(Roi::full(5, 5), 1, 8, 0.0, 0.1),
             0.0
         );
+        // Lags and scales of any size: no neighbour in the field, nothing
+        // stretched, no overflow.
+        for (scale, lag) in [(1, usize::MAX), (usize::MAX, 8), (usize::MAX, usize::MAX)] {
+            let all = Roi::full(20, 10);
+            assert_eq!(f.stretched_fraction(all, scale, lag, 0.0, 0.1), 0.0);
+        }
     }
 
     proptest::proptest! {
