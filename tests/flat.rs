@@ -19,9 +19,21 @@ fn fingertip(
     pitch_px: f64,
     light: f32,
 ) -> (optical_tactile_sim::SyntheticSensor, ndarray::Array2<f32>) {
+    jittered_fingertip(seed, pitch_px, light, 0.0)
+}
+
+/// [`fingertip`] with each dot moved off its lattice place by up to
+/// `jitter_px` along each axis.
+fn jittered_fingertip(
+    seed: u64,
+    pitch_px: f64,
+    light: f32,
+    jitter_px: f64,
+) -> (optical_tactile_sim::SyntheticSensor, ndarray::Array2<f32>) {
     let mut config = optical_tactile_sim::SimConfig::fingertip();
     if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
         g.pitch_px = pitch_px;
+        g.jitter_px = jitter_px;
     }
     config.noise.background *= light;
     let mut sim = optical_tactile_sim::SyntheticSensor::new(config, seed).unwrap();
@@ -273,14 +285,7 @@ fn a_jittered_dot_grid_gives_its_own_pitch() {
             if jitter > pitch_px / 5.5 {
                 continue; // beyond a fifth of the pitch the grid fades into random dots
             }
-            let mut config = optical_tactile_sim::SimConfig::fingertip();
-            if let optical_tactile_sim::MarkerLayout::Grid(g) = &mut config.markers.layout {
-                g.pitch_px = pitch_px;
-                g.jitter_px = jitter;
-            }
-            config.noise.background *= light;
-            let mut sim = optical_tactile_sim::SyntheticSensor::new(config, seed).unwrap();
-            let (reference, _) = sim.render(&[]).unwrap();
+            let (_, reference) = jittered_fingertip(seed, pitch_px, light, jitter);
             let p = optical_tactile::markers::grid_pitch(&reference);
             assert!(
                 p.is_some_and(|p| (p - pitch_px).abs() <= 1.0),
