@@ -101,7 +101,7 @@ use optical_tactile::frame::Roi;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::Thresholds;
-use optical_tactile::sensor::ExtractorConfig;
+use optical_tactile::sensor::{ExtractorConfig, fitting_flow_preset};
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
 /// every test, fits the polynomial maps and prints the paper's Tables I and
@@ -199,7 +199,9 @@ struct Cli {
     /// reference shows a regular grid (docs/pipeline.md, step 4).
     #[arg(long, value_enum, value_name = "WHEN", default_value = "auto")]
     dot_tracking: DotTrackingArg,
-    /// DIS flow preset [default: fine, the sensor's].
+    /// DIS flow preset [default: dense for random markers on a flat sensor
+    /// (no regular grid in the first reference), otherwise fine, the
+    /// sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
     /// Crop of the frames [default: the whole image].
@@ -571,6 +573,17 @@ fn run(args: Args) -> Result<(), Failure> {
             pitch.is_some()
         }
     };
+    let flow = args.flow.unwrap_or_else(|| {
+        let preset = fitting_flow_preset(&geometry, pitch);
+        if preset != DisPreset::Fine {
+            eprintln!(
+                "the references show random markers on a flat sensor: fitted with the `{}` flow \
+                 (--preset fine: the sensor's default, half the time per frame)",
+                preset.name()
+            );
+        }
+        preset
+    });
     let sweeps = if args.no_sweeps {
         Vec::new()
     } else {
@@ -594,9 +607,7 @@ fn run(args: Args) -> Result<(), Failure> {
         let mut config = ExtractorConfig::default()
             .with_thresholds(thresholds(preset, args.custom))
             .with_dot_tracking(dot_tracking);
-        if let Some(p) = args.flow {
-            config.flow = DisParams::preset(p);
-        }
+        config.flow = DisParams::preset(flow);
         let t0 = Instant::now();
         let ex = extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {
             extract_dataset(&args.dir, &rows, &config, contact_point, args.crop, p)

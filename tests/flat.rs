@@ -301,6 +301,45 @@ fn a_jittered_dot_grid_gives_its_own_pitch() {
 /// tell, so out of domain. Broad presses, even strong and sheared, and the
 /// small sphere pressed lightly are not; on sensors of other seeds, marker
 /// densities and light.
+/// Which flow a calibration is fitted with when none is asked for, read
+/// off rendered references as `calibrate` reads them: the denser flow for
+/// random markers on the flat sensor (several seeds and marker densities),
+/// the sensor's default for its dot grids (several pitches, jitter) and
+/// for the strip's random markers.
+#[test]
+fn random_markers_on_a_flat_sensor_are_fitted_with_the_denser_flow() {
+    use optical_tactile::flow::dis::DisPreset;
+    use optical_tactile::markers::grid_pitch;
+    use optical_tactile::sensor::fitting_flow_preset;
+    use optical_tactile_sim::{MarkerLayout, SimConfig, SyntheticSensor};
+    let flat = SensorGeometry::Flat(optical_tactile::geometry::FlatSurface {
+        length_mm: 24.0,
+        width_mm: 18.0,
+    });
+    let strip = SensorGeometry::default();
+    for (seed, coverage) in [(71, 0.3), (72, 0.2), (73, 0.45)] {
+        let mut config = SimConfig::fingertip_with(MarkerLayout::Random);
+        config.markers.coverage = coverage;
+        let mut sim = SyntheticSensor::new(config, seed).unwrap();
+        let (reference, _) = sim.render(&[]).unwrap();
+        let pitch = grid_pitch(&reference);
+        assert_eq!(pitch, None, "seed {seed}");
+        assert_eq!(fitting_flow_preset(&flat, pitch), DisPreset::Dense);
+        assert_eq!(fitting_flow_preset(&strip, pitch), DisPreset::Fine);
+    }
+    for (seed, pitch_px, jitter_px) in [(74, 22.0, 0.0), (75, 18.0, 1.5), (76, 30.0, 3.0)] {
+        let (_, reference) = jittered_fingertip(seed, pitch_px, 1.0, jitter_px);
+        let pitch = grid_pitch(&reference);
+        assert!(pitch.is_some(), "seed {seed}, {pitch_px} px");
+        assert_eq!(fitting_flow_preset(&flat, pitch), DisPreset::Fine);
+    }
+    let mut sim = SyntheticSensor::new(SimConfig::default(), 77).unwrap();
+    let (reference, _) = sim.render(&[]).unwrap();
+    let pitch = grid_pitch(&reference);
+    assert_eq!(pitch, None);
+    assert_eq!(fitting_flow_preset(&strip, pitch), DisPreset::Fine);
+}
+
 #[test]
 fn a_torn_flow_on_random_markers_is_beyond_the_markers() {
     use optical_tactile::contact::ContactPointMethod;
