@@ -191,81 +191,75 @@ mod tests {
     use super::*;
     use ndarray::Array2;
 
-    /// A grid of round dots: `pitch` px apart along two lattice vectors at
-    /// `angle` (radians) and `angle + gamma`, dots of `radius` px, `dark`
-    /// dots on a bright background or bright on dark.
-    fn grid(
-        w: usize,
-        h: usize,
+    /// A lattice of round dots to paint: `pitch` px apart along two lattice
+    /// vectors at `angle` (radians) and `angle + gamma`, dots of `radius`
+    /// px, `dark` dots on a bright background or bright on dark, each dot
+    /// moved off its lattice place by up to `jitter` px along each axis (a
+    /// hash of its lattice index and `seed`).
+    #[derive(Clone, Copy)]
+    struct Dots {
         pitch: f64,
         angle: f64,
         gamma: f64,
         radius: f64,
         dark: bool,
-    ) -> Array2<f32> {
-        let (a, b) = (
-            (pitch * angle.cos(), pitch * angle.sin()),
-            (pitch * (angle + gamma).cos(), pitch * (angle + gamma).sin()),
-        );
-        let det = a.0 * b.1 - a.1 * b.0;
-        Array2::from_shape_fn((h, w), |(i, j)| {
-            let (x, y) = (j as f64 + 0.3, i as f64 + 0.7);
-            // Lattice coordinates, then the nearest lattice point.
-            let s = (x * b.1 - y * b.0) / det;
-            let t = (a.0 * y - a.1 * x) / det;
-            let mut near = f64::INFINITY;
-            for ds in [-1.0, 0.0, 1.0] {
-                for dt in [-1.0, 0.0, 1.0] {
-                    let (ps, pt) = (s.round() + ds, t.round() + dt);
-                    let (px, py) = (ps * a.0 + pt * b.0, ps * a.1 + pt * b.1);
-                    near = near.min(((x - px).powi(2) + (y - py).powi(2)).sqrt());
-                }
-            }
-            let on = near < radius;
-            (if on == dark { 40.0 } else { 200.0 }) as f32
-        })
-    }
-
-    /// A square grid of round dark dots `pitch` px apart, turned by `angle`,
-    /// each dot moved off its lattice place by up to `jitter` px along each
-    /// axis (a hash of its lattice index and `seed`), on a bright background.
-    fn jittered(
-        w: usize,
-        h: usize,
-        pitch: f64,
-        angle: f64,
-        radius: f64,
         jitter: f64,
         seed: u64,
-    ) -> Array2<f32> {
-        let (c, s) = (angle.cos(), angle.sin());
-        let off = |k: i64, l: i64, axis: u64| -> f64 {
+    }
+
+    impl Dots {
+        /// Dark dots of `radius` on a square lattice turned by `angle`, on
+        /// their places.
+        fn square(pitch: f64, angle: f64, radius: f64) -> Self {
+            Dots {
+                pitch,
+                angle,
+                gamma: std::f64::consts::FRAC_PI_2,
+                radius,
+                dark: true,
+                jitter: 0.0,
+                seed: 0,
+            }
+        }
+
+        /// The offset of lattice dot `(k, l)` along `axis` (0: x, 1: y).
+        fn offset(&self, k: i64, l: i64, axis: u64) -> f64 {
             let mut z = (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
                 ^ (l as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-                ^ seed.wrapping_add(axis).wrapping_mul(0x1656_67B1_9E37_79F9);
+                ^ self
+                    .seed
+                    .wrapping_add(axis)
+                    .wrapping_mul(0x1656_67B1_9E37_79F9);
             z ^= z >> 31;
             z = z.wrapping_mul(0xBF58_476D_1CE4_E5B9);
             z ^= z >> 29;
-            jitter * (2.0 * (z >> 11) as f64 / (1u64 << 53) as f64 - 1.0)
-        };
-        Array2::from_shape_fn((h, w), |(i, j)| {
-            let (x, y) = (j as f64 + 0.3, i as f64 + 0.7);
-            // Lattice coordinates (the lattice turned by `angle`).
-            let (u, v) = ((c * x + s * y) / pitch, (-s * x + c * y) / pitch);
-            let mut near = f64::INFINITY;
-            for dk in -1..=1 {
-                for dl in -1..=1 {
-                    let (k, l) = (u.round() as i64 + dk, v.round() as i64 + dl);
-                    let (lu, lv) = (k as f64 * pitch, l as f64 * pitch);
-                    let (px, py) = (
-                        c * lu - s * lv + off(k, l, 0),
-                        s * lu + c * lv + off(k, l, 1),
-                    );
-                    near = near.min((x - px).hypot(y - py));
+            self.jitter * (2.0 * (z >> 11) as f64 / (1u64 << 53) as f64 - 1.0)
+        }
+
+        /// A `w` x `h` image of the dots.
+        fn paint(&self, w: usize, h: usize) -> Array2<f32> {
+            let (p, a, g) = (self.pitch, self.angle, self.angle + self.gamma);
+            let (ax, ay, bx, by) = (p * a.cos(), p * a.sin(), p * g.cos(), p * g.sin());
+            let det = ax * by - ay * bx;
+            Array2::from_shape_fn((h, w), |(i, j)| {
+                let (x, y) = (j as f64 + 0.3, i as f64 + 0.7);
+                // Lattice coordinates, then the nearest dot among the
+                // lattice points about them.
+                let s = ((x * by - y * bx) / det).round() as i64;
+                let t = ((ax * y - ay * x) / det).round() as i64;
+                let mut near = f64::INFINITY;
+                for k in s - 1..=s + 1 {
+                    for l in t - 1..=t + 1 {
+                        let (kf, lf) = (k as f64, l as f64);
+                        let px = kf * ax + lf * bx + self.offset(k, l, 0);
+                        let py = kf * ay + lf * by + self.offset(k, l, 1);
+                        near = near.min((x - px).hypot(y - py));
+                    }
                 }
-            }
-            if near < radius { 40.0 } else { 200.0 }
-        })
+                let on = near < self.radius;
+                (if on == self.dark { 40.0 } else { 200.0 }) as f32
+            })
+        }
     }
 
     #[test]
@@ -277,7 +271,12 @@ mod tests {
             (14.0, 0.0, FRAC_PI_2, false),
             (25.0, 0.1, std::f64::consts::PI / 3.0, true),
         ] {
-            let img = grid(320, 240, pitch, angle, gamma, 3.5, dark);
+            let dots = Dots {
+                gamma,
+                dark,
+                ..Dots::square(pitch, angle, 3.5)
+            };
+            let img = dots.paint(320, 240);
             let p = grid_pitch(&img).expect("a grid");
             assert!((p - pitch).abs() <= 1.0, "pitch {pitch}: measured {p}");
         }
@@ -350,7 +349,7 @@ mod tests {
         assert_eq!(grid_pitch(&img), None);
         assert_eq!(grid_pitch(&Array2::from_elem((240, 320), 80.0)), None);
         assert_eq!(grid_pitch(&Array2::from_elem((8, 320), 80.0)), None);
-        let mut bad = grid(64, 64, 16.0, 0.0, std::f64::consts::FRAC_PI_2, 3.0, true);
+        let mut bad = Dots::square(16.0, 0.0, 3.0).paint(64, 64);
         bad[[3, 3]] = f32::NAN;
         assert_eq!(grid_pitch(&bad), None);
     }
@@ -376,7 +375,7 @@ mod tests {
             w in 200usize..400,
             h in 150usize..300,
         ) {
-            let img = grid(w, h, pitch, angle, std::f64::consts::FRAC_PI_2, dot * pitch, dark);
+            let img = Dots { dark, ..Dots::square(pitch, angle, dot * pitch) }.paint(w, h);
             let p = grid_pitch(&img);
             proptest::prop_assert!(p.is_some_and(|p| (p - pitch).abs() <= 1.0), "pitch {pitch}: {p:?}");
         }
@@ -396,7 +395,8 @@ mod tests {
             jitter in 0.0f64..(1.0 / 6.0),
             seed in 0u64..1000,
         ) {
-            let img = jittered(320, 240, pitch, angle, pitch / 6.0, jitter * pitch, seed);
+            let dots = Dots { jitter: jitter * pitch, seed, ..Dots::square(pitch, angle, pitch / 6.0) };
+            let img = dots.paint(320, 240);
             let p = grid_pitch(&img);
             let tolerance = (0.12 * pitch).max(1.5);
             proptest::prop_assert!(p.is_some_and(|p| (p - pitch).abs() <= tolerance), "pitch {pitch}, jitter {}: {p:?}", jitter * pitch);
