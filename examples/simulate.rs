@@ -32,7 +32,8 @@ use optical_tactile_sim::scenario::{
     TipPresses,
 };
 use optical_tactile_sim::{
-    DotGrid, ExposureChanges, FINGERTIP_GRID, MarkerLayout, Press, SimConfig, SyntheticSensor,
+    ContactLight, DotGrid, ExposureChanges, FINGERTIP_GRID, MarkerLayout, Press, SimConfig,
+    SyntheticSensor,
 };
 
 /// Where `fixtures` writes by default: this crate's fixtures folder.
@@ -223,6 +224,18 @@ pub struct CommonArgs {
     #[arg(long, value_name = "EVERY,GAIN[,OFFSET[,LEVELS]]", allow_hyphen_values = true,
           value_parser = exposure_steps)]
     pub exposure_steps: Option<Numbers>,
+    /// The gel's light under each contact changes by this fraction at its
+    /// centre, over a Gaussian of two thirds of its radius (-0.4: 40%
+    /// darker, as a dark object seen through a thin gel; at most 0.9 either
+    /// way) [default: 0].
+    #[arg(long, value_name = "C", allow_hyphen_values = true, value_parser = light_change)]
+    pub contact_light: Option<f32>,
+    /// The gel's light under each contact changes by this fraction one
+    /// spread either side of its centre along x: brighter on the left,
+    /// darker on the right for a positive value (the shading of its slopes
+    /// under a light from one side; at most 0.9 either way) [default: 0].
+    #[arg(long, value_name = "S", allow_hyphen_values = true, value_parser = light_change)]
+    pub contact_shading: Option<f32>,
     /// Slow camera drift: the gain moves by up to GAIN (relative) and the
     /// black level by up to OFFSET grey levels, as a sine of PERIOD frames
     /// [default: off].
@@ -295,6 +308,10 @@ impl CommonArgs {
         cfg.noise.read = self.noise_read;
         cfg.noise.flicker = self.flicker;
         cfg.noise.exposure = self.exposure();
+        cfg.noise.contact_light = ContactLight {
+            change: self.contact_light.unwrap_or(0.0),
+            sided: self.contact_shading.unwrap_or(0.0),
+        };
         c
     }
 
@@ -316,6 +333,22 @@ impl CommonArgs {
         }
         e
     }
+}
+
+/// `--contact-light`'s and `--contact-shading`'s value: a finite fraction
+/// within [`ContactLight::MAX_CHANGE`] either way.
+fn light_change(s: &str) -> std::result::Result<f32, String> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a number, got {s:?}"))?;
+    if !(v.is_finite() && v.abs() <= ContactLight::MAX_CHANGE) {
+        return Err(format!(
+            "expected a fraction within -{0}..={0}, got {s}",
+            ContactLight::MAX_CHANGE
+        ));
+    }
+    Ok(v)
 }
 
 /// `--exposure-steps`' value: EVERY,GAIN[,OFFSET[,LEVELS]], EVERY and LEVELS

@@ -153,6 +153,64 @@ pub struct NoiseConfig {
     /// Changes of the camera's gain and black level over time: exposure
     /// steps and slow drift (none by default).
     pub exposure: ExposureChanges,
+    /// How the gel's light changes under each contact (none by default).
+    pub contact_light: ContactLight,
+}
+
+/// How the gel's light changes under a contact, relative to the unloaded
+/// gel's: on a real GelSight-class sensor the gel under a contact does not
+/// keep its light (its slopes shade it under the lights; a thin clear gel
+/// shows the object through it). Each contact scales the light about its
+/// centre by `1 + change * g + sided * (dx / s) * g * e^(1/2)`, `g` a
+/// Gaussian of spread `s`, two thirds of the contact's radius (of a rod's
+/// half-width, along the strip only), `dx` the offset along the image's
+/// x. The markers' light is scaled with the gel's. The default (both 0)
+/// changes nothing: frames are bit-identical to a sensor without it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ContactLight {
+    /// Relative change of the light at a contact's centre (-0.4: 40%
+    /// darker; 0.3: 30% brighter).
+    pub change: f32,
+    /// Relative change one spread either side of the centre along the
+    /// image's x, brighter on the side of smaller x for a positive value,
+    /// darker on the other (a gel lit from one side).
+    pub sided: f32,
+}
+
+impl ContactLight {
+    /// Largest relative change of either kind: 0.9 (the light of a spot
+    /// never goes below a tenth of the gel's).
+    pub const MAX_CHANGE: f32 = 0.9;
+
+    /// Whether it changes anything.
+    pub fn is_on(&self) -> bool {
+        self.change != 0.0 || self.sided != 0.0
+    }
+
+    /// The relative change of the light at offset `(dx, dy)` px from a
+    /// contact's centre whose spreads are `(sx, sy)` px (`sy` infinite for
+    /// a rod across the image).
+    pub fn at(&self, dx: f32, dy: f32, (sx, sy): (f32, f32)) -> f32 {
+        let (u, v) = (dx / sx, if sy.is_finite() { dy / sy } else { 0.0 });
+        let g = (-0.5 * (u * u + v * v)).exp();
+        // e^(1/2): the sided change peaks at one spread from the centre.
+        self.change * g - self.sided * u * g * std::f32::consts::E.sqrt()
+    }
+
+    fn validate(&self) -> Result<()> {
+        for (name, v) in [
+            ("noise.contact_light.change", self.change),
+            ("noise.contact_light.sided", self.sided),
+        ] {
+            if !(v.is_finite() && v.abs() <= Self::MAX_CHANGE) {
+                return Err(Error::param(
+                    name,
+                    format!("must lie within -{0}..={0}, got {v}", Self::MAX_CHANGE),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// How the camera's gain and black level change over time: the exposure
@@ -281,6 +339,7 @@ impl Default for NoiseConfig {
             flicker: 0.01,
             vignetting: 0.35,
             exposure: ExposureChanges::default(),
+            contact_light: ContactLight::default(),
         }
     }
 }
@@ -505,6 +564,7 @@ impl SimConfig {
             return Err(Error::param("noise.vignetting", "must lie in [0, 1)"));
         }
         n.exposure.validate()?;
+        n.contact_light.validate()?;
         Ok(())
     }
 

@@ -50,8 +50,8 @@ mod sensor;
 
 pub use camera::{CameraModel, Skin};
 pub use config::{
-    DotGrid, ExposureChanges, FINGERTIP_GRID, FINGERTIP_LENGTH_MM, FINGERTIP_WIDTH_MM,
-    MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
+    ContactLight, DotGrid, ExposureChanges, FINGERTIP_GRID, FINGERTIP_LENGTH_MM,
+    FINGERTIP_WIDTH_MM, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
 };
 pub use elastic::Material;
 pub use sensor::{Press, SyntheticSensor, Tip};

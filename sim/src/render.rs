@@ -38,6 +38,8 @@ struct Frame<'a> {
     skin_box: (f32, f32, f32, f32),
     /// Which pixels show the skin, when its outline is curved ([`skin_mask`]).
     mask: Option<&'a [bool]>,
+    /// Where the contacts change the gel's light.
+    spots: &'a [LightSpot],
     gain: f32,
     /// The camera's black level on top of the light (exposure changes).
     offset: f32,
@@ -96,12 +98,30 @@ pub(crate) fn skin_mask(cfg: &SimConfig) -> Option<Vec<bool>> {
     Some(mask)
 }
 
+/// Where a contact changes the gel's light
+/// ([`crate::config::ContactLight`]): its centre in strip pixels and its
+/// spreads along x and y (`sy` infinite for a rod across the strip).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LightSpot {
+    pub x: f32,
+    pub y: f32,
+    pub sx: f32,
+    pub sy: f32,
+}
+
+/// The scene a frame shows beyond its markers: the gel's mask and the
+/// contacts' changes of its light.
+pub(crate) struct Scene<'a> {
+    pub mask: Option<&'a [bool]>,
+    pub spots: &'a [LightSpot],
+}
+
 pub(crate) fn render(
     cfg: &SimConfig,
     markers: &Markers,
     motion: &[(f32, f32)],
     grid: Option<&MotionGrid>,
-    mask: Option<&[bool]>,
+    scene: Scene<'_>,
     stream: u64,
     camera: (f32, f32),
 ) -> Rendered {
@@ -140,7 +160,8 @@ pub(crate) fn render(
         width,
         origin,
         skin_box,
-        mask,
+        mask: scene.mask,
+        spots: scene.spots,
         gain,
         offset: camera.1,
         stream,
@@ -172,6 +193,27 @@ pub(crate) fn render(
 }
 
 impl Frame<'_> {
+    /// The factor the contacts' light changes scale the light at rendered
+    /// pixel `(x, y)` by (exactly 1 without any).
+    fn contact_light(&self, x: f32, y: f32) -> f32 {
+        if self.spots.is_empty() {
+            return 1.0;
+        }
+        let light = &self.cfg.noise.contact_light;
+        let change: f32 = self
+            .spots
+            .iter()
+            .map(|s| {
+                light.at(
+                    x - self.origin.0 - s.x,
+                    y - self.origin.1 - s.y,
+                    (s.sx, s.sy),
+                )
+            })
+            .sum();
+        (1.0 + change).max(0.0)
+    }
+
     fn band(&self, b: usize, rows: &mut [f32], flow: Option<(&mut [f32], &mut [f32])>) {
         let w = self.width;
         let y_start = b * BAND_ROWS;
@@ -277,8 +319,9 @@ impl Frame<'_> {
                 // there is.
                 let light = ((bg + rows[k]).max(0.0)
                     * cfg.camera.vignetting(n.vignetting, xf + ox, yf + oy)
-                    * self.gain)
-                    .max(0.0);
+                    * self.gain
+                    * self.contact_light(xf, yf))
+                .max(0.0);
                 let sd = (n.shot * light + read2).sqrt();
                 let z = approx_normal_from_bits(hash64(self.stream, (y * w + x) as u64));
                 rows[k] = (light + sd * z + self.offset).round().clamp(0.0, 255.0);

@@ -435,15 +435,54 @@ impl SyntheticSensor {
         };
         let stream = mix64(self.seed ^ 0xA076_1D64_78BD_642F) ^ mix64(index.wrapping_add(1));
         let camera = self.config.noise.exposure.response(self.seed, index);
+        let spots = self.light_spots(&loads);
+        let scene = render::Scene {
+            mask: self.skin_mask.as_deref(),
+            spots: &spots,
+        };
         Ok(render::render(
             &self.config,
             &self.markers,
             &motion,
             grid.as_ref(),
-            self.skin_mask.as_deref(),
+            scene,
             stream,
             camera,
         ))
+    }
+
+    /// Where `loads` change the gel's light
+    /// ([`crate::config::NoiseConfig::contact_light`]; none when it is off):
+    /// each load's centre in strip pixels, and spreads of two thirds of its
+    /// radius (a rod's half-width along the strip; across it, none).
+    fn light_spots(&self, loads: &[Load]) -> Vec<render::LightSpot> {
+        if !self.config.noise.contact_light.is_on() {
+            return Vec::new();
+        }
+        let (skin, cam) = (&self.config.skin, &self.config.camera);
+        loads
+            .iter()
+            .map(|load| {
+                let (s, y, a, across) = match load {
+                    Load::Round(r) => (r.s_mm, r.y_mm, r.radius, true),
+                    Load::Rod(r) => (r.s_mm, 0.5 * (r.y_lo + r.y_hi), r.half_width, false),
+                };
+                let spread = (2.0 / 3.0 * a).max(0.05);
+                let (x, yp) = cam.skin_to_px(skin, s, y);
+                let sx = 0.5 * (cam.s_to_px(skin, s + spread) - cam.s_to_px(skin, s - spread));
+                let sy = if across {
+                    spread * cam.px_per_mm_y
+                } else {
+                    f64::INFINITY
+                };
+                render::LightSpot {
+                    x: x as f32,
+                    y: yp as f32,
+                    sx: (sx as f32).max(0.5),
+                    sy: (sy as f32).max(0.5),
+                }
+            })
+            .collect()
     }
 }
 

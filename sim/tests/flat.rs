@@ -436,3 +436,77 @@ fn hostile_presses_are_errors() {
     };
     assert!(SyntheticSensor::new(cfg, 1).is_err());
 }
+
+/// The gel's light under a contact (`NoiseConfig::contact_light`): off by
+/// default; on, a press scales the light at its centre by `1 + change` and
+/// one spread either side along x by `1 + sided` and `1 - sided`, and
+/// leaves it far from the contact; the frame without contacts is the same
+/// either way. Out-of-range changes are errors.
+#[test]
+fn a_contact_changes_the_gels_light_about_it() {
+    use optical_tactile_sim::{ContactLight, NoiseConfig};
+    let quiet = |light: ContactLight| {
+        let mut c = SimConfig::fingertip();
+        // No dots: the gel's light alone.
+        if let MarkerLayout::Grid(g) = &mut c.markers.layout {
+            g.darkness = 0.0;
+        }
+        c.noise = NoiseConfig {
+            shot: 0.0,
+            read: 0.0,
+            flicker: 0.0,
+            vignetting: 0.0,
+            contact_light: light,
+            ..c.noise
+        };
+        SyntheticSensor::new(c, 5).unwrap()
+    };
+    // A punch of known radius: 4 mm, its light's spread 8/3 mm.
+    let press = Press::punch(-2.0, 1.0, [0.0, 0.0, -1.5], 8.0);
+    let (x0, y0) =
+        SimConfig::fingertip()
+            .camera
+            .skin_to_px(&SimConfig::fingertip().skin, -2.0, 1.0);
+    let spread_px = 8.0 / 3.0 * SimConfig::fingertip().camera.px_per_mm_y;
+    let at = |img: &ndarray::Array2<f32>, dx: f64| {
+        f64::from(img[[y0.round() as usize, (x0 + dx).round() as usize]])
+    };
+    let (plain, _) = quiet(ContactLight::default()).render(&[press]).unwrap();
+    for (change, sided) in [(-0.4, 0.0), (0.3, 0.0), (0.0, 0.25)] {
+        let light = ContactLight { change, sided };
+        let mut sim = quiet(light);
+        let (rest, _) = sim.render(&[]).unwrap();
+        assert_eq!(rest, quiet(ContactLight::default()).render(&[]).unwrap().0);
+        let (lit, _) = sim.render(&[press]).unwrap();
+        let ratio = |dx: f64| at(&lit, dx) / at(&plain, dx);
+        // Grey levels are whole numbers: within one of 180.
+        let tol = 1.5 / 180.0;
+        assert!(
+            (ratio(0.0) - (1.0 + f64::from(change))).abs() < tol,
+            "{light:?}: {}",
+            ratio(0.0)
+        );
+        let side = f64::from(sided);
+        assert!(
+            (ratio(-spread_px) - (1.0 + side) - f64::from(change) * (-0.5f64).exp()).abs() < 0.02,
+            "{light:?}: left {}",
+            ratio(-spread_px)
+        );
+        assert!(
+            (ratio(spread_px) - (1.0 - side) - f64::from(change) * (-0.5f64).exp()).abs() < 0.02,
+            "{light:?}: right {}",
+            ratio(spread_px)
+        );
+        assert!(
+            (ratio(6.0 * spread_px.min(20.0)) - 1.0).abs() < tol,
+            "{light:?}: far {}",
+            ratio(6.0 * spread_px.min(20.0))
+        );
+    }
+    for (change, sided) in [(0.95, 0.0), (0.0, -1.0), (f32::NAN, 0.0)] {
+        let mut c = SimConfig::fingertip();
+        c.noise.contact_light = ContactLight { change, sided };
+        let err = SyntheticSensor::new(c, 5).unwrap_err();
+        assert!(err.to_string().contains("contact_light"), "{err}");
+    }
+}
