@@ -705,7 +705,7 @@ impl Extraction {
     /// beyond half the pitch have every dot where it truly moved, and
     /// leaving them out left the maps to extrapolate to the strongest
     /// presses. On the simulated fingertip sensor, fitted with them the
-    /// held-out rows score Fx / Fy / Fz 0.020 / 0.033 / 0.036 N, without
+    /// held-out rows score Fx / Fy / Fz 0.020 / 0.034 / 0.035 N, without
     /// them 0.025 / 0.042 / 0.047 N (`docs/results.md`).
     pub fn fits(&self) -> bool {
         !self.beyond_markers || self.dots_followed

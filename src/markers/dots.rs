@@ -6,9 +6,9 @@
 //! precisely. [`DotTracker`] finds the dots of the reference once (the
 //! connected regions of strong contrast against the local background, each
 //! refined to its contrast-weighted centre; dark dots' contrast relative to
-//! the local light, so that uneven lighting does not hide them), and in every frame starts each
-//! dot where the flow moved it and moves it to the centre of its contrast
-//! there (a mean shift). Under a small indenter pressed hard the flow can
+//! the local light, so that uneven lighting does not hide them), and in
+//! every frame starts each dot where the flow moved it and moves it to the
+//! centre of its contrast there (a mean shift). Under a small indenter pressed hard the flow can
 //! lead a dot onto its neighbour or lose it: a dot found where another one
 //! is, or moved unlike its neighbours, or not found, is looked for again
 //! about its neighbours' median motion, and taken where no neighbour holds
@@ -22,9 +22,13 @@
 //! followed, the location error halves, and the held-out points' forces
 //! come 3 (Fx) and 2 (Fy) times closer than with the flow alone.
 //!
-//! The frame must be in the reference's exposure (the extractor
-//! compensates it first): a dot's contrast is read against the reference's
-//! background.
+//! In every frame a dot's contrast is read against that frame's own local
+//! light (its mean over one pitch), so that a contact under which the gel
+//! turns darker or brighter (its shading under the lights, or an object
+//! seen through a thin gel) does not count the plain gel about a dot as
+//! part of it. The frame should still be in the reference's exposure (the
+//! extractor compensates it first): dark dots' contrast is scaled to grey
+//! levels of the reference's mean light.
 
 use crate::error::{Error, Result};
 use crate::exposure::median;
@@ -112,6 +116,12 @@ pub struct DotTracker {
     contrast: Contrast,
     /// The reference's local background (mean over one pitch).
     background: Array2<f32>,
+    /// The local background a dot's contrast is read against in the image
+    /// being read: the reference's while its dots are found, each frame's
+    /// own (the same mean over one pitch) while they are followed.
+    light: Array2<f32>,
+    /// The running sums `light` is computed with (kept between frames).
+    table: Vec<f64>,
     floor: f32,
     /// Radius, px, of the window a dot's centre is settled in at last (its
     /// own contrast only), at most the search window's.
@@ -137,6 +147,7 @@ impl DotTracker {
         self.neighbours.clear();
         self.moved.clear();
         self.background = Array2::zeros((0, 0));
+        self.light = Array2::zeros((0, 0));
     }
 
     /// Whether a reference with dots is set.
@@ -211,7 +222,15 @@ impl DotTracker {
             return Ok(0);
         }
         self.pitch = pitch_px;
-        self.background = box_mean(reference, (pitch_px * 0.5) as usize);
+        let mut background = Array2::zeros((0, 0));
+        box_mean_into(
+            reference,
+            (pitch_px * 0.5) as usize,
+            &mut self.table,
+            &mut background,
+        );
+        self.light.clone_from(&background);
+        self.background = background;
         // Polarity: the stronger of the dark and the bright contrast.
         let absolute = |dark| Contrast { dark, light: None };
         let dark = strong(reference, &self.background, absolute(true));
@@ -340,6 +359,16 @@ impl DotTracker {
             ));
         }
         let radius = SEARCH_RADIUS_OF_PITCH * self.pitch;
+        // Each dot's contrast against the frame's own local light: where
+        // the gel under a contact turns darker or brighter (its shading, an
+        // object seen through it), the reference's light would count the
+        // plain gel about a dot as part of it.
+        box_mean_into(
+            frame,
+            (self.pitch * 0.5) as usize,
+            &mut self.table,
+            &mut self.light,
+        );
         let sf = s as f64;
         // The flow's cells in row-major order (a copy only for a flow laid
         // out otherwise).
@@ -515,9 +544,9 @@ impl DotTracker {
 
     /// The contrast-weighted centre of the dot near `start` in `image`
     /// (mean shift over the dot's own window, or where that holds nothing
-    /// over a disc of `radius` first), against the reference's background;
-    /// `None` when no window holds contrast above the floor or the centre
-    /// leaves the image.
+    /// over a disc of `radius` first), against the local light of the image
+    /// being read (`light`); `None` when no window holds contrast above the
+    /// floor or the centre leaves the image.
     fn centre(&self, image: &ArrayRef2<f32>, start: [f64; 2], radius: f64) -> Option<[f64; 2]> {
         if !(self.inner > 0.0 && self.inner < radius) {
             return self.mean_shift(image, start, radius);
@@ -544,7 +573,7 @@ impl DotTracker {
             let ((i0, i1), (j0, j1)) = window_box([x, y], radius, h, w);
             for i in i0..i1 {
                 let dy = i as f64 - y;
-                let (bg, im) = (self.background.row(i), image.row(i));
+                let (bg, im) = (self.light.row(i), image.row(i));
                 for j in j0..j1 {
                     let dx = j as f64 - x;
                     if dx * dx + dy * dy > radius * radius {
@@ -642,25 +671,58 @@ fn cell_range(c: f64, reach: f64, scale: f64, n: usize) -> (usize, usize) {
     (lo.min(n), hi)
 }
 
-/// The mean of `image` over the box of half-side `r` about each pixel
-/// (clipped at the borders), by a summed-area table.
-fn box_mean(image: &ArrayRef2<f32>, r: usize) -> Array2<f32> {
+/// Writes into `out` the mean of `image` over the box of half-side `r`
+/// about each pixel (clipped at the borders): window sums along each row,
+/// then running sums of those down the columns (`work` and `out` resized as
+/// needed, so that a frame of the same size allocates nothing).
+fn box_mean_into(image: &ArrayRef2<f32>, r: usize, work: &mut Vec<f64>, out: &mut Array2<f32>) {
     let (h, w) = image.dim();
-    let mut sat = vec![0.0f64; (h + 1) * (w + 1)];
-    for i in 0..h {
-        let mut row = 0.0;
-        for j in 0..w {
-            row += f64::from(image[[i, j]]);
-            sat[(i + 1) * (w + 1) + j + 1] = sat[i * (w + 1) + j + 1] + row;
+    if out.dim() != (h, w) {
+        *out = Array2::zeros((h, w));
+    }
+    if h == 0 || w == 0 {
+        return;
+    }
+    work.clear();
+    work.resize(h * w + 3 * w + 1, 0.0);
+    let (rows, rest) = work.split_at_mut(h * w);
+    let (prefix, rest) = rest.split_at_mut(w + 1);
+    // `scale`: the reciprocal of each column's box width.
+    let (columns, scale) = rest.split_at_mut(w);
+    // Each row's window sums, from its prefix sums.
+    for (i, sums) in rows.chunks_exact_mut(w).enumerate() {
+        let mut acc = 0.0;
+        for (p, &v) in prefix[1..].iter_mut().zip(image.row(i)) {
+            acc += f64::from(v);
+            *p = acc;
+        }
+        for (j, o) in sums.iter_mut().enumerate() {
+            *o = prefix[(j + r + 1).min(w)] - prefix[j.saturating_sub(r)];
         }
     }
-    Array2::from_shape_fn((h, w), |(i, j)| {
-        let (a, b) = (i.saturating_sub(r), (i + r + 1).min(h));
-        let (c, d) = (j.saturating_sub(r), (j + r + 1).min(w));
-        let s = sat[b * (w + 1) + d] - sat[a * (w + 1) + d] - sat[b * (w + 1) + c]
-            + sat[a * (w + 1) + c];
-        (s / ((b - a) * (d - c)) as f64) as f32
-    })
+    for (j, n) in scale.iter_mut().enumerate() {
+        *n = 1.0 / ((j + r + 1).min(w) - j.saturating_sub(r)) as f64;
+    }
+    // The column sums over rows a..b, moved down a row at a time.
+    let (mut a, mut b) = (0, 0);
+    for (i, mut line) in out.rows_mut().into_iter().enumerate() {
+        let (a1, b1) = (i.saturating_sub(r), (i + r + 1).min(h));
+        for k in b..b1 {
+            for (c, &v) in columns.iter_mut().zip(&rows[k * w..(k + 1) * w]) {
+                *c += v;
+            }
+        }
+        for k in a..a1 {
+            for (c, &v) in columns.iter_mut().zip(&rows[k * w..(k + 1) * w]) {
+                *c -= v;
+            }
+        }
+        (a, b) = (a1, b1);
+        let height = 1.0 / (b - a) as f64;
+        for ((o, &c), &n) in line.iter_mut().zip(columns.iter()).zip(scale.iter()) {
+            *o = (c * height * n) as f32;
+        }
+    }
 }
 
 /// How a pixel's contrast against its background is read: darker or

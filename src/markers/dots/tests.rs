@@ -543,3 +543,108 @@ proptest! {
         prop_assert!(mean < 0.05, "mean error {} px", mean);
     }
 }
+
+/// `image` with its light scaled by `1 + amp * g` about `(x0, y0)`, `g` a
+/// Gaussian of `width` px (negative `amp`: darker), or by `1 + amp * g *
+/// (x - x0) / width` with `dipole` (a gel lit from one side, its slopes
+/// brighter on one side of a contact and darker on the other).
+fn shaded(
+    image: &Array2<f32>,
+    amp: f64,
+    (x0, y0): (f64, f64),
+    width: f64,
+    dipole: bool,
+) -> Array2<f32> {
+    Array2::from_shape_fn(image.dim(), |(i, j)| {
+        let (dx, dy) = (j as f64 - x0, i as f64 - y0);
+        let mut g = (-(dx * dx + dy * dy) / (2.0 * width * width)).exp();
+        if dipole {
+            g *= dx / width;
+        }
+        (f64::from(image[[i, j]]) * (1.0 + amp * g)).clamp(0.0, 255.0) as f32
+    })
+}
+
+/// The gel under a contact turns darker or brighter in the frame (its
+/// shading under the camera's lights, or an object seen through a thin
+/// gel) while the reference stays as it was: the dots are still followed
+/// to their own centres, their contrast read against the frame's own
+/// light. Against the reference's light the plain gel about a darkened
+/// dot would weigh as part of it.
+#[test]
+fn dots_under_a_darker_or_brighter_contact_are_followed() {
+    let (w, h, pitch) = (320, 240, 22.0);
+    // Dark dots' contrast is read relative to the local light, bright
+    // dots' in grey levels: the light's slope across a bright dot still
+    // weighs one side of it more (0.02-0.05 px; against the reference's
+    // light 0.03-0.085 px, and 0.03-0.20 px for dark dots).
+    for (dark, seed, tolerance) in [(true, 31, (0.025, 0.05)), (false, 32, (0.06, 0.1))] {
+        let truth = grid(w, h, pitch, 11.3, 10.7);
+        let reference = render(w, h, &truth, 3.5, dark, 1.0, seed);
+        let field = bump(7.0, 150.0, 110.0, 25.0);
+        let moved = displaced(&truth, &field);
+        let frame = render(w, h, &moved, 3.5, dark, 1.0, seed + 10);
+        for (amp, dipole) in [(-0.4, false), (0.3, false), (0.35, true)] {
+            let lit = shaded(&frame, amp, (150.0, 110.0), 30.0, dipole);
+            let mut t = DotTracker::new();
+            t.set_reference(&reference, pitch).unwrap();
+            let mut flow = flow_of(w, h, 2, &field, [0.6, -0.4]);
+            t.refine(&lit, &mut flow, 2).unwrap();
+            let mut errors = Vec::new();
+            for (&c, d) in t.dots().iter().zip(t.displacements()) {
+                // The dots the light changed by a tenth or more.
+                if (c[0] - 150.0).hypot(c[1] - 110.0) > 45.0 {
+                    continue;
+                }
+                let d = d.expect("every dot followed");
+                let (k, _) = nearest(&truth, c);
+                errors.push(dist(d, field(truth[k])));
+            }
+            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+            let worst = errors.iter().copied().fold(0.0, f64::max);
+            assert!(
+                errors.len() >= 12,
+                "{} dots in the light's reach",
+                errors.len()
+            );
+            assert!(
+                mean < tolerance.0 && worst < tolerance.1,
+                "dark {dark}, light x(1 {amp:+}{}): mean {mean}, worst {worst} px over {} dots",
+                if dipole { " dipole" } else { "" },
+                errors.len()
+            );
+        }
+    }
+}
+
+/// The box mean by its summed-area table against a direct mean over each
+/// box, on images of several sizes and radii, the buffers kept from one
+/// image to the next (a smaller image, then a larger one).
+#[test]
+fn the_box_mean_matches_a_direct_mean() {
+    let (mut sat, mut out) = (Vec::new(), Array2::zeros((0, 0)));
+    let mut n = Noise(9);
+    for (w, h, r) in [(37, 23, 5), (9, 4, 7), (64, 48, 0), (50, 61, 11)] {
+        let img = Array2::from_shape_fn((h, w), |_| 100.0 + 40.0 * n.normal());
+        box_mean_into(&img, r, &mut sat, &mut out);
+        assert_eq!(out.dim(), (h, w));
+        for i in 0..h {
+            for j in 0..w {
+                let (a, b) = (i.saturating_sub(r), (i + r + 1).min(h));
+                let (c, d) = (j.saturating_sub(r), (j + r + 1).min(w));
+                let mut s = 0.0f64;
+                for y in a..b {
+                    for x in c..d {
+                        s += f64::from(img[[y, x]]);
+                    }
+                }
+                let want = s / ((b - a) * (d - c)) as f64;
+                let got = f64::from(out[[i, j]]);
+                assert!(
+                    (got - want).abs() < 1e-3,
+                    "{w}x{h} r {r} at ({i}, {j}): {got} against {want}"
+                );
+            }
+        }
+    }
+}
