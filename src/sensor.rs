@@ -458,8 +458,7 @@ pub const TORN_FRACTION: f64 = 0.1;
 /// Why: on a flat sensor with random markers (a thin gel under a small
 /// camera image) the denser flow's patches (every half patch instead of
 /// every patch: four times as many) follow the small markers' motion more
-/// closely, and fewer presses tear it
-/// ([`TORN_STRAIN`]). Measured on the simulated fingertip sensor with random
+/// closely, and fewer presses tear it ([`TORN_STRAIN`]). Measured on the simulated fingertip sensor with random
 /// markers, two marker seeds (held-out points in domain, Fx / Fy / Fz):
 /// 0.029 / 0.023 / 0.042 N with `fine` against 0.020 / 0.017 / 0.034 N with
 /// `dense`, and 0.025 / 0.020 / 0.066 N against 0.020 / 0.020 / 0.051 N; on
