@@ -101,7 +101,7 @@ use optical_tactile::frame::Roi;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::Thresholds;
-use optical_tactile::sensor::{ExtractorConfig, fitting_flow_preset};
+use optical_tactile::sensor::{ExtractorConfig, fitting_flow_preset, fitting_light_box};
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
 /// every test, fits the polynomial maps and prints the paper's Tables I and
@@ -204,6 +204,11 @@ struct Cli {
     /// sensor's].
     #[arg(long, value_name = "PRESET", ignore_case = true, value_parser = cli_support::dis_preset())]
     preset: Option<DisPreset>,
+    /// Divide the frames by their own local light, a box of this half-side
+    /// (px), before the flow; 0: not [default: two flow patches (16 px)
+    /// for random markers on a flat sensor, otherwise 0].
+    #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(0..=16384))]
+    light_box: Option<u32>,
     /// Crop of the frames [default: the whole image].
     #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     crop: Option<Roi>,
@@ -274,6 +279,8 @@ struct Args {
     dot_tracking: DotTrackingArg,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
+    /// `--light-box`; `None`: as [`fitting_light_box`] says.
+    light_box: Option<usize>,
     crop: Option<Roi>,
     predictions: Option<TextOut>,
     quiet: bool,
@@ -500,6 +507,7 @@ impl Cli {
             relocation: self.relocation.map(Relocation::from),
             dot_tracking: self.dot_tracking,
             flow: self.preset,
+            light_box: self.light_box.map(|r| r as usize),
             crop: self.crop,
             predictions: self.predictions,
             quiet: self.quiet,
@@ -578,7 +586,8 @@ fn run(args: Args) -> Result<(), Failure> {
         if preset != DisPreset::Fine {
             eprintln!(
                 "the references show random markers on a flat sensor: fitted with the `{}` flow \
-                 (--preset fine: the sensor's default, half the time per frame)",
+                 (--preset fine: the sensor's default, half the time per frame), the frames \
+                 divided by their own light (--light-box 0: as they are)",
                 preset.name()
             );
         }
@@ -608,6 +617,11 @@ fn run(args: Args) -> Result<(), Failure> {
             .with_thresholds(thresholds(preset, args.custom))
             .with_dot_tracking(dot_tracking);
         config.flow = DisParams::preset(flow);
+        config.light_box_px = match args.light_box {
+            Some(0) => None,
+            Some(r) => Some(r),
+            None => fitting_light_box(&geometry, pitch, config.flow.patch_size),
+        };
         let t0 = Instant::now();
         let ex = extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {
             extract_dataset(&args.dir, &rows, &config, contact_point, args.crop, p)

@@ -70,6 +70,11 @@ fn calibration_sizes_beyond_their_bounds_are_refused_at_load() {
     let mut v = calibration_json();
     v["pipeline"]["margin_px"] = json!(u64::MAX);
     assert!(load_err(&v).contains("margin_px"));
+    for r in [json!(0), json!(u64::MAX), json!(1u64 << 20)] {
+        let mut v = calibration_json();
+        v["pipeline"]["light_box_px"] = r;
+        assert!(load_err(&v).contains("light_box_px"));
+    }
     let mut v = calibration_json();
     v["crop"]["x"] = json!(u64::MAX);
     assert!(load_err(&v).contains("crop"));

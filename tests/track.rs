@@ -247,10 +247,12 @@ fn extractor_settings_come_from_the_calibration() {
             contact_point: None,
             exposure: Some(optical_tactile::exposure::ExposureCompensation::GainOffset),
             dot_tracking: true,
+            light_box_px: Some(16),
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();
     assert!(c.dot_tracking);
+    assert_eq!(c.light_box_px, Some(16));
     assert_eq!(c.flow, DisParams::preset(DisPreset::Fast));
     assert_eq!((c.margin_px, c.subpixel), (16, false));
     assert_eq!(

@@ -972,6 +972,7 @@ pub fn fit_dataset_with_sweeps(
             contact_point: Some(contact_point),
             exposure: Some(config.exposure),
             dot_tracking: config.dot_tracking,
+            light_box_px: config.light_box_px,
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).

@@ -311,13 +311,20 @@ pub struct PipelineSettings {
     /// in older files and when off.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub dot_tracking: bool,
+    /// Half-side, full-resolution pixels, of the box of local light the
+    /// frames were divided by before the flow
+    /// ([`crate::sensor::ExtractorConfig::light_box_px`]). Absent when they
+    /// were not.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light_box_px: Option<usize>,
 }
 
 impl SensorSetup {
     /// The crop and the pipeline settings within their bounds
     /// (docs/formats.md): the crop inside the largest frame
-    /// ([`crate::frame::MAX_FRAME_SIDE`]), the margin and contact window at
-    /// most that, the contact point method's parameter within its bound.
+    /// ([`crate::frame::MAX_FRAME_SIDE`]), the margin, contact window and
+    /// light box at most that (a light box at least 1 px), the contact
+    /// point method's parameter within its bound.
     fn check(&self) -> std::result::Result<(), String> {
         let max = crate::frame::MAX_FRAME_SIDE;
         let c = &self.crop;
@@ -337,6 +344,11 @@ impl SensorSetup {
                     "pipeline.contact_window_px {} is above {max}",
                     p.contact_window_px
                 ));
+            }
+            if let Some(r) = p.light_box_px
+                && !(1..=max).contains(&r)
+            {
+                return Err(format!("pipeline.light_box_px {r} is not within 1..={max}"));
             }
             p.contact_point_method()
                 .validate()

@@ -1436,6 +1436,7 @@ mod tests {
             contact_point: None,
             exposure: None,
             dot_tracking: false,
+            light_box_px: None,
         };
         assert_eq!(
             p.contact_point_method(),

@@ -33,7 +33,7 @@
 use crate::error::{Error, Result};
 use crate::exposure::median;
 use crate::flow::{FlowField, sample_clamped};
-use crate::frame::Roi;
+use crate::frame::{Roi, box_mean_into};
 use crate::markers::centre::motion_centre;
 use ndarray::{Array2, ArrayRef2};
 
@@ -669,60 +669,6 @@ fn cell_range(c: f64, reach: f64, scale: f64, n: usize) -> (usize, usize) {
     let lo = (((c - reach + 0.5) / scale) - 0.5).floor().max(0.0) as usize;
     let hi = ((((c + reach + 0.5) / scale) - 0.5).ceil() + 1.0).clamp(0.0, n as f64) as usize;
     (lo.min(n), hi)
-}
-
-/// Writes into `out` the mean of `image` over the box of half-side `r`
-/// about each pixel (clipped at the borders): window sums along each row,
-/// then running sums of those down the columns (`work` and `out` resized as
-/// needed, so that a frame of the same size allocates nothing).
-fn box_mean_into(image: &ArrayRef2<f32>, r: usize, work: &mut Vec<f64>, out: &mut Array2<f32>) {
-    let (h, w) = image.dim();
-    if out.dim() != (h, w) {
-        *out = Array2::zeros((h, w));
-    }
-    if h == 0 || w == 0 {
-        return;
-    }
-    work.clear();
-    work.resize(h * w + 3 * w + 1, 0.0);
-    let (rows, rest) = work.split_at_mut(h * w);
-    let (prefix, rest) = rest.split_at_mut(w + 1);
-    // `scale`: the reciprocal of each column's box width.
-    let (columns, scale) = rest.split_at_mut(w);
-    // Each row's window sums, from its prefix sums.
-    for (i, sums) in rows.chunks_exact_mut(w).enumerate() {
-        let mut acc = 0.0;
-        for (p, &v) in prefix[1..].iter_mut().zip(image.row(i)) {
-            acc += f64::from(v);
-            *p = acc;
-        }
-        for (j, o) in sums.iter_mut().enumerate() {
-            *o = prefix[(j + r + 1).min(w)] - prefix[j.saturating_sub(r)];
-        }
-    }
-    for (j, n) in scale.iter_mut().enumerate() {
-        *n = 1.0 / ((j + r + 1).min(w) - j.saturating_sub(r)) as f64;
-    }
-    // The column sums over rows a..b, moved down a row at a time.
-    let (mut a, mut b) = (0, 0);
-    for (i, mut line) in out.rows_mut().into_iter().enumerate() {
-        let (a1, b1) = (i.saturating_sub(r), (i + r + 1).min(h));
-        for k in b..b1 {
-            for (c, &v) in columns.iter_mut().zip(&rows[k * w..(k + 1) * w]) {
-                *c += v;
-            }
-        }
-        for k in a..a1 {
-            for (c, &v) in columns.iter_mut().zip(&rows[k * w..(k + 1) * w]) {
-                *c -= v;
-            }
-        }
-        (a, b) = (a1, b1);
-        let height = 1.0 / (b - a) as f64;
-        for ((o, &c), &n) in line.iter_mut().zip(columns.iter()).zip(scale.iter()) {
-            *o = (c * height * n) as f32;
-        }
-    }
 }
 
 /// How a pixel's contrast against its background is read: darker or
