@@ -12,6 +12,23 @@ use optical_tactile::{Calibration, TactileSensor};
 const SEQ: &str = "fixtures/flat_press";
 const CAL: &str = "fixtures/flat_calibration.json";
 
+/// Light changing under each contact, as the tests press with it: 40%
+/// darker, 30% brighter, and shaded from one side.
+const LIGHTS: [optical_tactile_sim::ContactLight; 3] = [
+    optical_tactile_sim::ContactLight {
+        change: -0.4,
+        sided: 0.0,
+    },
+    optical_tactile_sim::ContactLight {
+        change: 0.3,
+        sided: 0.0,
+    },
+    optical_tactile_sim::ContactLight {
+        change: 0.0,
+        sided: 0.25,
+    },
+];
+
 /// The simulated fingertip sensor with its dots `pitch_px` apart and its
 /// gel lit `light` times the preset's, and its unloaded frame.
 fn fingertip(
@@ -613,20 +630,7 @@ fn a_contact_that_changes_the_gels_light_reads_as_under_its_own_light() {
     };
     for (seed, pitch_px) in [(81, 22.0), (82, 21.0)] {
         let own = read(ContactLight::default(), seed, pitch_px);
-        for light in [
-            ContactLight {
-                change: -0.4,
-                sided: 0.0,
-            },
-            ContactLight {
-                change: 0.3,
-                sided: 0.0,
-            },
-            ContactLight {
-                change: 0.0,
-                sided: 0.25,
-            },
-        ] {
+        for light in LIGHTS {
             let lit = read(light, seed, pitch_px);
             for (k, ((l0, f0), (l1, f1))) in own.iter().zip(&lit).enumerate() {
                 let dl = (l1[0] - l0[0]).hypot(l1[1] - l0[1]);
@@ -685,25 +689,11 @@ fn dividing_random_markers_by_their_light_keeps_a_lit_contact_where_it_is() {
             })
             .collect::<Vec<_>>()
     };
-    let lights = [
-        ContactLight {
-            change: -0.4,
-            sided: 0.0,
-        },
-        ContactLight {
-            change: 0.3,
-            sided: 0.0,
-        },
-        ContactLight {
-            change: 0.0,
-            sided: 0.25,
-        },
-    ];
     let (mut divided, mut undivided) = (0.0f64, 0.0f64);
     for seed in [91, 92] {
         for (boxed, total) in [(Some(16), &mut divided), (None, &mut undivided)] {
             let own = read(ContactLight::default(), seed, boxed);
-            for light in lights {
+            for light in LIGHTS {
                 for (k, (a, b)) in own.iter().zip(&read(light, seed, boxed)).enumerate() {
                     let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
                     if boxed.is_some() {
