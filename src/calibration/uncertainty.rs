@@ -227,7 +227,10 @@ fn level(features: &[[f64; 3]], y: &[f64], c: [f64; 3]) -> f64 {
     }
     ratios.sort_by(f64::total_cmp);
     let i = ((TARGET_COVERAGE * ratios.len() as f64).ceil() as usize).clamp(1, ratios.len()) - 1;
-    ratios[i]
+    // A hair above the quantile's ratio: the sigma of the sample that sets
+    // it, summed from the scaled coefficients, must not round below its
+    // error.
+    ratios[i] * (1.0 + 1e-12)
 }
 
 fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
@@ -493,6 +496,26 @@ mod tests {
             for t in &trials {
                 let o = objective(&features, &y, &[t.0, t.1, t.2]);
                 prop_assert!(o >= best - 1e-12 * best.max(1.0));
+            }
+        }
+
+        /// On the samples it was fitted on, at least the target fraction of
+        /// the errors lies within one sigma (the sample that sets the level
+        /// included, however the scaled coefficients round), and at most
+        /// one sample more than the target's share plus the ties at the
+        /// level.
+        #[test]
+        fn the_level_covers_its_own_samples(
+            seed in 0u64..1_000_000,
+            n in MIN_SAMPLES..400,
+        ) {
+            let mut rng = Lcg(seed);
+            let samples = draw(&mut rng, n, TRUTH);
+            let u = ForceUncertainty::fit(&samples).unwrap();
+            let least = (TARGET_COVERAGE * n as f64).ceil() / n as f64;
+            for c in u.coverage(&samples).unwrap() {
+                prop_assert!(c >= least - 1e-12 && c >= TARGET_COVERAGE, "{c} of {n}");
+                prop_assert!(c <= least + 1.0 / n as f64 + 1e-12, "{c} of {n}");
             }
         }
     }
