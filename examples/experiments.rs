@@ -176,7 +176,7 @@ struct PresetFit {
     /// From the characterization's force levels (0.5..3 N).
     min_force: DetectionLimit,
     /// Tests without a detected contact, train/val/test.
-    misses: [usize; 3],
+    misses: [usize; 4],
     test: PointTable,
     seconds: f64,
     #[serde(skip)]

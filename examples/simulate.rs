@@ -551,6 +551,14 @@ pub struct CharacterizationArgs {
     /// along the skin.
     #[arg(long = "tilted-sweeps")]
     pub tilted_sweeps: bool,
+    /// Spot checks after the tests (split `spot` of tests.csv): presses of
+    /// the protocol's indenters at random places, forces and tilts within
+    /// the protocol's ranges, from which `calibrate` scores the maps between
+    /// the points and fits the force uncertainty; 0: none [default: 300 for
+    /// the whole fingertip protocol, about 50 min at a rig; none on the
+    /// strip or with --subset].
+    #[arg(long = "spot-checks", value_name = "N")]
+    pub spot_checks: Option<usize>,
 }
 
 /// `perches`' options.
@@ -720,6 +728,7 @@ impl Command {
                     load_cell_noise_n: o.load_cell_noise_n,
                     sweep_step_mm: o.sweep_step_mm,
                     tilted_sweeps: o.tilted_sweeps,
+                    spot_checks: o.spot_checks,
                 }),
                 &common,
                 false,

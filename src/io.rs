@@ -776,6 +776,12 @@ pub enum Split {
     Val,
     /// Held out; the reported errors.
     Test,
+    /// Spot checks: presses at places of their own rather than the
+    /// protocol's points, held out like the tests. They say how the maps do
+    /// between the points, and the per-contact force uncertainty is fitted
+    /// on them when there are enough
+    /// ([`crate::calibration::uncertainty`]).
+    Spot,
 }
 
 impl Split {
@@ -785,6 +791,7 @@ impl Split {
             Split::Train => "train",
             Split::Val => "val",
             Split::Test => "test",
+            Split::Spot => "spot",
         }
     }
 }
@@ -796,6 +803,7 @@ impl std::str::FromStr for Split {
             "train" => Ok(Split::Train),
             "val" => Ok(Split::Val),
             "test" => Ok(Split::Test),
+            "spot" => Ok(Split::Spot),
             _ => Err(()),
         }
     }
@@ -810,7 +818,8 @@ pub struct TestRow {
     pub frame: String,
     /// Unloaded reference frame taken just before, relative to the CSV's directory.
     pub reference: String,
-    /// Measuring point (1-15).
+    /// Measuring point of the protocol (from 1); 0 for a press at a place
+    /// of its own (a spot check or a sweep image).
     pub point: u32,
     /// Indenter (cylinder) diameter, mm.
     pub indenter_mm: f64,
@@ -868,7 +877,10 @@ pub fn read_tests_csv(path: impl AsRef<Path>) -> Result<Vec<TestRow>> {
             Error::format(
                 &csv.path,
                 Some(line),
-                format!("unknown split `{}` (expected train, val or test)", r[c[9]]),
+                format!(
+                    "unknown split `{}` (expected train, val, test or spot)",
+                    r[c[9]]
+                ),
             )
         })?;
         out.push(TestRow {

@@ -1983,6 +1983,68 @@ fn a_fit_carries_a_force_uncertainty_scored_on_the_test_split() {
     assert_eq!(c.to_record().fz_sigma_n, None);
 }
 
+/// Spot checks of `protocol_samples`: copies of its test samples with three
+/// times the noise on their inputs, at points of their own (0).
+fn spot_samples(n: usize, seed: u64) -> Vec<Sample> {
+    let mut rng = Rng::new(seed);
+    protocol_samples(0.3, seed)
+        .into_iter()
+        .filter(|s| s.split == Split::Test)
+        .take(n)
+        .map(|mut s| {
+            s.split = Split::Spot;
+            s.point = 0;
+            s.dz += 30.0 * rng.normal();
+            s
+        })
+        .collect()
+}
+
+#[test]
+fn spot_checks_are_scored_and_set_the_uncertainty_but_fit_no_map() {
+    let protocol = protocol_samples(0.1, 3);
+    let plain = fit::fit(&protocol, &setup(), &small_options()).unwrap();
+    let spots = spot_samples(120, 9);
+    let with: Vec<Sample> = protocol.iter().chain(&spots).copied().collect();
+    let cal = fit::fit(&with, &setup(), &small_options()).unwrap();
+    // The maps are those of the protocol alone.
+    for s in protocol.iter().chain(&spots) {
+        assert_eq!(cal.predict(s).unwrap(), plain.predict(s).unwrap());
+    }
+    let report = cal.report.as_ref().unwrap();
+    assert_eq!(report.test, plain.report.as_ref().unwrap().test);
+    // The spot checks' errors are reported apart...
+    let spot = report.spot.as_ref().expect("the spot checks' errors");
+    assert_eq!((spot.split, spot.total.n), (Split::Spot, spots.len()));
+    assert!(spot.total.fz > report.test.as_ref().unwrap().total.fz);
+    assert!(plain.report.as_ref().unwrap().spot.is_none());
+    // ...and the uncertainty is fitted on them: 68% of their errors within
+    // one sigma, a wider sigma than the validation split's.
+    let u = cal.uncertainty.as_ref().unwrap();
+    assert_eq!(u.samples, spots.len());
+    let spread: Vec<SpreadSample> = spots
+        .iter()
+        .map(|s| SpreadSample::of(s, &cal.predict(s).unwrap()))
+        .collect();
+    for c in u.coverage(&spread).unwrap() {
+        assert!((0.6827..0.70).contains(&c), "spot coverage {c}");
+    }
+    let narrow = plain.uncertainty.as_ref().unwrap();
+    assert!(u.sigma_n(4.0, [0.0, 0.0, -2.0])[2] > narrow.sigma_n(4.0, [0.0, 0.0, -2.0])[2]);
+    // Too few spot checks to pin a 68% quantile: the validation split's.
+    let few: Vec<Sample> = protocol
+        .iter()
+        .chain(&spots[..uncertainty::MIN_SAMPLES - 1])
+        .copied()
+        .collect();
+    let cal = fit::fit(&few, &setup(), &small_options()).unwrap();
+    assert_eq!(cal.uncertainty, plain.uncertainty);
+    assert_eq!(
+        cal.report.as_ref().unwrap().spot.as_ref().unwrap().total.n,
+        uncertainty::MIN_SAMPLES - 1
+    );
+}
+
 #[test]
 fn too_few_validation_samples_fit_no_uncertainty() {
     let mut samples = protocol_samples(0.1, 4);

@@ -222,6 +222,10 @@ fn tests_csv_round_trip_and_the_dataset_example() {
         row(0, Split::Train),
         row(1, Split::Val),
         row(2, Split::Test),
+        TestRow {
+            point: 0,
+            ..row(3, Split::Spot)
+        },
     ];
     io::write_tests_csv(&p, &rows).unwrap();
     assert_eq!(io::read_tests_csv(&p).unwrap(), rows);
@@ -247,7 +251,7 @@ fn malformed_tests_csv_names_file_and_line() {
             format!(
                 "{head}{good}0,a.png,b.png,2,10,0,15,1,1.5,holdout,-114.1,0.0,0.39,0.02,-1.45\n"
             ),
-            "tests.csv:3: unknown split `holdout`",
+            "tests.csv:3: unknown split `holdout` (expected train, val, test or spot)",
         ),
         (
             format!("{head}{good}0,a.png,b.png,2,10,0,15,1,x,train,-114.1,0.0,0.39,0.02,-1.45\n"),

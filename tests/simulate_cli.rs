@@ -98,6 +98,11 @@ fn the_fingertip_sensor_and_its_scenarios() {
     assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 3));
     let (sc, _) = run("characterization --sensor strip --out d");
     assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 5));
+    // Spot checks: the scenario's default unless asked.
+    assert!(matches!(sc, Scenario::Characterization(ref o) if o.spot_checks.is_none()));
+    let (sc, _) = run("characterization --sensor fingertip --out d --spot-checks 40");
+    assert!(matches!(sc, Scenario::Characterization(ref o) if o.spot_checks == Some(40)));
+    usage_error("characterization --out d --spot-checks -1");
 
     let (sc, _) = run("presses --sensor fingertip --out d --presses 7 --max-shear-ratio 0.5");
     let Scenario::TipPresses(o) = sc else {

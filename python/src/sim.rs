@@ -217,7 +217,8 @@ fn scenario_options(
                 repeats,
                 load_cell_noise_n,
                 sweep_step_mm,
-                tilted_sweeps
+                tilted_sweeps,
+                spot_checks
             );
             Scenario::Characterization(s)
         }

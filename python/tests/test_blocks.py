@@ -171,3 +171,18 @@ def test_characterization_writes_sweeps(tmp_path):
     assert not (tmp_path / "d" / "sweeps.csv").exists()
     with pytest.raises(ValueError, match="sweep_step_mm"):
         ot.simulate("characterization", tmp_path / "e", subset=1, sweep_step_mm=-1.0)
+
+
+def test_characterization_writes_spot_checks(tmp_path):
+    # Spot checks after the tests: split `spot`, point 0, the protocol's rods.
+    ot.simulate("characterization", tmp_path / "c", subset=2, spot_checks=3)
+    lines = (tmp_path / "c" / "tests.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    rows = [dict(zip(head, line.split(","))) for line in lines[1:]]
+    assert [r["split"] for r in rows].count("spot") == 3
+    for r in rows[2:]:
+        assert r["split"] == "spot" and r["point"] == "0"
+        assert float(r["indenter_mm"]) in (2.0, 5.0, 10.0)
+        assert (tmp_path / "c" / r["frame"]).exists()
+    with pytest.raises(ValueError, match="spot_checks"):
+        ot.simulate("characterization", tmp_path / "e", subset=1, spot_checks=10**9)

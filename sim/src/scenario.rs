@@ -175,7 +175,20 @@ pub struct Characterization {
     /// Also write the [`TILTED_SWEEPS`] after the straight ones (twice the
     /// sweeps' images and rig time).
     pub tilted_sweeps: bool,
+    /// Spot checks written after the tests (`spot` split): presses of the
+    /// protocol's indenters at places, forces and tilts drawn at random
+    /// within the protocol's ranges ([`spot_checks`]); `None`:
+    /// [`FLAT_SPOT_CHECKS`] on a flat sensor's whole protocol, none on the
+    /// strip or with a `subset`. At most [`MAX_SPOT_CHECKS`].
+    pub spot_checks: Option<usize>,
 }
+
+/// The flat protocol's default number of spot checks: 300 presses, about
+/// 50 minutes at a rig (10 s a press), from which `calibrate` scores the
+/// maps between the protocol's points and fits the force uncertainty.
+pub const FLAT_SPOT_CHECKS: usize = 300;
+/// Largest number of spot checks of one characterization.
+pub const MAX_SPOT_CHECKS: usize = 100_000;
 
 /// The sweeps of the strip's protocol, `(indenter_mm, force_n)`: each
 /// presses the rod straight down with this force at every
@@ -220,6 +233,7 @@ impl Default for Characterization {
             load_cell_noise_n: LOAD_CELL_NOISE_N,
             sweep_step_mm: None,
             tilted_sweeps: false,
+            spot_checks: None,
         }
     }
 }
@@ -1177,7 +1191,11 @@ pub fn flat_point_mm(skin: &crate::Skin, mat: &crate::Material, point: u32) -> R
 /// One planned characterization test.
 #[derive(Debug, Clone, Copy)]
 struct Planned {
+    /// The protocol's point; 0 for a spot check, pressed at `at`.
     point: u32,
+    /// A spot check's place `(x_mm, y_mm)` (on the strip, `x` is the arc
+    /// length and `y` is 0).
+    at: Option<(f64, f64)>,
     indenter: f64,
     /// The flat protocol's round indenter; `None`: a rod of `indenter` mm.
     tip: Option<Tip>,
@@ -1202,6 +1220,7 @@ fn protocol(repeats: u32) -> Vec<Planned> {
                         for &force in &FORCES_N {
                             v.push(Planned {
                                 point,
+                                at: None,
                                 indenter,
                                 tip: None,
                                 tilt,
@@ -1240,6 +1259,7 @@ fn flat_protocol(repeats: u32) -> Vec<Planned> {
                         for &force in &FORCES_N {
                             v.push(Planned {
                                 point,
+                                at: None,
                                 indenter: tip.diameter_mm(),
                                 tip: Some(tip),
                                 tilt,
@@ -1254,6 +1274,70 @@ fn flat_protocol(repeats: u32) -> Vec<Planned> {
         }
     }
     v
+}
+
+/// The largest tilt of the protocol's tests, degrees: 20 on a flat
+/// sensor ([`FLAT_TILTS_DEG`]), 15 on the strip ([`TILTS_DEG`]).
+fn largest_tilt_deg(flat: bool) -> f64 {
+    let tilts: &[(f64, f64)] = if flat { &FLAT_TILTS_DEG } else { &TILTS_DEG };
+    tilts
+        .iter()
+        .map(|&(y, p)| y.abs().max(p.abs()))
+        .fold(0.0, f64::max)
+}
+
+/// `n` spot checks ([`Characterization::spot_checks`]): each one of the
+/// protocol's indenters (a round tip of [`FLAT_TIPS`] on a flat sensor, a
+/// rod of [`INDENTERS_MM`] on the strip), a force magnitude uniform over
+/// the protocol's force ladder, tilted about one axis (yaw or pitch, even
+/// odds) uniformly within the protocol's largest tilt, at a place uniform
+/// over the protocol's points' extent: the rectangle of the flat grid
+/// (`extent`: its largest `|x|` and `|y|`), or the arc between the strip's
+/// outermost training points. Drawn from `seed`'s own stream.
+fn spot_checks(n: usize, flat: bool, extent: (f64, f64), seed: u64) -> Vec<Planned> {
+    let mut rng = SplitMix64::new(mix64(seed ^ 0x5B07_C4EC_0000_0001));
+    let max_tilt = largest_tilt_deg(flat);
+    let (lo, hi) = (FORCES_N[0], FORCES_N[FORCES_N.len() - 1]);
+    let (first, last) = (TRAIN_POINTS[0], TRAIN_POINTS[TRAIN_POINTS.len() - 1]);
+    let arc = ((first as f64 - 8.0) * 20.0, (last as f64 - 8.0) * 20.0);
+    (0..n)
+        .map(|_| {
+            let (tip, indenter) = if flat {
+                let tip = FLAT_TIPS[rng.below(FLAT_TIPS.len() as u64) as usize];
+                (Some(tip), tip.diameter_mm())
+            } else {
+                (
+                    None,
+                    INDENTERS_MM[rng.below(INDENTERS_MM.len() as u64) as usize],
+                )
+            };
+            let force = rng.uniform(lo, hi);
+            let angle = rng.uniform(-max_tilt, max_tilt);
+            let tilt = if rng.below(2) == 0 {
+                (angle, 0.0)
+            } else {
+                (0.0, angle)
+            };
+            let at = if flat {
+                (
+                    rng.uniform(-extent.0, extent.0),
+                    rng.uniform(-extent.1, extent.1),
+                )
+            } else {
+                (rng.uniform(arc.0, arc.1), 0.0)
+            };
+            Planned {
+                point: 0,
+                at: Some(at),
+                indenter,
+                tip,
+                tilt,
+                repeat: 1,
+                force,
+                split: Split::Spot,
+            }
+        })
+        .collect()
 }
 
 /// What `indenters.json` says of each indenter of a flat protocol.
@@ -1273,11 +1357,22 @@ fn characterization(
         c.config.skin.geometry,
         optical_tactile::geometry::SensorGeometry::Flat(_)
     );
-    let all = if flat {
+    let mut all = if flat {
         flat_protocol(o.repeats)
     } else {
         protocol(o.repeats)
     };
+    let spots = match o.spot_checks {
+        Some(n) => n,
+        None if flat && o.subset.is_none() => FLAT_SPOT_CHECKS,
+        None => 0,
+    };
+    if spots > MAX_SPOT_CHECKS {
+        return Err(Error::param(
+            "spot_checks",
+            format!("at most {MAX_SPOT_CHECKS}, got {spots}"),
+        ));
+    }
     // The flat protocol's points, checked before anything is written.
     let (nx, ny) = FLAT_GRID;
     let points: Vec<(f64, f64)> = if flat {
@@ -1299,6 +1394,13 @@ fn characterization(
         ids.truncate(n);
         ids.sort_unstable();
     }
+    // The spot checks after the tests, over the protocol points' extent.
+    let extent = points.iter().fold((0.0, 0.0), |(x, y): (f64, f64), p| {
+        (x.max(p.0.abs()), y.max(p.1.abs()))
+    });
+    let first_spot = all.len();
+    all.extend(spot_checks(spots, flat, extent, c.seed));
+    ids.extend(first_spot..all.len());
     create_dir(&c.out)?;
     create_dir(&c.out.join("frames"))?;
     if c.flow {
@@ -1331,11 +1433,12 @@ fn characterization(
             let f = tilted_force(p.force, p.tilt.0, p.tilt.1);
             let (x, y, contact) = match p.tip {
                 Some(tip) => {
-                    let (x, y) = points[p.point as usize - 1];
+                    let (x, y) = p.at.unwrap_or_else(|| points[p.point as usize - 1]);
                     (x, y, tip.press(x, y, f))
                 }
                 None => {
-                    let x = skin.arc_to_chord((p.point as f64 - 8.0) * 20.0);
+                    let arc = p.at.map_or((p.point as f64 - 8.0) * 20.0, |a| a.0);
+                    let x = skin.arc_to_chord(arc);
                     (x, 0.0, Press::rod(x, f, p.indenter))
                 }
             };

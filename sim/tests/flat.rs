@@ -270,6 +270,7 @@ fn the_flat_protocol_writes_a_dataset_on_its_grid() {
             Split::Train => 0,
             Split::Val => 1,
             Split::Test => 2,
+            Split::Spot => panic!("no spot checks with a subset: {r:?}"),
         }] += 1;
         let f = tilted_force(r.force_n, r.yaw_deg, r.pitch_deg);
         let err =
@@ -286,6 +287,115 @@ fn the_flat_protocol_writes_a_dataset_on_its_grid() {
     assert!(held.iter().any(|&(c, _)| c == 2));
     assert!(held.iter().any(|&(c, _)| c == 4));
     assert!(held.iter().any(|&(_, r)| r == 3));
+}
+
+/// The rows of a characterization with `spots` spot checks after a
+/// subset of `subset` tests, on `config`.
+fn with_spot_checks(
+    out: &std::path::Path,
+    config: SimConfig,
+    subset: usize,
+    spots: usize,
+) -> Vec<io::TestRow> {
+    let mut c = Common::new(out);
+    c.flow = false;
+    c.config = config;
+    let o = Characterization {
+        subset: Some(subset),
+        spot_checks: Some(spots),
+        ..Characterization::flat()
+    };
+    scenario::run(&Scenario::Characterization(o), &c).unwrap();
+    io::read_tests_csv(out.join("tests.csv")).unwrap()
+}
+
+#[test]
+fn spot_checks_press_the_protocols_tips_between_its_points() {
+    let (_dir, out) = tmp("spots");
+    let rows = with_spot_checks(&out, SimConfig::fingertip(), 10, 80);
+    assert_eq!(rows.len(), 90);
+    assert!(rows[..10].iter().all(|r| r.split != Split::Spot));
+    let spots = &rows[10..];
+    let grid = |r: &io::TestRow| {
+        let xs = [-7.0, -3.5, 0.0, 3.5, 7.0];
+        let ys = [-4.0, -4.0 / 3.0, 4.0 / 3.0, 4.0];
+        xs.iter()
+            .flat_map(|x| ys.iter().map(move |y| (r.x_mm - x).hypot(r.y_mm - y)))
+            .fold(f64::INFINITY, f64::min)
+    };
+    let mut frames = std::collections::HashSet::new();
+    let (mut yawed, mut pitched, mut off_grid) = (0, 0, 0);
+    let (mut x_range, mut y_range) = ((f64::MAX, f64::MIN), (f64::MAX, f64::MIN));
+    for r in spots {
+        assert_eq!((r.split, r.point, r.repeat), (Split::Spot, 0, 1), "{r:?}");
+        assert!(out.join(&r.frame).exists() && out.join(&r.reference).exists());
+        assert!(frames.insert(r.frame.clone()), "{r:?}");
+        assert!([5.0, 8.0, 18.0].contains(&r.indenter_mm), "{r:?}");
+        // Within the protocol's ranges: its points' extent, its force
+        // ladder, its largest tilt about one axis.
+        assert!(r.x_mm.abs() <= 7.0 && r.y_mm.abs() <= 4.0, "{r:?}");
+        assert!((0.5..=3.0).contains(&r.force_n), "{r:?}");
+        assert!(r.yaw_deg == 0.0 || r.pitch_deg == 0.0, "{r:?}");
+        assert!(
+            r.yaw_deg.abs() <= 20.0 && r.pitch_deg.abs() <= 20.0,
+            "{r:?}"
+        );
+        yawed += usize::from(r.yaw_deg != 0.0);
+        pitched += usize::from(r.pitch_deg != 0.0);
+        off_grid += usize::from(grid(r) > 0.5);
+        x_range = (x_range.0.min(r.x_mm), x_range.1.max(r.x_mm));
+        y_range = (y_range.0.min(r.y_mm), y_range.1.max(r.y_mm));
+        let f = tilted_force(r.force_n, r.yaw_deg, r.pitch_deg);
+        let err =
+            ((r.fx_n - f[0]).powi(2) + (r.fy_n - f[1]).powi(2) + (r.fz_n - f[2]).powi(2)).sqrt();
+        assert!(err > 0.0 && err < 0.05, "{err}");
+    }
+    // Spread over the gel between the points, both tilt axes.
+    assert!(yawed > 20 && pitched > 20, "{yawed} {pitched}");
+    assert!(off_grid > 60, "{off_grid} of 80 within 0.5 mm of a point");
+    assert!(
+        x_range.1 - x_range.0 > 11.0 && y_range.1 - y_range.0 > 6.0,
+        "{x_range:?} {y_range:?}"
+    );
+    // The same seed draws the same checks.
+    let (_again_dir, again) = tmp("spots_again");
+    assert_eq!(
+        with_spot_checks(&again, SimConfig::fingertip(), 10, 80),
+        rows
+    );
+}
+
+#[test]
+fn spot_checks_on_the_strip_press_its_rods_between_the_points() {
+    let (_dir, out) = tmp("strip_spots");
+    let rows = with_spot_checks(&out, SimConfig::default(), 2, 12);
+    let spots: Vec<&io::TestRow> = rows.iter().filter(|r| r.split == Split::Spot).collect();
+    assert_eq!(spots.len(), 12);
+    let skin = SimConfig::default().skin;
+    let end = skin.arc_to_chord(120.0);
+    for r in spots {
+        assert!([2.0, 5.0, 10.0].contains(&r.indenter_mm), "{r:?}");
+        assert!(r.x_mm.abs() <= end && r.y_mm == 0.0, "{r:?}");
+        assert!(
+            r.yaw_deg.abs() <= 15.0 && r.pitch_deg.abs() <= 15.0,
+            "{r:?}"
+        );
+        assert!(out.join(&r.frame).exists());
+    }
+}
+
+#[test]
+fn too_many_spot_checks_are_refused_before_anything_is_written() {
+    let (_dir, out) = tmp("spots_huge");
+    let mut c = Common::new(&out);
+    c.config = SimConfig::fingertip();
+    let o = Characterization {
+        spot_checks: Some(scenario::MAX_SPOT_CHECKS + 1),
+        ..Characterization::flat()
+    };
+    let e = scenario::run(&Scenario::Characterization(o), &c).unwrap_err();
+    assert!(e.to_string().contains("spot_checks"), "{e}");
+    assert!(!out.exists());
 }
 
 #[test]

@@ -388,6 +388,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let pick =
         |split: Split| -> Vec<&Sample> { samples.iter().filter(|s| s.split == split).collect() };
     let (train, val, test) = (pick(Split::Train), pick(Split::Val), pick(Split::Test));
+    let spot = pick(Split::Spot);
     if train.is_empty() || val.is_empty() {
         return Err(Error::param(
             "samples",
@@ -547,6 +548,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
             gy: ry,
             gz: rz,
             test: None,
+            spot: None,
         }),
     )?;
     // `new` checked the rest; only the guard is new here.
@@ -554,23 +556,36 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         g.validate().map_err(in_memory)?;
     }
     cal.guard = guard;
-    cal.uncertainty = fit_uncertainty(&cal, &val, &test)?;
+    let fitted_on = if spot.len() >= super::uncertainty::MIN_SAMPLES {
+        &spot
+    } else {
+        &val
+    };
+    cal.uncertainty = fit_uncertainty(&cal, fitted_on, &test)?;
     if has_test {
         let table = evaluate(&cal, samples, Split::Test)?;
         if let Some(r) = cal.report.as_mut() {
             r.test = Some(table);
         }
     }
+    if !spot.is_empty() {
+        let table = evaluate(&cal, samples, Split::Spot)?;
+        if let Some(r) = cal.report.as_mut() {
+            r.spot = Some(table);
+        }
+    }
     Ok(cal)
 }
 
 /// The per-contact force uncertainty of `cal` ([`super::uncertainty`]),
-/// fitted on its errors on the validation samples `val` (held out from the
-/// maps' coefficients) and scored on the test samples; `None` with fewer
-/// than [`super::uncertainty::MIN_SAMPLES`] validation samples.
+/// fitted on its errors on the held-out samples `held_out` (the spot checks
+/// when there are at least [`super::uncertainty::MIN_SAMPLES`] of them, as
+/// they sample the places between the protocol's points; else the
+/// validation split) and scored on the test samples; `None` with fewer than
+/// [`super::uncertainty::MIN_SAMPLES`] held-out samples.
 fn fit_uncertainty(
     cal: &Calibration,
-    val: &[&Sample],
+    held_out: &[&Sample],
     test: &[&Sample],
 ) -> Result<Option<ForceUncertainty>> {
     let spread = |set: &[&Sample]| -> Result<Vec<SpreadSample>> {
@@ -578,7 +593,7 @@ fn fit_uncertainty(
             .map(|s| Ok(SpreadSample::of(s, &cal.predict(s)?)))
             .collect()
     };
-    let held_out = spread(val)?;
+    let held_out = spread(held_out)?;
     if held_out.len() < super::uncertainty::MIN_SAMPLES {
         return Ok(None);
     }
@@ -836,8 +851,8 @@ pub struct DatasetFit {
     pub calibration: Calibration,
     /// Per extraction (same order), its sample if the test was detected.
     pub samples: Vec<Option<Sample>>,
-    /// Tests with no detected contact, per split.
-    pub misses: [usize; 3],
+    /// Tests with no detected contact, per split: train, val, test, spot.
+    pub misses: [usize; 4],
     /// Sweep images not read as a press (no contact, or one that failed
     /// the press test); 0 without sweeps.
     pub sweep_misses: usize,
@@ -846,6 +861,8 @@ pub struct DatasetFit {
     pub min_force: DetectionLimit,
     /// Errors on the test split, total and per point.
     pub test_table: PointTable,
+    /// Errors on the spot checks, if the dataset has any.
+    pub spot_table: Option<PointTable>,
 }
 
 fn split_index(s: Split) -> usize {
@@ -853,6 +870,7 @@ fn split_index(s: Split) -> usize {
         Split::Train => 0,
         Split::Val => 1,
         Split::Test => 2,
+        Split::Spot => 3,
     }
 }
 
@@ -898,7 +916,7 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
 fn trusted(ex: &[Extraction], s: &[Option<Sample>]) -> Vec<Sample> {
     ex.iter()
         .zip(s)
-        .filter(|(e, _)| e.fits() || e.row.split == Split::Test)
+        .filter(|(e, _)| e.fits() || matches!(e.row.split, Split::Test | Split::Spot))
         .filter_map(|(_, s)| *s)
         .collect()
 }
@@ -1064,7 +1082,7 @@ pub fn fit_dataset_with_sweeps(
         .zip(sweep_local.iter().chain(std::iter::repeat(&None)))
         .filter(|(e, f)| e.raw.is_none() || !super::passes_press_test(min_normal_n, **f))
         .count();
-    let mut misses = [0usize; 3];
+    let mut misses = [0usize; 4];
     let mut detections = Vec::with_capacity(extractions.len());
     for (e, s) in extractions.iter().zip(&second) {
         let found = s.is_some();
@@ -1074,10 +1092,17 @@ pub fn fit_dataset_with_sweeps(
         detections.push((e.row.force_n, found));
     }
     let min_force = report::min_detectable_force(&detections, 0.95)?;
-    let test_table = report::evaluate(&cal, &detected(&second), Split::Test)?;
+    let found = detected(&second);
+    let test_table = report::evaluate(&cal, &found, Split::Test)?;
+    let spot_table = if found.iter().any(|s| s.split == Split::Spot) {
+        Some(report::evaluate(&cal, &found, Split::Spot)?)
+    } else {
+        None
+    };
     // The report's errors were taken before the column correction was set.
     if let Some(r) = cal.report.as_mut() {
         r.test = Some(test_table.clone());
+        r.spot = spot_table.clone();
     }
     Ok(DatasetFit {
         calibration: cal,
@@ -1086,6 +1111,7 @@ pub fn fit_dataset_with_sweeps(
         sweep_misses,
         min_force,
         test_table,
+        spot_table,
     })
 }
 

@@ -509,6 +509,10 @@ pub struct CalibrationReport {
     pub gz: FitReport,
     /// Errors of the full calibration on the test split, if it had samples.
     pub test: Option<PointTable>,
+    /// Errors of the full calibration on the spot checks (presses between
+    /// the protocol's points), if it had any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spot: Option<PointTable>,
 }
 
 /// The fitted maps of a sensor, with the setup they belong to.
@@ -538,7 +542,7 @@ pub struct Calibration {
     /// sweeps ([`correction`]); `None` (no sweeps, older files): none.
     pub column_correction: Option<ColumnCorrection>,
     /// The spread of the force error per contact ([`uncertainty`]),
-    /// fitted on the validation split; `None` (hand-made maps, older
+    /// fitted on the spot checks or the validation split; `None` (hand-made maps, older
     /// files): contacts carry no force sigma.
     pub uncertainty: Option<ForceUncertainty>,
 }

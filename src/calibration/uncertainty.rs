@@ -12,8 +12,9 @@
 //! sigma = base_n + per_d_pf * d_pf + per_newton * |F|
 //! ```
 //!
-//! with non-negative coefficients, fitted on held-out tests (the
-//! characterization's validation split, which the maps were not fitted on):
+//! with non-negative coefficients, fitted on held-out tests the maps were
+//! not fitted on (the characterization's spot checks, presses between its
+//! points, when it has at least [`MIN_SAMPLES`]; else its validation split):
 //! first the shape, by non-negative least squares of the absolute errors on
 //! the three terms ([`nnls_abs`]), then the level, scaled so that
 //! [`TARGET_COVERAGE`] (68.3%, one standard deviation of a Gaussian) of
