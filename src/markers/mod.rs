@@ -17,7 +17,11 @@
 //! central peak (the first shift along either axis where it stops falling),
 //! the peaks within a third of the window that reach [`PEAK_FRACTION`] of
 //! the highest are lattice vectors, and the shortest one's length is the
-//! pitch, when the highest reaches [`MIN_GRID_CORRELATION`].
+//! pitch, when the highest reaches [`MIN_GRID_CORRELATION`]. A grid too
+//! coarse for the window (a high-resolution camera's, whose pitch can be
+//! 60-200 px) is looked for again on the image halved by 2 x 2 means, up to
+//! [`MAX_PITCH_SCALE`] times smaller, while the window does not yet cover
+//! the whole image.
 
 use ndarray::ArrayRef2;
 
@@ -58,12 +62,50 @@ pub const PEAK_FRACTION: f64 = 0.5;
 /// Smallest window side, in pixels, on which a pitch is looked for.
 const MIN_WINDOW_PX: usize = 16;
 
+/// Coarsest scale [`grid_pitch`] looks at: the image halved twice, where
+/// its window spans 640 px of the image and pitches up to 213 px are found.
+pub const MAX_PITCH_SCALE: usize = 4;
+
 /// The pitch, in pixels, of a regular grid of markers in `reference`, or
 /// `None` when the image shows no regular grid (random markers, a plain
 /// image, a window smaller than 16 px, non-finite pixels). The shortest
-/// lattice vector's length, to the nearest pixel of shift; a pitch above a
-/// third of the window (53 px at the most) is not looked for.
+/// lattice vector's length, to the nearest pixel of shift at the scale it
+/// was found at. A pitch above a third of the window (53 px) is looked for
+/// on the image halved, then halved again ([`MAX_PITCH_SCALE`]), as long as
+/// the window did not cover the whole image: up to 213 px on an image of at
+/// least 640 px a side.
 pub fn grid_pitch(reference: &ArrayRef2<f32>) -> Option<f64> {
+    // The image at the current scale: the reference itself, then halved.
+    let mut smaller: Option<ndarray::Array2<f32>> = None;
+    let mut scale = 1;
+    loop {
+        let image = smaller.as_ref().map_or(reference.view(), |a| a.view());
+        if let Some(p) = pitch_in_window(image) {
+            return Some(p * scale as f64);
+        }
+        let (h, w) = image.dim();
+        // The window held the whole image: halving it finds nothing new.
+        if scale >= MAX_PITCH_SCALE || (h <= MAX_WINDOW_PX && w <= MAX_WINDOW_PX) {
+            return None;
+        }
+        let next = halved(image);
+        smaller = Some(next);
+        scale *= 2;
+    }
+}
+
+/// `image` halved along both axes by 2 x 2 means (an odd last row or
+/// column dropped).
+fn halved(image: ndarray::ArrayView2<'_, f32>) -> ndarray::Array2<f32> {
+    let (h, w) = image.dim();
+    ndarray::Array2::from_shape_fn((h / 2, w / 2), |(i, j)| {
+        let (y, x) = (2 * i, 2 * j);
+        0.25 * (image[[y, x]] + image[[y, x + 1]] + image[[y + 1, x]] + image[[y + 1, x + 1]])
+    })
+}
+
+/// [`grid_pitch`] at one scale: on the central window of `reference`.
+fn pitch_in_window(reference: ndarray::ArrayView2<'_, f32>) -> Option<f64> {
     let (h, w) = reference.dim();
     let (wh, ww) = (h.min(MAX_WINDOW_PX), w.min(MAX_WINDOW_PX));
     if wh < MIN_WINDOW_PX || ww < MIN_WINDOW_PX {
@@ -120,7 +162,7 @@ pub fn grid_pitch(reference: &ArrayRef2<f32>) -> Option<f64> {
                 .filter(|&o| o != (0, 0))
                 .all(|(a, b)| at(dy + a, dx + b) <= c);
             if peak {
-                shifts.push((d, c));
+                shifts.push((d, c, dy as f64, dx as f64));
             }
         }
     }
@@ -128,11 +170,22 @@ pub fn grid_pitch(reference: &ArrayRef2<f32>) -> Option<f64> {
     if best < MIN_GRID_CORRELATION {
         return None;
     }
-    shifts
+    let &(pitch, c, dy, dx) = shifts
         .iter()
         .filter(|s| s.1 >= PEAK_FRACTION * best)
-        .map(|s| s.0)
-        .min_by(f64::total_cmp)
+        .min_by(|a, b| a.0.total_cmp(&b.0))?;
+    // Dots are apart along two directions: half-way to the pitch's vector,
+    // and half a pitch across it on either side, the correlation falls
+    // below half the peak's (there the shifted grid's dots lie between the
+    // grid's). Along lines or a band (a camera's scan lines, a strip of
+    // markers across a dark frame) it stays high one way or the other.
+    let at_f = |y: f64, x: f64| at(y.round() as isize, x.round() as isize);
+    let gaps = [
+        at_f(0.5 * dy, 0.5 * dx),
+        at_f(dy + 0.5 * dx, dx - 0.5 * dy),
+        at_f(dy - 0.5 * dx, dx + 0.5 * dy),
+    ];
+    gaps.iter().all(|&g| g < PEAK_FRACTION * c).then_some(pitch)
 }
 
 /// The autocorrelation of the mean-removed `window` (`h x w`), unnormalised:
@@ -354,6 +407,81 @@ mod tests {
         assert_eq!(grid_pitch(&bad), None);
     }
 
+    #[test]
+    fn coarse_grids_are_found_on_the_image_halved() {
+        // A high-resolution camera's grid: too coarse for the window at
+        // full scale, found halved (within the halved image's pixel).
+        for (pitch, w, h, scale) in [
+            (84.0, 1280, 720, 2.0),
+            (60.0, 320, 240, 2.0),
+            (150.0, 1920, 1080, 4.0),
+        ] {
+            let img = Dots::square(pitch, 0.2, pitch / 5.0).paint(w, h);
+            let p = grid_pitch(&img).expect("a grid");
+            assert!((p - pitch).abs() <= scale, "pitch {pitch} on {w}x{h}: {p}");
+        }
+        // Beyond the coarsest scale, or on an image the window already
+        // covered: no pitch rather than a wrong one.
+        assert_eq!(
+            grid_pitch(&Dots::square(90.0, 0.0, 18.0).paint(150, 150)),
+            None
+        );
+    }
+
+    #[test]
+    fn random_markers_have_no_pitch_at_any_scale() {
+        // Large frames of random markers of 2-8 px: no scale shows a grid.
+        for (radius, count, seed) in [(2.0, 6000, 1_u64), (5.0, 1500, 2), (8.0, 600, 3)] {
+            let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            let mut next = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 33) as f64 / (1u64 << 31) as f64
+            };
+            let (w, h) = (1280usize, 720usize);
+            let mut img = Array2::<f32>::from_elem((h, w), 30.0);
+            let r = radius as isize;
+            for _ in 0..count {
+                let (cx, cy) = (next() * w as f64, next() * h as f64);
+                let (i0, j0) = (cy as isize, cx as isize);
+                for i in (i0 - r).max(0)..(i0 + r + 1).min(h as isize) {
+                    for j in (j0 - r).max(0)..(j0 + r + 1).min(w as isize) {
+                        if (j as f64 - cx).powi(2) + (i as f64 - cy).powi(2) < radius * radius {
+                            img[[i as usize, j as usize]] = 220.0;
+                        }
+                    }
+                }
+            }
+            assert_eq!(grid_pitch(&img), None, "markers of {radius} px");
+        }
+    }
+
+    #[test]
+    fn lines_and_bands_are_no_grid() {
+        // A camera's scan lines: periodic along y only.
+        let lines = Array2::from_shape_fn(
+            (480, 640),
+            |(i, _)| {
+                if i % 6 < 2 { 90.0_f32 } else { 120.0 }
+            },
+        );
+        assert_eq!(grid_pitch(&lines), None);
+        // A strip of random markers across a dark full-HD frame (the
+        // simulator's full-frame view): halved, the strip is a uniform band.
+        let mut state = 99_u64;
+        let mut band = Array2::<f32>::from_elem((1080, 1920), 5.0);
+        for i in 440..640 {
+            for j in 190..1730 {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                band[[i, j]] = if state >> 62 == 0 { 230.0 } else { 40.0 };
+            }
+        }
+        assert_eq!(grid_pitch(&band), None);
+    }
+
     proptest::proptest! {
         #![proptest_config(proptest::test_runner::Config {
             cases: 32,
@@ -400,6 +528,36 @@ mod tests {
             let p = grid_pitch(&img);
             let tolerance = (0.12 * pitch).max(1.5);
             proptest::prop_assert!(p.is_some_and(|p| (p - pitch).abs() <= tolerance), "pitch {pitch}, jitter {}: {p:?}", jitter * pitch);
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config {
+            cases: 12,
+            rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(12),
+            failure_persistence: None,
+            ..Default::default()
+        })]
+
+        /// Square grids coarser than the full-scale window reaches (54 to
+        /// 200 px), turned by any angle, dots of a fifth to a third of the
+        /// pitch, either polarity, on frames a high-resolution camera
+        /// gives: the pitch within the pixel of the scale that can see it
+        /// (2 px when halved once, 4 px twice).
+        #[test]
+        fn any_coarse_grid_gives_its_pitch(
+            pitch in 54.0f64..200.0,
+            angle in 0.0f64..std::f64::consts::FRAC_PI_2,
+            dot in 0.2f64..0.33,
+            dark in proptest::bool::ANY,
+            wide in proptest::bool::ANY,
+        ) {
+            let (w, h) = if wide || pitch > 120.0 { (1280, 720) } else { (640, 480) };
+            let img = Dots { dark, ..Dots::square(pitch, angle, dot * pitch) }.paint(w, h);
+            let p = grid_pitch(&img);
+            let tolerance = if pitch <= 106.0 { 2.0 } else { 4.0 };
+            proptest::prop_assert!(p.is_some_and(|p| (p - pitch).abs() <= tolerance), "pitch {pitch} on {w}x{h}: {p:?}");
         }
     }
 }
