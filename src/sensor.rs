@@ -86,8 +86,10 @@ pub struct ExtractorConfig {
     /// Follow the dots of a regular marker grid one by one and let their
     /// motion replace the flow around them ([`crate::markers::DotTracker`]),
     /// when the reference shows a regular grid
-    /// ([`crate::markers::grid_pitch`]); off by default (and on random
-    /// markers it changes nothing).
+    /// ([`crate::markers::grid_pitch`]); on by default, so that a sensor
+    /// without a calibration (`track --raw`) follows the dots of a grid as
+    /// a calibrated one does (on random markers it changes nothing).
+    /// `false`: the flow alone.
     pub dot_tracking: bool,
     /// Divide the reference and each frame by their own local light (the
     /// mean over a box of this half-side, full-resolution pixels) before
@@ -108,7 +110,7 @@ impl Default for ExtractorConfig {
             subpixel: true,
             exposure: ExposureCompensation::default(),
             split: Some(SplitRule::DEFAULT),
-            dot_tracking: false,
+            dot_tracking: true,
             light_box_px: None,
         }
     }
@@ -167,17 +169,20 @@ impl ExtractorConfig {
 
     /// The settings a calibration was fitted with, so that a sensor measures
     /// the raw quantities the same way: the thresholds of `setup.thresholds`
-    /// and, when recorded, the flow preset, margin, sub-pixel switch and
-    /// exposure compensation of `setup.pipeline` (otherwise the defaults,
-    /// with the compensation off: such a file predates it).
+    /// and, when recorded, the flow preset, margin, sub-pixel switch,
+    /// exposure compensation and dot tracking of `setup.pipeline`
+    /// (otherwise the defaults, with the compensation and dot tracking off:
+    /// such a file predates them).
     pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
         setup.thresholds.validate()?;
         let mut config = ExtractorConfig {
             thresholds: setup.thresholds,
             ..ExtractorConfig::default()
         };
-        // A file without pipeline settings predates exposure compensation.
+        // A file without pipeline settings predates exposure compensation
+        // and dot tracking: its maps were fitted on the flow alone.
         config.exposure = ExposureCompensation::Off;
+        config.dot_tracking = false;
         if let Some(p) = &setup.pipeline {
             config.flow = DisParams::preset(DisPreset::parse(&p.flow_preset)?);
             config.margin_px = p.margin_px;

@@ -319,7 +319,9 @@ fn locate_keeps_the_raw_contact_column_at_the_rod_under_shear() {
         ..Shear::default()
     };
     let reference = sim.render_indexed(0, &[], false).unwrap().frame;
-    let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+    // The flow alone: the slope peak of DIS's flow, as the strip measures it.
+    let config = ExtractorConfig::default().with_dot_tracking(false);
+    let mut ex = ContactExtractor::new(config).unwrap();
     ex.set_reference(&reference).unwrap();
     let rod_px = 0.5 * reference.ncols() as f64; // the rod at x = 0, the middle
     let mut worst = (0.0f64, 0.0f64);
@@ -587,5 +589,73 @@ fn the_strips_hardest_presses_do_not_tear_the_flow() {
         assert_eq!(ex.flow_strain_fraction(huge, TORN_STRAIN), 0.0);
         // Well below the bar, not just under it.
         assert!(worst < 0.5 * TORN_FRACTION, "seed {seed}: {worst}");
+    }
+}
+
+/// A high-resolution camera's view of a coarse grid of bright dots (84 px
+/// apart over the middle of a 1280x720 frame, on a gel lit unevenly and
+/// crossed by a camera's scan lines), pressed at two places: without a
+/// calibration the grid is recognised, its dots are followed, and the
+/// contact point is where they point.
+#[test]
+fn a_coarse_grid_of_a_high_resolution_camera_is_followed_without_a_calibration() {
+    use ndarray::Array2;
+    use optical_tactile::contact::ContactPointMethod;
+    const PITCH: f64 = 84.0;
+    // The unloaded gel at (x, y), and a pixel's noise from its index.
+    let gel = |x: f64, y: f64| -> f32 {
+        let mut v = 90.0 + 25.0 * x / 1280.0;
+        if (y.floor() as i64).rem_euclid(6) < 2 {
+            v -= 12.0;
+        }
+        let (gx, gy) = ((x - 262.0) / PITCH, (y - 52.0) / PITCH);
+        let (kx, ky) = (gx.round(), gy.round());
+        let inside = (0.0..=9.0).contains(&kx) && (0.0..=7.0).contains(&ky);
+        if inside && (gx - kx).hypot(gy - ky) * PITCH < 11.0 {
+            v = 225.0;
+        }
+        v as f32
+    };
+    let noise = |i: usize, j: usize, k: u64| -> f32 {
+        let mut z = (i as u64 * 1280 + j as u64) ^ k.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z ^= z >> 27;
+        (z % 5) as f32 - 2.0
+    };
+    // Pressed at (cx, cy): the gel moved outward by a bump of 6 px at one
+    // spread (60 px) from the centre, each pixel showing where it came from.
+    let frame = |press: Option<(f64, f64)>, k: u64| {
+        Array2::from_shape_fn((720, 1280), |(i, j)| {
+            let (x, y) = (j as f64, i as f64);
+            let (mut sx, mut sy) = (x, y);
+            if let Some((cx, cy)) = press {
+                let (dx, dy) = ((x - cx) / 60.0, (y - cy) / 60.0);
+                let bump = 6.0 * (-0.5 * (dx * dx + dy * dy)).exp();
+                sx -= bump * dx;
+                sy -= bump * dy;
+            }
+            gel(sx, sy) + noise(i, j, k)
+        })
+    };
+    let mut ex = ContactExtractor::new(ExtractorConfig::default()).unwrap();
+    ex.set_reference(&frame(None, 0)).unwrap();
+    let pitch = ex.marker_pitch().expect("the grid is recognised");
+    assert!((pitch - PITCH).abs() <= 2.0, "pitch {pitch}");
+    assert!(ex.follows_dots());
+    for (k, at) in [(500.0, 300.0), (650.0, 200.0)].into_iter().enumerate() {
+        let raws = ex.extract(&frame(Some(at), k as u64 + 1)).unwrap().to_vec();
+        assert_eq!(raws.len(), 1, "one patch at {at:?}");
+        let p = ex.locate(ContactPointMethod::uncalibrated(true)).unwrap()[0];
+        let off = (p.x_px - at.0).hypot(p.y_px - at.1);
+        eprintln!(
+            "MEASURE press at {at:?}: point {:.1}, {:.1} ({off:.2} px off)",
+            p.x_px, p.y_px
+        );
+        assert!(
+            off <= 3.0,
+            "press at {at:?}: point ({}, {})",
+            p.x_px,
+            p.y_px
+        );
     }
 }

@@ -69,7 +69,8 @@ pub struct PipelineArgs {
     pub exposure: Option<ExposureCompensation>,
     /// Follow the dots of a regular marker grid one by one and write their
     /// motion over the flow (docs/pipeline.md, step 4) [default: the
-    /// calibration's; off with --raw]. Changes nothing on random markers.
+    /// calibration's; on with --raw, where the reference shows a regular
+    /// grid]. Changes nothing on random markers.
     #[arg(long, value_name = "on|off", action = clap::ArgAction::Set, value_parser = super::on_off)]
     pub dot_tracking: Option<bool>,
     /// Which channel of colour frames becomes the grey image.

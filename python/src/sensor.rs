@@ -466,7 +466,7 @@ impl Sensor {
     #[staticmethod]
     #[pyo3(signature = (
         *, crop=None, thresholds=None, preset=None, exposure="auto", channel="green",
-        color_order="rgb", dot_tracking=false
+        color_order="rgb", dot_tracking=true
     ))]
     #[allow(clippy::too_many_arguments)]
     fn raw(

@@ -255,8 +255,9 @@ def test_frame_larger_than_the_crop(calibration, press_frames):
 
 def test_dot_tracking_follows_the_calibration_unless_overridden(tmp_path):
     """The flat fingertip sensor's calibration follows its dots one by one:
-    the Python sensor does as `track` does, and `dot_tracking=False` (or a
-    raw sensor, where it is off unless asked) reads the flow alone."""
+    the Python sensor does as `track` does, and `dot_tracking=False` reads
+    the flow alone. A raw sensor follows the dots too, as `track --raw`
+    does, unless asked not to."""
     flat = FIXTURES / "flat_press"
     cal_path = FIXTURES / "flat_calibration.json"
     frames = list(ot.Sequence(flat))
@@ -272,5 +273,8 @@ def test_dot_tracking_follows_the_calibration_unless_overridden(tmp_path):
     xs = lambda found: [round(c.location_mm[0], 9) for _, _, cs in found for c in cs]
     assert xs(followed) and xs(alone) != xs(followed)
     raw = lambda **kw: [c.raw.ds1 for _, _, cs in track(ot.Sensor.raw(**kw), frames) for c in cs]
-    assert raw() == raw(dot_tracking=False)
-    assert raw() != raw(dot_tracking=True)
+    assert raw() == raw(dot_tracking=True)
+    assert raw() != raw(dot_tracking=False)
+    out = tmp_path / "raw.jsonl"
+    run([example("track"), flat, "--raw", "--out", out, "--quiet"])
+    assert raw() == [c["ds1"] for r in read_jsonl(out) for c in r["contacts"]]
