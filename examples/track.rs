@@ -273,6 +273,7 @@ fn run(a: &Cli) -> Result<bool, Failure> {
             match sensor.set_reference(&frame.image) {
                 Ok(()) => {
                     have_reference = true;
+                    eprintln!("{}", markers_note(sensor.extractor()));
                     if !a.quiet {
                         writeln!(report, "{:<14} {:>7.3} reference", frame.name, frame.t_s)?;
                     }
@@ -400,4 +401,20 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }))
+}
+
+/// What the reference shows of the markers, and whether their dots are
+/// followed: so that a user of another sensor sees whether its grid was
+/// recognised.
+fn markers_note(ex: &optical_tactile::sensor::ContactExtractor) -> String {
+    match (ex.marker_pitch(), ex.follows_dots()) {
+        (Some(p), true) => {
+            format!("markers: a regular grid, {p:.0} px apart, its dots followed one by one")
+        }
+        (Some(p), false) => format!(
+            "markers: a regular grid, {p:.0} px apart, read by the flow alone \
+             (--dot-tracking on follows its dots)"
+        ),
+        (None, _) => "markers: no regular grid (random markers or none): the flow alone".into(),
+    }
 }
