@@ -857,7 +857,8 @@ pub struct DatasetFit {
     /// the press test); 0 without sweeps.
     pub sweep_misses: usize,
     /// The minimum detectable force (smallest commanded force from which on
-    /// at least 95% of the tests at each force are detected).
+    /// at least 95% of the tests at each force are detected; the spot
+    /// checks, at forces off the protocol's ladder, left out).
     pub min_force: DetectionLimit,
     /// Errors on the test split, total and per point.
     pub test_table: PointTable,
@@ -902,6 +903,24 @@ fn samples(
         .collect()
 }
 
+/// The tests with no detected contact per split (train, val, test, spot),
+/// and each protocol test's commanded force and whether it was detected,
+/// for the detection limit: per level of the protocol's force ladder, so
+/// the spot checks, each at a force of its own, are left out of it.
+fn detections(ex: &[Extraction], s: &[Option<Sample>]) -> ([usize; 4], Vec<(f64, bool)>) {
+    let mut misses = [0usize; 4];
+    let mut found = Vec::with_capacity(ex.len());
+    for (e, s) in ex.iter().zip(s) {
+        if s.is_none() {
+            misses[split_index(e.row.split)] += 1;
+        }
+        if e.row.split != Split::Spot {
+            found.push((e.row.force_n, s.is_some()));
+        }
+    }
+    (misses, found)
+}
+
 fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
     s.iter().flatten().copied().collect()
 }
@@ -912,7 +931,7 @@ fn detected(s: &[Option<Sample>]) -> Vec<Sample> {
 /// ([`Extraction::fits`]): otherwise its flow may have matched each dot to a
 /// neighbour, or torn apart on random markers, and a map fitted on it would
 /// be wrong for every other contact. The sensor marks contacts beyond the markers out of domain; the
-/// test split keeps them, so that the test errors count them.
+/// test split and the spot checks keep them, so that their errors count them.
 fn trusted(ex: &[Extraction], s: &[Option<Sample>]) -> Vec<Sample> {
     ex.iter()
         .zip(s)
@@ -1082,15 +1101,7 @@ pub fn fit_dataset_with_sweeps(
         .zip(sweep_local.iter().chain(std::iter::repeat(&None)))
         .filter(|(e, f)| e.raw.is_none() || !super::passes_press_test(min_normal_n, **f))
         .count();
-    let mut misses = [0usize; 4];
-    let mut detections = Vec::with_capacity(extractions.len());
-    for (e, s) in extractions.iter().zip(&second) {
-        let found = s.is_some();
-        if !found {
-            misses[split_index(e.row.split)] += 1;
-        }
-        detections.push((e.row.force_n, found));
-    }
+    let (misses, detections) = detections(extractions, &second);
     let min_force = report::min_detectable_force(&detections, 0.95)?;
     let found = detected(&second);
     let test_table = report::evaluate(&cal, &found, Split::Test)?;
@@ -2337,6 +2348,41 @@ mod tests {
             .map(|e| e.row.test)
             .collect();
         assert_eq!(checked, vec![4, 5, 7]);
+    }
+
+    #[test]
+    fn spot_checks_count_their_misses_but_not_in_the_detection_limit() {
+        // Every split, one test detected and one missed each; the spot
+        // checks at forces of their own.
+        let mut ex = Vec::new();
+        let mut samples = Vec::new();
+        for (split, force) in [
+            (Split::Train, 1.0),
+            (Split::Val, 1.0),
+            (Split::Test, 1.5),
+            (Split::Spot, 0.73),
+        ] {
+            for found in [true, false] {
+                let mut e = sweep_image(0.0, found.then_some(800.0));
+                e.row.split = split;
+                e.row.force_n = force;
+                samples.push(e.raw.as_ref().map(|r| Sample::from_test(&e.row, r)));
+                ex.push(e);
+            }
+        }
+        let (misses, found) = detections(&ex, &samples);
+        assert_eq!(misses, [1, 1, 1, 1]);
+        assert_eq!(
+            found,
+            vec![
+                (1.0, true),
+                (1.0, false),
+                (1.0, true),
+                (1.0, false),
+                (1.5, true),
+                (1.5, false)
+            ]
+        );
     }
 
     #[test]
