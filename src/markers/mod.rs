@@ -134,10 +134,15 @@ fn pitch_in_window(reference: ndarray::ArrayView2<'_, f32>) -> Option<f64> {
     };
     let reach = (wh.min(ww) / 3) as isize;
     // The central peak's radius: the first shift along each axis where the
-    // correlation stops falling.
+    // correlation stops falling or has fallen to the image's mean (past a
+    // dot's own footprint; between the dots of a turned grid it can go on
+    // falling slowly beyond the pitch).
     let fall = |step: (isize, isize)| -> isize {
         let mut k = 1;
-        while k < reach && at(k * step.0, k * step.1) > at((k + 1) * step.0, (k + 1) * step.1) {
+        while k < reach
+            && at(k * step.0, k * step.1) > 0.0
+            && at(k * step.0, k * step.1) > at((k + 1) * step.0, (k + 1) * step.1)
+        {
             k += 1;
         }
         k
@@ -405,6 +410,22 @@ mod tests {
         let mut bad = Dots::square(16.0, 0.0, 3.0).paint(64, 64);
         bad[[3, 3]] = f32::NAN;
         assert_eq!(grid_pitch(&bad), None);
+    }
+
+    #[test]
+    fn a_turned_grid_gives_its_pitch_not_its_diagonal() {
+        // Turned by 55 deg, dots a little off their places: along the image
+        // axes the correlation went on falling past the pitch, which hid the
+        // nearest lattice peaks and read the diagonal (29.4 px).
+        // (A case the jittered property found.)
+        let pitch = 20.608_353_486_920_358;
+        let dots = Dots {
+            jitter: 0.045_881_541_743_247_226 * pitch,
+            seed: 752,
+            ..Dots::square(pitch, 0.953_183_667_662_742_1, pitch / 6.0)
+        };
+        let p = grid_pitch(&dots.paint(320, 240)).expect("a grid");
+        assert!((p - pitch).abs() <= 1.5, "measured {p}");
     }
 
     #[test]
