@@ -177,7 +177,9 @@ pub struct Characterization {
     pub tilted_sweeps: bool,
     /// Spot checks written after the tests (`spot` split): presses of the
     /// protocol's indenters at places, forces and tilts drawn at random
-    /// within the protocol's ranges ([`spot_checks`]); `None`:
+    /// within the protocol's ranges (one of its indenters, a force uniform
+    /// over its ladder's span, tilted about one axis up to its largest
+    /// tilt, anywhere in its points' extent); `None`:
     /// [`FLAT_SPOT_CHECKS`] on a flat sensor's whole protocol, none on the
     /// strip or with a `subset`. At most [`MAX_SPOT_CHECKS`].
     pub spot_checks: Option<usize>,
