@@ -396,9 +396,9 @@ fn uncertainty_summary(u: &ForceUncertainty, spot: Option<&report::PointTable>) 
             )
         },
     );
-    // The rule of the fit: the spot checks once there are enough of them.
-    let on_spots =
-        spot.is_some_and(|t| t.total.n >= optical_tactile::calibration::uncertainty::MIN_SAMPLES);
+    let on_spots = spot.is_some_and(|t| {
+        optical_tactile::calibration::uncertainty::fitted_on_spot_checks(t.total.n)
+    });
     let (what, note) = if on_spots {
         (
             "spot checks",

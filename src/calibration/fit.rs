@@ -556,7 +556,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         g.validate().map_err(in_memory)?;
     }
     cal.guard = guard;
-    let fitted_on = if spot.len() >= super::uncertainty::MIN_SAMPLES {
+    let fitted_on = if super::uncertainty::fitted_on_spot_checks(spot.len()) {
         &spot
     } else {
         &val

@@ -41,6 +41,14 @@ pub const TARGET_COVERAGE: f64 = 0.6827;
 /// cannot pin a 68% quantile.
 pub const MIN_SAMPLES: usize = 20;
 
+/// Whether a fit with `detected` spot checks (presses between the
+/// protocol's points, `Split::Spot`) fits the uncertainty on them rather
+/// than on the validation split: when they are enough to pin a 68%
+/// quantile ([`MIN_SAMPLES`]).
+pub fn fitted_on_spot_checks(detected: usize) -> bool {
+    detected >= MIN_SAMPLES
+}
+
 /// Largest coefficient a calibration file may hold (N, N per unit of `d_pf`,
 /// N per N): far beyond any sensor's, it bounds what a file can make a
 /// contact's sigma.
