@@ -14,10 +14,13 @@
 //! Method: the autocorrelation of the mean-removed image (by FFT, on a
 //! central window of at most [`MAX_WINDOW_PX`] a side, zero-padded so that
 //! nothing wraps around), normalised by its value at zero shift. Past the
-//! central peak (the first shift along either axis where it stops falling),
-//! the peaks within a third of the window that reach [`PEAK_FRACTION`] of
-//! the highest are lattice vectors, and the shortest one's length is the
-//! pitch, when the highest reaches [`MIN_GRID_CORRELATION`]. A grid too
+//! central peak (the first shift along either axis where it stops falling
+//! or reaches the image's mean), the peaks within a third of the window that
+//! reach [`PEAK_FRACTION`] of the highest are lattice vectors, and the
+//! shortest one's length is the pitch, when the highest reaches
+//! [`MIN_GRID_CORRELATION`] and the correlation falls below half that
+//! vector's half-way to it and half a pitch across it (dots apart along two
+//! directions, not lines or a band). A grid too
 //! coarse for the window (a high-resolution camera's, whose pitch can be
 //! 60-200 px) is looked for again on the image halved by 2 x 2 means, up to
 //! [`MAX_PITCH_SCALE`] times smaller, while the window does not yet cover
