@@ -6,7 +6,7 @@
 
 pub mod color;
 pub mod dis;
-mod pyramid;
+pub(crate) mod pyramid;
 pub mod refine;
 
 pub(crate) use pyramid::sample_clamped;

@@ -20,11 +20,11 @@
 //! shortest one's length is the pitch, when the highest reaches
 //! [`MIN_GRID_CORRELATION`] and the correlation falls below half that
 //! vector's half-way to it and half a pitch across it (dots apart along two
-//! directions, not lines or a band). A grid too
-//! coarse for the window (a high-resolution camera's, whose pitch can be
-//! 60-200 px) is looked for again on the image halved by 2 x 2 means, up to
-//! [`MAX_PITCH_SCALE`] times smaller, while the window does not yet cover
-//! the whole image.
+//! directions, not lines or a band). A grid too coarse for the window (a
+//! high-resolution camera's, whose pitch can be 60-200 px) is looked for
+//! again on the image averaged over boxes of 2 x 2 pixels, then 4 x 4 (as
+//! the flow's pyramid levels are), up to [`MAX_PITCH_SCALE`] times smaller,
+//! while the window does not yet cover the whole image.
 
 use ndarray::ArrayRef2;
 
@@ -78,33 +78,35 @@ pub const MAX_PITCH_SCALE: usize = 4;
 /// the window did not cover the whole image: up to 213 px on an image of at
 /// least 640 px a side.
 pub fn grid_pitch(reference: &ArrayRef2<f32>) -> Option<f64> {
-    // The image at the current scale: the reference itself, then halved.
-    let mut smaller: Option<ndarray::Array2<f32>> = None;
+    let (h, w) = reference.dim();
     let mut scale = 1;
     loop {
-        let image = smaller.as_ref().map_or(reference.view(), |a| a.view());
-        if let Some(p) = pitch_in_window(image) {
+        let found = if scale == 1 {
+            pitch_in_window(reference.view())
+        } else {
+            pitch_in_window(box_averaged(reference, scale)?.view())
+        };
+        if let Some(p) = found {
             return Some(p * scale as f64);
         }
-        let (h, w) = image.dim();
-        // The window held the whole image: halving it finds nothing new.
-        if scale >= MAX_PITCH_SCALE || (h <= MAX_WINDOW_PX && w <= MAX_WINDOW_PX) {
+        // The window held the whole image: a coarser scale finds nothing new.
+        let (sh, sw) = (h / scale, w / scale);
+        if scale >= MAX_PITCH_SCALE || (sh <= MAX_WINDOW_PX && sw <= MAX_WINDOW_PX) {
             return None;
         }
-        let next = halved(image);
-        smaller = Some(next);
         scale *= 2;
     }
 }
 
-/// `image` halved along both axes by 2 x 2 means (an odd last row or
-/// column dropped).
-fn halved(image: ndarray::ArrayView2<'_, f32>) -> ndarray::Array2<f32> {
-    let (h, w) = image.dim();
-    ndarray::Array2::from_shape_fn((h / 2, w / 2), |(i, j)| {
-        let (y, x) = (2 * i, 2 * j);
-        0.25 * (image[[y, x]] + image[[y, x + 1]] + image[[y + 1, x]] + image[[y + 1, x + 1]])
-    })
+/// `reference` averaged over boxes of `factor x factor` pixels (trailing
+/// rows and columns dropped), as the flow's pyramid levels are.
+fn box_averaged(reference: &ArrayRef2<f32>, factor: usize) -> Option<ndarray::Array2<f32>> {
+    let src = reference.as_standard_layout();
+    let (h, w) = src.dim();
+    let mut dst = ndarray::Array2::zeros((h / factor, w / factor));
+    crate::flow::pyramid::downsample_area(src.as_slice()?, w, h, factor, dst.as_slice_mut()?)
+        .ok()?;
+    Some(dst)
 }
 
 /// [`grid_pitch`] at one scale: on the central window of `reference`.
