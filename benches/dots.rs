@@ -9,7 +9,11 @@
 //! - `dots/refine`: `DotTracker::refine` alone on DIS's native flow;
 //! - `dots/locate`: `ContactExtractor::locate` of that frame's contact with
 //!   the dots followed, by the 2-D slope peak and by the dots' motion lines
-//!   about it: the difference is what the lines cost.
+//!   about it: the difference is what the lines cost; and by the lines with
+//!   the round load's field fitted to the dots (`dot_fit`, the default):
+//!   the difference is what the fit costs;
+//! - `dots/round fit`: `markers::round::fit_round_field` alone on that
+//!   contact's dots.
 //!
 //! `cargo bench --bench dots` (on a shared machine compare ratios within one
 //! run).
@@ -19,7 +23,7 @@ use std::time::Duration;
 use criterion::{Criterion, criterion_group, criterion_main};
 use optical_tactile::ThresholdPreset;
 use optical_tactile::contact::ContactPointMethod;
-use optical_tactile::markers::{DotTracker, grid_pitch};
+use optical_tactile::markers::{DotTracker, grid_pitch, round};
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
 use optical_tactile_sim::{Press, SimConfig, SyntheticSensor};
 
@@ -37,7 +41,7 @@ fn bench(c: &mut Criterion) {
         let config = ExtractorConfig::default()
             .with_thresholds(ThresholdPreset::Mid)
             .with_dot_tracking(on);
-        let mut ex = ContactExtractor::new(config).expect("extractor");
+        let mut ex = ContactExtractor::new(config.clone()).expect("extractor");
         ex.set_reference(&reference).expect("reference");
         let name = if on {
             "extract/followed"
@@ -61,11 +65,42 @@ fn bench(c: &mut Criterion) {
                     ContactPointMethod::MotionLines { sigma_px: 16.0 },
                 ),
             ];
+            let mut plain = ContactExtractor::new(config.with_dot_fit(false)).expect("extractor");
+            plain.set_reference(&reference).expect("reference");
+            assert!(!plain.extract(&frame).expect("extract").is_empty());
             for (name, method) in methods {
                 group.bench_function(name, |b| {
-                    b.iter(|| ex.locate(method).expect("locate").len())
+                    b.iter(|| plain.locate(method).expect("locate").len())
                 });
             }
+            let lines = ContactPointMethod::MotionLines { sigma_px: 16.0 };
+            group.bench_function("locate/motion lines + dot fit", |b| {
+                b.iter(|| ex.locate(lines).expect("locate").len())
+            });
+            let raw = plain.locate(lines).expect("locate")[0];
+            let tracker = plain.dot_tracker();
+            let pitch = plain.marker_pitch().expect("a dot grid");
+            assert!(
+                round::fit_round_field(
+                    tracker.dots(),
+                    tracker.displacements(),
+                    &[[raw.x_px, raw.y_px]],
+                    0,
+                    pitch
+                )
+                .is_some_and(|f| f.holds())
+            );
+            group.bench_function("round fit", |b| {
+                b.iter(|| {
+                    round::fit_round_field(
+                        tracker.dots(),
+                        tracker.displacements(),
+                        &[[raw.x_px, raw.y_px]],
+                        0,
+                        pitch,
+                    )
+                })
+            });
         }
     }
     let pitch = grid_pitch(&reference).expect("a dot grid");

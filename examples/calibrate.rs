@@ -202,6 +202,11 @@ struct Cli {
     /// reference shows a regular grid (docs/pipeline.md, step 4).
     #[arg(long, value_enum, value_name = "WHEN", default_value = "auto")]
     dot_tracking: DotTrackingArg,
+    /// With the dots followed, read each contact's shear and normal
+    /// displacements from a round load's field fitted to its dots rather
+    /// than from the patch's sums (docs/pipeline.md, step 7).
+    #[arg(long, value_name = "on|off", default_value = "on", action = clap::ArgAction::Set, value_parser = cli_support::on_off)]
+    dot_fit: bool,
     /// DIS flow preset [default: dense for random markers on a flat sensor
     /// (no regular grid in the first reference), otherwise fine, the
     /// sensor's].
@@ -280,6 +285,8 @@ struct Args {
     no_profile_tail: bool,
     relocation: Option<Relocation>,
     dot_tracking: DotTrackingArg,
+    /// `--dot-fit`.
+    dot_fit: bool,
     /// `--preset`; `None`: the sensor's default (`ExtractorConfig::default`).
     flow: Option<DisPreset>,
     /// `--light-box`; `None`: as [`fitting_light_box`] says.
@@ -542,6 +549,7 @@ impl Cli {
             no_profile_tail: self.no_profile_tail,
             relocation: self.relocation.map(Relocation::from),
             dot_tracking: self.dot_tracking,
+            dot_fit: self.dot_fit,
             flow: self.preset,
             light_box: self.light_box.map(|r| r as usize),
             crop: self.crop,
@@ -653,7 +661,8 @@ fn run(args: Args) -> Result<(), Failure> {
     for (k, preset) in args.presets.iter().enumerate() {
         let mut config = ExtractorConfig::default()
             .with_thresholds(thresholds(preset, args.custom))
-            .with_dot_tracking(dot_tracking);
+            .with_dot_tracking(dot_tracking)
+            .with_dot_fit(args.dot_fit);
         config.flow = DisParams::preset(flow);
         config.light_box_px = match args.light_box {
             Some(0) => None,

@@ -31,7 +31,9 @@
 //! displacements (`ds1`, `ds2`, `dn`) and `d_pf`, in the same per-frame
 //! JSON Lines layout as calibrated contacts (docs/formats.md). With
 //! `--dot-tracking on` on a sensor with a regular grid of dots, the
-//! contact point is where the dots' motion lines meet, in both axes.
+//! contact point is where the dots' motion lines meet, in both axes, and
+//! with `--dot-fit on` (the default) the centre of the round load's field
+//! fitted to the dots, whose shear and squeeze give `ds1`, `ds2`, `dn`.
 //!
 //! A contact whose force came from the calibration's fallback maps is marked
 //! `(fallback)`, one outside what the calibration was fitted on
@@ -408,6 +410,10 @@ fn main() -> ExitCode {
 /// recognised.
 fn markers_note(ex: &optical_tactile::sensor::ContactExtractor) -> String {
     match (ex.marker_pitch(), ex.follows_dots()) {
+        (Some(p), true) if ex.config().dot_fit => format!(
+            "markers: a regular grid, {p:.0} px apart, its dots followed one by one \
+             and each contact's field fitted to them"
+        ),
         (Some(p), true) => {
             format!("markers: a regular grid, {p:.0} px apart, its dots followed one by one")
         }

@@ -53,7 +53,7 @@ use crate::flow::dis::{Dis, DisParams, DisPreset};
 use crate::frame::Roi;
 use crate::geometry::SensorGeometry;
 use crate::hhd::{DivergentPart, NaturalHhd};
-use crate::markers::DotTracker;
+use crate::markers::{DotTracker, round};
 use crate::segment::morphology::Mask;
 use crate::segment::{ContactPatch, Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use crate::track::{ReferenceMonitor, ReferencePolicy, Tracker, TrackerConfig};
@@ -91,6 +91,15 @@ pub struct ExtractorConfig {
     /// a calibrated one does (on random markers it changes nothing).
     /// `false`: the flow alone.
     pub dot_tracking: bool,
+    /// Where the dots are followed, take each contact's shear and normal
+    /// displacements (`ds1`, `ds2`, `dn`) and its point from a round load's
+    /// field fitted to its dots ([`crate::markers::round`]) rather than
+    /// from the patch's sums, which swing with where the contact sits
+    /// against the dots; on by default. Where the fit does not hold (too
+    /// few dots, most of their motion unexplained) the displacements are
+    /// the dots' plain sums in the same units, the point stays, and the
+    /// contact is marked out of domain ([`ContactExtractor::dot_fit_failed`]).
+    pub dot_fit: bool,
     /// Divide the reference and each frame by their own local light (the
     /// mean over a box of this half-side, full-resolution pixels) before
     /// the flow ([`crate::frame::divide_by_light_into`]), so that a
@@ -111,6 +120,7 @@ impl Default for ExtractorConfig {
             exposure: ExposureCompensation::default(),
             split: Some(SplitRule::DEFAULT),
             dot_tracking: true,
+            dot_fit: true,
             light_box_px: None,
         }
     }
@@ -167,12 +177,19 @@ impl ExtractorConfig {
         self
     }
 
+    /// This configuration with the contacts' displacements fitted to their
+    /// dots, or not ([`ExtractorConfig::dot_fit`]).
+    pub fn with_dot_fit(mut self, on: bool) -> Self {
+        self.dot_fit = on;
+        self
+    }
+
     /// The settings a calibration was fitted with, so that a sensor measures
     /// the raw quantities the same way: the thresholds of `setup.thresholds`
     /// and, when recorded, the flow preset, margin, sub-pixel switch,
-    /// exposure compensation and dot tracking of `setup.pipeline`
-    /// (otherwise the defaults, with the compensation and dot tracking off:
-    /// such a file predates them).
+    /// exposure compensation, dot tracking and dot fit of `setup.pipeline`
+    /// (otherwise the defaults, with the compensation, dot tracking and dot
+    /// fit off: such a file predates them).
     pub fn from_setup(setup: &SensorSetup) -> Result<Self> {
         setup.thresholds.validate()?;
         let mut config = ExtractorConfig {
@@ -183,12 +200,14 @@ impl ExtractorConfig {
         // and dot tracking: its maps were fitted on the flow alone.
         config.exposure = ExposureCompensation::Off;
         config.dot_tracking = false;
+        config.dot_fit = false;
         if let Some(p) = &setup.pipeline {
             config.flow = DisParams::preset(DisPreset::parse(&p.flow_preset)?);
             config.margin_px = p.margin_px;
             config.subpixel = p.subpixel;
             config.exposure = p.exposure_compensation();
             config.dot_tracking = p.dot_tracking;
+            config.dot_fit = p.dot_fit;
             config.light_box_px = p.light_box_px;
         }
         Ok(config)
@@ -660,7 +679,11 @@ impl ContactExtractor {
     /// [`ContactPointMethod::MotionLines`] and the dots of a grid followed,
     /// each contact's point then moves to where its dots' motion lines meet
     /// ([`DotTracker::motion_centre`]), its row as well as its column.
-    /// Errors on a method parameter out of its range.
+    /// Where the dots are followed and [`ExtractorConfig::dot_fit`] is on,
+    /// each contact's displacements (`ds1`, `ds2`, `dn`) then come from a
+    /// round load's field fitted to its dots about that point
+    /// ([`crate::markers::round`]). Errors on a method parameter out of its
+    /// range.
     pub fn locate(&mut self, method: ContactPointMethod) -> Result<&[RawContact]> {
         let (flow, scale) = self.grid.finest();
         // The unseen patches (motion past the skin's texture only) are not
@@ -689,9 +712,68 @@ impl ContactExtractor {
                 }
             }
         }
+        if refined.is_ok() && self.config.dot_fit && self.dots.is_active() {
+            self.fit_dots(n);
+        }
         self.unseen.extend(self.raws.drain(n..));
         refined?;
         Ok(&self.raws)
+    }
+
+    /// The displacements and point of the first `n` raw contacts from a
+    /// round load's field fitted to their dots ([`ExtractorConfig::dot_fit`]),
+    /// about each contact's current point, each on the dots nearer to it
+    /// than to the others.
+    fn fit_dots(&mut self, n: usize) {
+        let Some(pitch) = self.marker_pitch else {
+            return;
+        };
+        self.starts.clear();
+        self.starts
+            .extend(self.raws[..n].iter().map(|r| [r.x_px, r.y_px]));
+        for (k, raw) in self.raws[..n].iter_mut().enumerate() {
+            let fit = round::fit_round_field(
+                self.dots.dots(),
+                self.dots.displacements(),
+                &self.starts,
+                k,
+                pitch,
+            );
+            raw.dot_fit_residual = None;
+            if let Some(f) = fit {
+                // Where the fit does not hold, the dots' own sums: the same
+                // quantities in the same units, swinging with the phase.
+                let ([s1, s2], n) = if f.holds() {
+                    (f.shear, f.normal)
+                } else {
+                    f.sums
+                };
+                raw.ds1 = s1;
+                raw.ds2 = s2;
+                raw.dn = n;
+                if f.holds() {
+                    // The load's centre: the field's own, which shear does
+                    // not slide sideways and a neighbour does not pull.
+                    raw.x_px = f.centre[0];
+                    raw.y_px = f.centre[1];
+                }
+                raw.dot_fit_residual = Some(if f.holds() { f.residual } else { f64::INFINITY });
+            }
+        }
+    }
+
+    /// Whether a contact's displacements should have come from its dots'
+    /// fitted field ([`ExtractorConfig::dot_fit`], the dots followed) but
+    /// the fit does not hold ([`round::RoundFit::holds`]) or could not be
+    /// made: its displacements are then the dots' plain sums (or, with
+    /// fewer than [`round::MIN_DOTS`]
+    /// dots, the patch's), which swing with the contact's place against
+    /// the dots, and the sensor marks it [`crate::Contact::out_of_domain`].
+    pub fn dot_fit_failed(&self, raw: &RawContact) -> bool {
+        self.config.dot_fit
+            && self.dots.is_active()
+            && self.marker_pitch.is_some()
+            && raw.dot_fit_residual.is_none_or(|r| r > round::MAX_RESIDUAL)
     }
 
     /// Sets the reference (unloaded) frame, already cropped.
@@ -1373,7 +1455,8 @@ impl TactileSensor {
             let loc = self.calibration.location_of(raw)?;
             raw.d_sensor = sensor_displacements(&geometry, loc[0], raw);
             let mut contact = self.calibration.contact(raw)?;
-            contact.out_of_domain |= self.extractor.beyond_markers(raw);
+            contact.out_of_domain |=
+                self.extractor.beyond_markers(raw) || self.extractor.dot_fit_failed(raw);
             // Nothing non-finite leaves the sensor: such a contact (a
             // calibration evaluated far outside its range) is dropped and counted.
             if contact.is_finite() {

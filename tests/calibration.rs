@@ -104,6 +104,7 @@ fn protocol_samples(noise: f64, seed: u64) -> Vec<Sample> {
                         fx,
                         fy,
                         fz,
+                        untrusted: false,
                     });
                 }
             }
@@ -190,6 +191,7 @@ fn exactly_polynomial_truth_is_recovered_with_the_right_orders() {
             fy: 0.012 * dy,
             // gz: displacement order 2 with a location cross term.
             fz: 0.006 * dz + 2e-6 * dz * dz + 1e-6 * dz * x2d + 0.03 * d_pf,
+            untrusted: false,
         });
     }
     let opts = FitOptions {
@@ -730,6 +732,7 @@ fn g1_corrects_a_shear_dependent_offset() {
             fx: 0.0,
             fy: 0.0,
             fz: 0.0,
+            untrusted: false,
         });
     }
     let cal = fit::fit(&samples, &setup(), &FitOptions::default()).unwrap();
@@ -1712,6 +1715,7 @@ fn a_flat_sensor_maps_both_coordinates_from_the_2d_contact_point() {
                 fx: 0.0,
                 fy: 0.0,
                 fz,
+                untrusted: false,
             });
         }
     }

@@ -247,11 +247,12 @@ fn extractor_settings_come_from_the_calibration() {
             contact_point: None,
             exposure: Some(optical_tactile::exposure::ExposureCompensation::GainOffset),
             dot_tracking: true,
+            dot_fit: true,
             light_box_px: Some(16),
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();
-    assert!(c.dot_tracking);
+    assert!(c.dot_tracking && c.dot_fit);
     assert_eq!(c.light_box_px, Some(16));
     assert_eq!(c.flow, DisParams::preset(DisPreset::Fast));
     assert_eq!((c.margin_px, c.subpixel), (16, false));
@@ -268,9 +269,15 @@ fn extractor_settings_come_from_the_calibration() {
     let c = ExtractorConfig::from_setup(&linear_calibration(crop, None).setup).unwrap();
     let d = ExtractorConfig::default();
     assert_eq!(
-        (c.flow, c.margin_px, c.subpixel, c.dot_tracking),
-        (d.flow, d.margin_px, d.subpixel, false)
+        (c.flow, c.margin_px, c.subpixel, c.dot_tracking, c.dot_fit),
+        (d.flow, d.margin_px, d.subpixel, false, false)
     );
+    // A file written before the dots' field was fitted reads the sums.
+    let mut older = cal.setup.clone();
+    older.pipeline.as_mut().unwrap().dot_fit = false;
+    let text = serde_json::to_string(&older.pipeline).unwrap();
+    assert!(!text.contains("dot_fit"), "{text}");
+    assert!(!ExtractorConfig::from_setup(&older).unwrap().dot_fit);
     // Bad settings are typed errors.
     let mut setup = cal.setup.clone();
     setup.pipeline.as_mut().unwrap().flow_preset = "turbo".into();

@@ -73,6 +73,12 @@ pub struct PipelineArgs {
     /// grid]. Changes nothing on random markers.
     #[arg(long, value_name = "on|off", action = clap::ArgAction::Set, value_parser = super::on_off)]
     pub dot_tracking: Option<bool>,
+    /// With the dots followed, read each contact's shear and normal
+    /// displacements from a round load's field fitted to its dots
+    /// (docs/pipeline.md, step 7) [default: the calibration's; on with
+    /// --raw].
+    #[arg(long, value_name = "on|off", action = clap::ArgAction::Set, value_parser = super::on_off)]
+    pub dot_fit: Option<bool>,
     /// Which channel of colour frames becomes the grey image.
     #[arg(long, value_name = "green|luma", default_value = "green", value_parser = channel)]
     pub channel: Channel,
@@ -149,6 +155,9 @@ impl PipelineArgs {
         c.split = self.split.then_some(SplitRule::DEFAULT);
         if let Some(on) = self.dot_tracking {
             c.dot_tracking = on;
+        }
+        if let Some(on) = self.dot_fit {
+            c.dot_fit = on;
         }
     }
 }

@@ -126,6 +126,7 @@ class Sensor:
         channel: Literal["green", "luma"] = "green",
         color_order: Literal["rgb", "bgr"] = "rgb",
         dot_tracking: Optional[bool] = None,
+        dot_fit: Optional[bool] = None,
     ) -> Sensor:
         """A calibrated sensor; the keywords override the calibration's settings."""
     @staticmethod
@@ -137,7 +138,8 @@ class Sensor:
         exposure: Literal["auto", "gain-offset", "offset", "off"] = "auto",
         channel: Literal["green", "luma"] = "green",
         color_order: Literal["rgb", "bgr"] = "rgb",
-        dot_tracking: bool = False,
+        dot_tracking: bool = True,
+        dot_fit: bool = True,
     ) -> Sensor:
         """A sensor without calibration: patches with raw quantities in px."""
     def set_reference(self, frame: Frame) -> None:

@@ -406,7 +406,7 @@ impl Sensor {
     #[pyo3(signature = (
         calibration, *, thresholds=None, preset=None, crop=None, force_crop=false,
         exposure=None, filter=false, hold=None, rereference=true, channel="green",
-        color_order="rgb", dot_tracking=None
+        color_order="rgb", dot_tracking=None, dot_fit=None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn from_calibration(
@@ -423,6 +423,7 @@ impl Sensor {
         channel: &str,
         color_order: &str,
         dot_tracking: Option<bool>,
+        dot_fit: Option<bool>,
     ) -> PyResult<Sensor> {
         let build = || -> Result<Sensor, Failure> {
             let colour = Colour::parse(channel, color_order)?;
@@ -447,6 +448,9 @@ impl Sensor {
                     if let Some(on) = dot_tracking {
                         c.extractor.dot_tracking = on;
                     }
+                    if let Some(on) = dot_fit {
+                        c.extractor.dot_fit = on;
+                    }
                     c.tracker.filter = filter.then(FilterConfig::default);
                     if let Some(h) = hold {
                         c.tracker.max_missed = h;
@@ -466,7 +470,7 @@ impl Sensor {
     #[staticmethod]
     #[pyo3(signature = (
         *, crop=None, thresholds=None, preset=None, exposure="auto", channel="green",
-        color_order="rgb", dot_tracking=true
+        color_order="rgb", dot_tracking=true, dot_fit=true
     ))]
     #[allow(clippy::too_many_arguments)]
     fn raw(
@@ -478,12 +482,14 @@ impl Sensor {
         channel: &str,
         color_order: &str,
         dot_tracking: bool,
+        dot_fit: bool,
     ) -> PyResult<Sensor> {
         let build = || -> Result<Sensor, Failure> {
             let colour = Colour::parse(channel, color_order)?;
             let mut config = ExtractorConfig::default()
                 .with_exposure(params::exposure(exposure)?)
-                .with_dot_tracking(dot_tracking);
+                .with_dot_tracking(dot_tracking)
+                .with_dot_fit(dot_fit);
             if let Some(p) = preset {
                 config = config.with_flow(params::flow(p)?);
             }

@@ -256,8 +256,9 @@ def test_frame_larger_than_the_crop(calibration, press_frames):
 def test_dot_tracking_follows_the_calibration_unless_overridden(tmp_path):
     """The flat fingertip sensor's calibration follows its dots one by one:
     the Python sensor does as `track` does, and `dot_tracking=False` reads
-    the flow alone. A raw sensor follows the dots too, as `track --raw`
-    does, unless asked not to."""
+    the flow alone, `dot_fit=False` the patches' sums. A raw sensor follows
+    the dots and fits their field too, as `track --raw` does, unless asked
+    not to."""
     flat = FIXTURES / "flat_press"
     cal_path = FIXTURES / "flat_calibration.json"
     frames = list(ot.Sequence(flat))
@@ -272,9 +273,13 @@ def test_dot_tracking_follows_the_calibration_unless_overridden(tmp_path):
     alone = track(ot.Sensor.from_calibration(cal, dot_tracking=False), frames)
     xs = lambda found: [round(c.location_mm[0], 9) for _, _, cs in found for c in cs]
     assert xs(followed) and xs(alone) != xs(followed)
+    # The dots' fitted field: on as the calibration says, off on request.
+    unfitted = track(ot.Sensor.from_calibration(cal, dot_fit=False), frames)
+    assert xs(unfitted) and xs(unfitted) != xs(followed)
     raw = lambda **kw: [c.raw.ds1 for _, _, cs in track(ot.Sensor.raw(**kw), frames) for c in cs]
-    assert raw() == raw(dot_tracking=True)
+    assert raw() == raw(dot_tracking=True) == raw(dot_fit=True)
     assert raw() != raw(dot_tracking=False)
+    assert raw() != raw(dot_fit=False)
     out = tmp_path / "raw.jsonl"
     run([example("track"), flat, "--raw", "--out", out, "--quiet"])
     assert raw() == [c["ds1"] for r in read_jsonl(out) for c in r["contacts"]]

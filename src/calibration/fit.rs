@@ -482,10 +482,24 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         )?;
         (g1, g2)
     };
+    // On a sensor that locates in 2-D, the validation points share the
+    // training points' rows and columns, so they cannot see a location map
+    // wiggle between them (an order that passes through every column of
+    // points): where enough spot checks were recorded, they join the
+    // validation of the location maps' orders (not of the force maps', so
+    // that the spot checks' forces stay held out), those whose motion the
+    // markers could tell.
+    let loc_va = if two_d && super::uncertainty::fitted_on_spot_checks(spot.len()) {
+        let mut both = val.clone();
+        both.extend(spot.iter().copied().filter(|s| !s.untrusted));
+        cols(&both)
+    } else {
+        cols(&val)
+    };
     let (g1, r1) = poly::search_orders(
         &g1_spec,
         FitData::new(tr.g1_in.view(), tr.x_mm.view()),
-        FitData::new(va.g1_in.view(), va.x_mm.view()),
+        FitData::new(loc_va.g1_in.view(), loc_va.x_mm.view()),
         has_test.then(|| FitData::new(te.g1_in.view(), te.x_mm.view())),
         ls,
     )
@@ -493,7 +507,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let (g2, r2) = poly::search_orders(
         &g2_spec,
         FitData::new(tr.g2_in.view(), tr.y_mm.view()),
-        FitData::new(va.g2_in.view(), va.y_mm.view()),
+        FitData::new(loc_va.g2_in.view(), loc_va.y_mm.view()),
         has_test.then(|| FitData::new(te.g2_in.view(), te.y_mm.view())),
         ls,
     )
@@ -711,6 +725,11 @@ pub struct Extraction {
     /// under two thirds of the pitch); a training or validation test
     /// beyond the markers is fitted on only then ([`Extraction::fits`]).
     pub dots_followed: bool,
+    /// Whether the strongest patch's displacements should have come from
+    /// its dots' fitted field but the fit failed
+    /// ([`ContactExtractor::dot_fit_failed`]): never fitted on, marked out
+    /// of domain at run time.
+    pub dot_fit_failed: bool,
 }
 
 impl Extraction {
@@ -723,7 +742,7 @@ impl Extraction {
     /// held-out rows score Fx / Fy / Fz 0.020 / 0.034 / 0.035 N, without
     /// them 0.025 / 0.042 / 0.047 N (`docs/results.md`).
     pub fn fits(&self) -> bool {
-        !self.beyond_markers || self.dots_followed
+        (!self.beyond_markers || self.dots_followed) && !self.dot_fit_failed
     }
 }
 
@@ -821,10 +840,12 @@ pub fn extract_dataset(
                     }
                     let beyond_markers = raws.first().is_some_and(|r| ex.beyond_markers(r));
                     let dots_followed = raws.first().is_some_and(|r| ex.dots_followed(r));
+                    let dot_fit_failed = raws.first().is_some_and(|r| ex.dot_fit_failed(r));
                     Ok(Extraction {
                         row: row.clone(),
                         beyond_markers,
                         dots_followed,
+                        dot_fit_failed,
                         raw: raws.first().copied(),
                         patches: raws.len(),
                         profiles,
@@ -936,7 +957,12 @@ fn trusted(ex: &[Extraction], s: &[Option<Sample>]) -> Vec<Sample> {
     ex.iter()
         .zip(s)
         .filter(|(e, _)| e.fits() || matches!(e.row.split, Split::Test | Split::Spot))
-        .filter_map(|(_, s)| *s)
+        .filter_map(|(e, s)| {
+            s.map(|s| Sample {
+                untrusted: !e.fits(),
+                ..s
+            })
+        })
         .collect()
 }
 
@@ -1009,6 +1035,7 @@ pub fn fit_dataset_with_sweeps(
             contact_point: Some(contact_point),
             exposure: Some(config.exposure),
             dot_tracking: config.dot_tracking,
+            dot_fit: config.dot_tracking && config.dot_fit,
             light_box_px: config.light_box_px,
         }),
     };
@@ -2016,6 +2043,7 @@ mod tests {
             scale: 1.0,
             beyond_markers: false,
             dots_followed: false,
+            dot_fit_failed: false,
         }
     }
 

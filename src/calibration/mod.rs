@@ -311,6 +311,12 @@ pub struct PipelineSettings {
     /// in older files and when off.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub dot_tracking: bool,
+    /// Whether, with the dots followed, each contact's displacements came
+    /// from a round load's field fitted to its dots
+    /// ([`crate::sensor::ExtractorConfig::dot_fit`]). Absent (false) in
+    /// older files and when off: the patch's sums.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub dot_fit: bool,
     /// Half-side, full-resolution pixels, of the box of local light the
     /// frames were divided by before the flow
     /// ([`crate::sensor::ExtractorConfig::light_box_px`]). Absent when they
@@ -417,6 +423,11 @@ pub struct Sample {
     pub fy: f64,
     /// True force z, N.
     pub fz: f64,
+    /// Whether the test's motion went beyond what the markers can tell and
+    /// no map may be fitted on it ([`crate::calibration::fit::Extraction::fits`]):
+    /// a test row or spot check kept so that its error counts.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub untrusted: bool,
 }
 
 impl Sample {
@@ -446,6 +457,7 @@ impl Sample {
             fx: row.fx_n,
             fy: row.fy_n,
             fz: row.fz_n,
+            untrusted: false,
         }
     }
 

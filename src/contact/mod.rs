@@ -54,6 +54,12 @@ pub struct RawContact {
     /// ([`crate::calibration::correction`]); `None` until such a match.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub matched_shear_ratio: Option<f64>,
+    /// The residual ([`crate::markers::round::RoundFit::residual`]) of the
+    /// round load's field fitted to the contact's dots, when `ds1`, `ds2`
+    /// and `dn` came from that fit ([`crate::sensor::ExtractorConfig::dot_fit`]);
+    /// `None` when they are the patch's sums.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dot_fit_residual: Option<f64>,
 }
 
 impl RawContact {
@@ -1436,6 +1442,7 @@ mod tests {
             contact_point: None,
             exposure: None,
             dot_tracking: false,
+            dot_fit: false,
             light_box_px: None,
         };
         assert_eq!(

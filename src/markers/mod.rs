@@ -30,6 +30,7 @@ use ndarray::ArrayRef2;
 
 pub mod centre;
 pub mod dots;
+pub mod round;
 pub use dots::DotTracker;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex64;
