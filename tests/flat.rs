@@ -74,20 +74,25 @@ fn dot_extractor(
     ex
 }
 
-#[test]
-fn the_flat_calibration_locates_every_bundled_press_in_both_coordinates() {
-    let cal = Calibration::load(CAL).unwrap();
-    assert!(matches!(cal.setup.geometry, SensorGeometry::Flat(_)));
-    assert!(cal.setup.geometry.locates_in_2d());
-    // Each frame is pressed against the one reference: no re-referencing,
-    // and a contact that moved is a new one, not a held old one.
-    let mut sensor = TactileSensor::builder(cal)
+/// A sensor with the bundled flat calibration that reads each frame as its
+/// own press against the one reference: no re-referencing, and a contact
+/// that moved is a new one, not a held old one.
+fn press_by_press(cal: Calibration) -> TactileSensor {
+    TactileSensor::builder(cal)
         .configure(|c| {
             c.rereference.enabled = false;
             c.tracker.max_missed = 0;
         })
         .build()
-        .unwrap();
+        .unwrap()
+}
+
+#[test]
+fn the_flat_calibration_locates_every_bundled_press_in_both_coordinates() {
+    let cal = Calibration::load(CAL).unwrap();
+    assert!(matches!(cal.setup.geometry, SensorGeometry::Flat(_)));
+    assert!(cal.setup.geometry.locates_in_2d());
+    let mut sensor = press_by_press(cal);
     let truth: Vec<FrameRecord> = read_jsonl(format!("{SEQ}/truth.jsonl")).unwrap();
     let mut seq = SequenceSource::open(SEQ).unwrap();
     let first = seq.next_frame().unwrap().unwrap();
@@ -624,13 +629,7 @@ fn a_contact_that_changes_the_gels_light_reads_as_under_its_own_light() {
         }
         config.noise.contact_light = light;
         let mut sim = SyntheticSensor::new(config, seed).unwrap();
-        let mut sensor = TactileSensor::builder(Calibration::load(CAL).unwrap())
-            .configure(|c| {
-                c.rereference.enabled = false;
-                c.tracker.max_missed = 0;
-            })
-            .build()
-            .unwrap();
+        let mut sensor = press_by_press(Calibration::load(CAL).unwrap());
         let (reference, _) = sim.render(&[]).unwrap();
         sensor.set_reference(&reference).unwrap();
         presses
@@ -819,13 +818,7 @@ fn two_contacts_close_together_are_each_fitted_on_their_own_dots() {
     let cal = Calibration::load(CAL).unwrap();
     assert!(cal.setup.pipeline.as_ref().is_some_and(|p| p.dot_fit));
     let (mut sim, reference) = fingertip(3, 22.0, 1.0);
-    let mut sensor = TactileSensor::builder(cal)
-        .configure(|c| {
-            c.rereference.enabled = false;
-            c.tracker.max_missed = 0;
-        })
-        .build()
-        .unwrap();
+    let mut sensor = press_by_press(cal);
     sensor.set_reference(&reference).unwrap();
     let mut read = |presses: &[Press]| {
         let (frame, _) = sim.render(presses).unwrap();
