@@ -757,7 +757,7 @@ impl ContactExtractor {
                     raw.x_px = f.centre[0];
                     raw.y_px = f.centre[1];
                 }
-                raw.dot_fit_residual = Some(if f.holds() { f.residual } else { f64::INFINITY });
+                raw.dot_fit_residual = f.holds().then_some(f.residual);
             }
         }
     }
@@ -773,7 +773,7 @@ impl ContactExtractor {
         self.config.dot_fit
             && self.dots.is_active()
             && self.marker_pitch.is_some()
-            && raw.dot_fit_residual.is_none_or(|r| r > round::MAX_RESIDUAL)
+            && raw.dot_fit_residual.is_none()
     }
 
     /// Sets the reference (unloaded) frame, already cropped.

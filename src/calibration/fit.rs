@@ -484,15 +484,14 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     };
     // On a sensor that locates in 2-D, the validation points share the
     // training points' rows and columns, so they cannot see a location map
-    // wiggle between them (an order that passes through every column of
-    // points): where enough spot checks were recorded, they join the
-    // validation of the location maps' orders (not of the force maps', so
-    // that the spot checks' forces stay held out), those whose motion the
-    // markers could tell.
-    let loc_va = if two_d && super::uncertainty::fitted_on_spot_checks(spot.len()) {
-        let mut both = val.clone();
-        both.extend(spot.iter().copied().filter(|s| !s.untrusted));
-        cols(&both)
+    // swing between them (an order that bends through every column of
+    // points), and reward it: where enough spot checks within what the
+    // markers can tell were recorded, the location maps' orders are chosen
+    // on them instead (not the force maps', so that the spot checks'
+    // forces stay held out).
+    let sound_spots: Vec<&Sample> = spot.iter().copied().filter(|s| !s.untrusted).collect();
+    let loc_va = if two_d && super::uncertainty::fitted_on_spot_checks(sound_spots.len()) {
+        cols(&sound_spots)
     } else {
         cols(&val)
     };

@@ -55,9 +55,10 @@ pub struct RawContact {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub matched_shear_ratio: Option<f64>,
     /// The residual ([`crate::markers::round::RoundFit::residual`]) of the
-    /// round load's field fitted to the contact's dots, when `ds1`, `ds2`
-    /// and `dn` came from that fit ([`crate::sensor::ExtractorConfig::dot_fit`]);
-    /// `None` when they are the patch's sums.
+    /// round load's field fitted to the contact's dots, when `ds1`, `ds2`,
+    /// `dn` and the point came from that fit
+    /// ([`crate::sensor::ExtractorConfig::dot_fit`]); `None` when they did
+    /// not (no fit asked for, or none that holds).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dot_fit_residual: Option<f64>,
 }

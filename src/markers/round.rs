@@ -207,13 +207,15 @@ fn solve(s: &Samples, profile: Profile, c: [f64; 2], a: f64) -> (f64, f64, [f64;
         sbu += v * m[0];
         sbv += v * m[1];
     }
-    // Eliminate beta: beta = (sb - alpha gs) / ss.
-    let tiny = 1e-12 * (1.0 + s.norm2);
-    if ss <= tiny {
+    // No dot under the profile (S is at most 1): nothing explained.
+    if ss <= 1e-9 {
         return (s.norm2, 0.0, [0.0; 2]);
     }
+    // Eliminate beta: beta = (sb - alpha gs) / ss. The gradient's column,
+    // less its projection on the profile's, may vanish (dots only where
+    // the gradient follows the profile): then no squeeze.
     let den = gg - (gs_x * gs_x + gs_y * gs_y) / ss;
-    let alpha = if den > tiny * 1e-6 {
+    let alpha = if den > 1e-12 * gg {
         (gb - (gs_x * sbu + gs_y * sbv) / ss) / den
     } else {
         0.0
