@@ -1665,6 +1665,37 @@ fn the_exposure_compensation_travels_with_the_calibration() {
     assert!(Calibration::load(&unknown).is_err());
 }
 
+/// A straight press of `fz` (N) on a flat sensor at `(x, y)` mm, seen at
+/// `(x2d, y2d)` px with 0.05 px of noise: its displacements those of a
+/// press without shear.
+fn straight_press(
+    split: Split,
+    point: u32,
+    (x, y): (f64, f64),
+    (x2d, y2d): (f64, f64),
+    fz: f64,
+    rng: &mut Rng,
+) -> Sample {
+    Sample {
+        split,
+        point,
+        x2d: x2d + 0.05 * rng.normal(),
+        y2d: y2d + 0.05 * rng.normal(),
+        dx: 0.0,
+        dy: 0.0,
+        dz: 100.0 * fz + rng.normal(),
+        d_pf: 1.0 - fz,
+        shear: 0.0,
+        shear_y: 0.0,
+        x_mm: x,
+        y_mm: y,
+        fx: 0.0,
+        fy: 0.0,
+        fz,
+        untrusted: false,
+    }
+}
+
 /// A flat 24 x 18 mm sensor filmed through a lens with barrel distortion: on
 /// a 5 x 4 grid of points (the middle row's inner points validate, the
 /// other interior points test) both location maps come out of
@@ -1697,26 +1728,16 @@ fn a_flat_sensor_maps_both_coordinates_from_the_2d_contact_point() {
             };
             // Contacts scatter around the point as a real indenter's do.
             let (x, y) = (x_mm + 0.4 * rng.normal(), y_mm + 0.4 * rng.normal());
-            let (x2d, y2d) = camera(x, y);
             let fz = -0.5 - 0.2 * rep as f64;
-            samples.push(Sample {
+            let point = pi as u32 + 1;
+            samples.push(straight_press(
                 split,
-                point: pi as u32 + 1,
-                x2d: x2d + 0.05 * rng.normal(),
-                y2d: y2d + 0.05 * rng.normal(),
-                dx: 0.0,
-                dy: 0.0,
-                dz: 100.0 * fz + rng.normal(),
-                d_pf: 1.0 - fz,
-                shear: 0.0,
-                shear_y: 0.0,
-                x_mm: x,
-                y_mm: y,
-                fx: 0.0,
-                fy: 0.0,
+                point,
+                (x, y),
+                camera(x, y),
                 fz,
-                untrusted: false,
-            });
+                &mut rng,
+            ));
         }
     }
     let setup = SensorSetup {
@@ -2254,24 +2275,8 @@ fn spot_checks_keep_a_flat_sensors_location_maps_from_bending_through_the_column
     let mut rng = Rng::new(11);
     let sample = |split: Split, point: u32, x: f64, y: f64, rng: &mut Rng| {
         let fz = -rng.uniform(0.5, 3.0);
-        Sample {
-            split,
-            point,
-            x2d: 160.0 + 13.0 * (x + bias(x)) + 0.05 * rng.normal(),
-            y2d: 120.0 + 13.0 * y + 0.05 * rng.normal(),
-            dx: 0.0,
-            dy: 0.0,
-            dz: 100.0 * fz + rng.normal(),
-            d_pf: 1.0 - fz,
-            shear: 0.0,
-            shear_y: 0.0,
-            x_mm: x,
-            y_mm: y,
-            fx: 0.0,
-            fy: 0.0,
-            fz,
-            untrusted: false,
-        }
+        let at = (160.0 + 13.0 * (x + bias(x)), 120.0 + 13.0 * y);
+        straight_press(split, point, (x, y), at, fz, rng)
     };
     let mut samples = Vec::new();
     for (pi, (ix, iy)) in (0..5).flat_map(|i| (0..4).map(move |j| (i, j))).enumerate() {
