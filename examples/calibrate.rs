@@ -409,8 +409,8 @@ fn uncertainty_summary(u: &ForceUncertainty, spot: Option<&report::PointTable>) 
     let (what, note) = if on_spots {
         (
             "spot checks",
-            " (its level is set to 68% on the spot checks; the protocol's own points read \
-             better, so more of their errors lie within it)",
+            " (its level is set to 68% on the spot checks, presses between the protocol's \
+             points: the points' own errors may lie within it more or less often)",
         )
     } else {
         ("validation tests", "")

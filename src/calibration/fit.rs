@@ -483,14 +483,12 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         (g1, g2)
     };
     // On a sensor that locates in 2-D, the validation points share the
-    // training points' rows and columns, so they cannot see a location map
-    // swing between them (an order that bends through every column of
-    // points), and reward it: where enough spot checks within what the
-    // markers can tell were recorded, the location maps' orders are chosen
-    // on them instead (not the force maps', so that the spot checks'
-    // forces stay held out).
+    // training points' rows and columns, so they cannot see a map swing
+    // between them (an order that bends through every column of points),
+    // and reward it: where enough spot checks within what the markers can
+    // tell were recorded, every map's orders are chosen on them instead.
     let sound_spots: Vec<&Sample> = spot.iter().copied().filter(|s| !s.untrusted).collect();
-    let loc_va = if two_d && super::uncertainty::fitted_on_spot_checks(sound_spots.len()) {
+    let steer = if two_d && super::uncertainty::fitted_on_spot_checks(sound_spots.len()) {
         cols(&sound_spots)
     } else {
         cols(&val)
@@ -498,7 +496,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let (g1, r1) = poly::search_orders(
         &g1_spec,
         FitData::new(tr.g1_in.view(), tr.x_mm.view()),
-        FitData::new(loc_va.g1_in.view(), loc_va.x_mm.view()),
+        FitData::new(steer.g1_in.view(), steer.x_mm.view()),
         has_test.then(|| FitData::new(te.g1_in.view(), te.x_mm.view())),
         ls,
     )
@@ -506,7 +504,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
     let (g2, r2) = poly::search_orders(
         &g2_spec,
         FitData::new(tr.g2_in.view(), tr.y_mm.view()),
-        FitData::new(loc_va.g2_in.view(), loc_va.y_mm.view()),
+        FitData::new(steer.g2_in.view(), steer.y_mm.view()),
         has_test.then(|| FitData::new(te.g2_in.view(), te.y_mm.view())),
         ls,
     )
@@ -517,7 +515,7 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
             let r = poly::search_orders(
                 spec,
                 FitData::new(tr.force.view(), tr.f[k].view()),
-                FitData::new(va.force.view(), va.f[k].view()),
+                FitData::new(steer.force.view(), steer.f[k].view()),
                 has_test.then(|| FitData::new(te.force.view(), te.f[k].view())),
                 ls,
             )
