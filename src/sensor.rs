@@ -741,9 +741,14 @@ impl ContactExtractor {
             );
             raw.dot_fit_residual = None;
             if let Some(f) = fit {
+                let holds = f.holds();
                 // Where the fit does not hold, the dots' own sums: the same
                 // quantities in the same units, swinging with the phase.
-                let ([s1, s2], n) = if f.holds() {
+                let ([s1, s2], n) = if holds {
+                    // The load's centre: the field's own, which shear does
+                    // not slide sideways and a neighbour does not pull.
+                    raw.x_px = f.centre[0];
+                    raw.y_px = f.centre[1];
                     (f.shear, f.normal)
                 } else {
                     f.sums
@@ -751,13 +756,7 @@ impl ContactExtractor {
                 raw.ds1 = s1;
                 raw.ds2 = s2;
                 raw.dn = n;
-                if f.holds() {
-                    // The load's centre: the field's own, which shear does
-                    // not slide sideways and a neighbour does not pull.
-                    raw.x_px = f.centre[0];
-                    raw.y_px = f.centre[1];
-                }
-                raw.dot_fit_residual = f.holds().then_some(f.residual);
+                raw.dot_fit_residual = holds.then_some(f.residual);
             }
         }
     }

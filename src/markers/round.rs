@@ -172,14 +172,16 @@ pub struct RoundFit {
 
 impl RoundFit {
     /// Whether the fit describes the contact: its radius within the
-    /// search's bounds and at most [`MAX_RESIDUAL`] of the dots' motion
-    /// unexplained.
+    /// search's bounds, its integrals within what the dots' motion allows
+    /// ([`RoundFit::bounded`]) and at most [`MAX_RESIDUAL`] of the dots'
+    /// motion unexplained.
     pub fn holds(&self) -> bool {
         !self.at_bound && self.bounded && self.residual <= MAX_RESIDUAL
     }
 }
 
-/// The dots the fit reads: reference centre minus the start, and motion.
+/// The dots the fit reads: their reference centres, their motion, and the
+/// sum of their squared motions.
 struct Samples {
     at: Vec<[f64; 2]>,
     motion: Vec<[f64; 2]>,
