@@ -103,7 +103,7 @@ use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
-use optical_tactile::segment::Thresholds;
+use optical_tactile::segment::{SplitRule, Thresholds};
 use optical_tactile::sensor::{ExtractorConfig, fitting_flow_preset, fitting_light_box};
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
@@ -662,7 +662,8 @@ fn run(args: Args) -> Result<(), Failure> {
         let mut config = ExtractorConfig::default()
             .with_thresholds(thresholds(preset, args.custom))
             .with_dot_tracking(dot_tracking)
-            .with_dot_fit(args.dot_fit);
+            .with_dot_fit(args.dot_fit)
+            .with_split(Some(SplitRule::for_geometry(&geometry)));
         config.flow = DisParams::preset(flow);
         config.light_box_px = match args.light_box {
             Some(0) => None,

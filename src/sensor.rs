@@ -185,7 +185,8 @@ impl ExtractorConfig {
     }
 
     /// The settings a calibration was fitted with, so that a sensor measures
-    /// the raw quantities the same way: the thresholds of `setup.thresholds`
+    /// the raw quantities the same way: the split rule of its geometry
+    /// ([`SplitRule::for_geometry`]), the thresholds of `setup.thresholds`
     /// and, when recorded, the flow preset, margin, sub-pixel switch,
     /// exposure compensation, dot tracking and dot fit of `setup.pipeline`
     /// (otherwise the defaults, with the compensation, dot tracking and dot
@@ -194,6 +195,7 @@ impl ExtractorConfig {
         setup.thresholds.validate()?;
         let mut config = ExtractorConfig {
             thresholds: setup.thresholds,
+            split: Some(SplitRule::for_geometry(&setup.geometry)),
             ..ExtractorConfig::default()
         };
         // A file without pipeline settings predates exposure compensation

@@ -524,11 +524,15 @@ fn a_fingertip_on_a_small_sensor_is_one_patch() {
                     add_shear(&mut f, cx, cy, shear * amp, s, s, 0.0, angle);
                 }
                 add_block_noise(&mut f, seed, noise * amp);
-                let mut seg = segmenter(margin);
-                let p = seg.segment(&f).unwrap();
-                prop_assert_eq!(seg.split_count(), 0, "{:?}", p);
-                prop_assert_eq!(p.len(), 1, "{:?}", p);
-                prop_assert!(p[0].bbox.contains(cx as usize, cy as usize));
+                // The default rule, and the flat sensor's, which also cuts
+                // along the rows and looks for a press's swing in each piece.
+                for rule in [SplitRule::DEFAULT, SplitRule::FLAT] {
+                    let mut seg = segmenter(margin).with_split(Some(rule)).unwrap();
+                    let p = seg.segment(&f).unwrap();
+                    prop_assert_eq!(seg.split_count(), 0, "{:?}", p);
+                    prop_assert_eq!(p.len(), 1, "{:?}", p);
+                    prop_assert!(p[0].bbox.contains(cx as usize, cy as usize));
+                }
                 Ok(())
             },
         )
@@ -590,5 +594,76 @@ fn a_simulated_fingertip_on_a_dot_grid_is_one_patch() {
                 Ok(())
             },
         )
+        .unwrap();
+}
+
+/// Two presses one above the other on a small flat sensor's image (320x240:
+/// the default rule cuts along its longer side, x, only), 40-80 px apart
+/// along the rows, the second at half to all of the first's strength,
+/// a little off to either side: the flat sensor's rule cuts them apart
+/// along y, each press in its own patch; the default rule leaves one patch.
+#[test]
+fn two_presses_along_the_shorter_side_are_cut_by_the_flat_rule() {
+    let strategy = (
+        (40.0f32..80.0, -10.0f32..10.0, 0.5f32..1.0),
+        (3.0f32..5.0, 140.0f32..180.0, 80.0f32..100.0),
+        (any::<u64>(), 24usize..40),
+    );
+    runner(40)
+        .run(
+            &strategy,
+            |((sep, dx, ratio), (amp, cx, cy), (seed, margin))| {
+                let mut f = FlowField::zeros(320, 240);
+                let (c1, c2) = ((cx, cy), (cx + dx, cy + sep));
+                add_press(&mut f, c1.0, c1.1, amp, 12.0);
+                add_press(&mut f, c2.0, c2.1, ratio * amp, 12.0);
+                add_noise(&mut f, seed, 0.05);
+                let mut seg = segmenter(margin).with_split(Some(SplitRule::FLAT)).unwrap();
+                let p = seg.segment(&f).unwrap();
+                prop_assert_eq!(p.len(), 2, "sep {} ratio {} {:?}", sep, ratio, p);
+                for c in [c1, c2] {
+                    let holding = p
+                        .iter()
+                        .filter(|q| q.bbox.contains(c.0 as usize, c.1 as usize))
+                        .count();
+                    prop_assert_eq!(holding, 1, "{:?} in {:?}", c, p);
+                }
+                prop_assert!(!p[0].bbox.intersects(&p[1].bbox), "{:?}", p);
+                let default = segmenter(margin).segment(&f).unwrap();
+                prop_assert_eq!(default.len(), 1, "{:?}", default);
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+/// A press with a shear along the rows beside it whose far edge turns back
+/// (the gel squeezed ahead of a sheared press, then a positive lobe of
+/// divergence where the motion returns towards zero): a valley and a
+/// second lobe along y, but the motion beyond the valley never swings
+/// from below zero to above it as a press's does, so the flat rule keeps
+/// one patch; a true second press there is cut off.
+#[test]
+fn a_shear_lobe_is_not_a_second_press() {
+    let strategy = (2.0f32..5.0, 0.6f32..1.2, any::<u64>());
+    runner(40)
+        .run(&strategy, |(amp, shear, seed)| {
+            let (cx, cy) = (160.0f32, 90.0f32);
+            let mut f = FlowField::zeros(320, 240);
+            add_press(&mut f, cx, cy, amp, 12.0);
+            // Motion along +y ahead of the press, overshooting below zero
+            // beyond it and returning: v = s(y) with a negative tail.
+            for ((y, x), v) in f.v.indexed_iter_mut() {
+                let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+                let across = (-dx * dx / (2.0 * 30.0 * 30.0)).exp();
+                let ahead = (dy - 25.0) / 14.0;
+                *v -= shear * amp * across * ahead * (-0.5 * ahead * ahead).exp();
+            }
+            add_noise(&mut f, seed, 0.05);
+            let mut seg = segmenter(30).with_split(Some(SplitRule::FLAT)).unwrap();
+            let p = seg.segment(&f).unwrap();
+            prop_assert_eq!(p.len(), 1, "{:?}", p);
+            Ok(())
+        })
         .unwrap();
 }

@@ -152,7 +152,13 @@ impl PipelineArgs {
     /// The single-value threshold flags and `--split` applied to `c`.
     fn override_extractor(&self, c: &mut ExtractorConfig) {
         c.thresholds = self.override_thresholds(c.thresholds);
-        c.split = self.split.then_some(SplitRule::DEFAULT);
+        // On: the rule already set (a calibration's geometry's), else the
+        // library's default.
+        if !self.split {
+            c.split = None;
+        } else if c.split.is_none() {
+            c.split = Some(SplitRule::DEFAULT);
+        }
         if let Some(on) = self.dot_tracking {
             c.dot_tracking = on;
         }

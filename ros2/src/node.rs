@@ -74,7 +74,10 @@ impl Pipeline {
                 if let Some(e) = args.exposure {
                     c.extractor.exposure = e;
                 }
-                c.extractor.split = split;
+                // On: the rule of the calibration's geometry.
+                if !args.split {
+                    c.extractor.split = None;
+                }
                 c.tracker.filter = args.filter.then(FilterConfig::default);
                 if let Some(h) = args.hold {
                     c.tracker.max_missed = h;

@@ -542,6 +542,10 @@ pub struct Segmenter {
     smoothed: Vec<f64>,
     divergence: Vec<f64>,
     cuts: Vec<usize>,
+    /// The pieces `(grown box, core)` of the last call.
+    pieces: Vec<(BoundingBox, BoundingBox)>,
+    /// The pieces along the first side, before the cuts across.
+    across_pieces: Vec<(BoundingBox, BoundingBox)>,
     /// Number of cuts the split rule made in the last call.
     split_count: usize,
     /// Where motion can be seen at all (see [`Segmenter::set_observable`]);
@@ -595,6 +599,8 @@ impl Segmenter {
             smoothed: Vec::new(),
             divergence: Vec::new(),
             cuts: Vec::new(),
+            pieces: Vec::new(),
+            across_pieces: Vec::new(),
             split_count: 0,
             observable: None,
             masked: Mask::default(),
@@ -747,66 +753,96 @@ impl Segmenter {
         }
         self.merged.sort_by_key(|(b, _)| (b.y, b.x));
         self.split_count = 0;
+        // Along the image's longer side, then, with a rule that cuts across
+        // too, each piece along the other side (see `SplitRule`).
+        let along_x = w >= h;
+        let mut pieces = std::mem::take(&mut self.pieces);
+        pieces.clear();
         for gi in 0..self.merged.len() {
             let (grown, core) = self.merged[gi];
-            self.cuts.clear();
-            // Along the image's longer side (see `SplitRule`).
-            let along_x = w >= h;
-            if let Some(rule) = self.split {
-                self.group_cuts(flow, &core, along_x, &rule);
-            }
-            self.split_count += self.cuts.len();
-            let (origin, core_end, grown_lo, grown_hi) = if along_x {
-                (core.x, core.x_end(), grown.x, grown.x_end())
-            } else {
-                (core.y, core.y_end(), grown.y, grown.y_end())
-            };
-            let nc = self.cuts.len();
-            for k in 0..=nc {
-                let (mut bbox, mut piece) = (grown, core);
-                let start = if k == 0 { None } else { Some(self.cuts[k - 1]) };
-                let end = self.cuts.get(k).copied();
-                set_range(&mut piece, along_x, start, end);
-                set_range(&mut bbox, along_x, start, end);
-                // The outer piece of a cut group is trimmed on its outer
-                // side to as far from its peak as the cut is (plus the
-                // margin): the contact sits in the middle of its patch, and
-                // the rest of a flooded (sheared) region, which would pull
-                // the nHHD potential's minimum to the patch's far end, is
-                // left out.
-                if nc > 0 && (k == 0 || k == nc) {
-                    let (lo, hi) = (start.unwrap_or(origin), end.unwrap_or(core_end));
-                    let peak = origin
-                        + (lo - origin..hi - origin)
-                            .max_by(|&a, &b| self.divergence[a].total_cmp(&self.divergence[b]))
-                            .unwrap_or(0);
-                    if k == 0 {
-                        let half = hi - peak;
-                        let new_lo = peak.saturating_sub(half).max(origin);
-                        set_range(&mut piece, along_x, Some(new_lo), end);
-                        let g = new_lo.saturating_sub(self.margin).max(grown_lo);
-                        set_range(&mut bbox, along_x, Some(g), end);
-                    } else {
-                        let new_hi = (peak + (peak - lo) + 1).min(core_end);
-                        set_range(&mut piece, along_x, start, Some(new_hi));
-                        let g = (new_hi + self.margin).min(grown_hi);
-                        set_range(&mut bbox, along_x, start, Some(g));
-                    }
-                }
-                let seen =
-                    self.observable.is_none() || self.seen.iter().any(|o| o.intersects(&piece));
-                out.push(ContactPatch {
-                    bbox,
-                    core: piece,
-                    seen,
-                    flow_sum: box_sum(flow, &bbox),
-                    area: self
-                        .mask
-                        .count_ones_in(bbox.x, bbox.y, bbox.x_end(), bbox.y_end()),
-                });
-            }
+            self.cut_group(flow, grown, core, along_x, &mut pieces);
         }
+        if self.split.is_some_and(|r| r.across) {
+            let mut along = std::mem::take(&mut self.across_pieces);
+            along.clear();
+            along.append(&mut pieces);
+            for &(grown, core) in &along {
+                self.cut_group(flow, grown, core, !along_x, &mut pieces);
+            }
+            self.across_pieces = along;
+        }
+        for &(bbox, piece) in &pieces {
+            let seen = self.observable.is_none() || self.seen.iter().any(|o| o.intersects(&piece));
+            out.push(ContactPatch {
+                bbox,
+                core: piece,
+                seen,
+                flow_sum: box_sum(flow, &bbox),
+                area: self
+                    .mask
+                    .count_ones_in(bbox.x, bbox.y, bbox.x_end(), bbox.y_end()),
+            });
+        }
+        self.pieces = pieces;
         Ok(())
+    }
+
+    /// The pieces `(grown box, core)` of one group (its grown box and the
+    /// union of its contour boxes `core`) after the split rule's cuts along
+    /// x (along y when `!along_x`), pushed onto `pieces`; the group whole
+    /// without a rule or a cut.
+    fn cut_group(
+        &mut self,
+        flow: &FlowField,
+        grown: BoundingBox,
+        core: BoundingBox,
+        along_x: bool,
+        pieces: &mut Vec<(BoundingBox, BoundingBox)>,
+    ) {
+        self.cuts.clear();
+        if let Some(rule) = self.split {
+            self.group_cuts(flow, &core, along_x, &rule);
+        }
+        self.split_count += self.cuts.len();
+        let (origin, core_end, grown_lo, grown_hi) = if along_x {
+            (core.x, core.x_end(), grown.x, grown.x_end())
+        } else {
+            (core.y, core.y_end(), grown.y, grown.y_end())
+        };
+        let nc = self.cuts.len();
+        for k in 0..=nc {
+            let (mut bbox, mut piece) = (grown, core);
+            let start = if k == 0 { None } else { Some(self.cuts[k - 1]) };
+            let end = self.cuts.get(k).copied();
+            set_range(&mut piece, along_x, start, end);
+            set_range(&mut bbox, along_x, start, end);
+            // The outer piece of a cut group is trimmed on its outer
+            // side to as far from its peak as the cut is (plus the
+            // margin): the contact sits in the middle of its patch, and
+            // the rest of a flooded (sheared) region, which would pull
+            // the nHHD potential's minimum to the patch's far end, is
+            // left out.
+            if nc > 0 && (k == 0 || k == nc) {
+                let (lo, hi) = (start.unwrap_or(origin), end.unwrap_or(core_end));
+                let peak = origin
+                    + (lo - origin..hi - origin)
+                        .max_by(|&a, &b| self.divergence[a].total_cmp(&self.divergence[b]))
+                        .unwrap_or(0);
+                if k == 0 {
+                    let half = hi - peak;
+                    let new_lo = peak.saturating_sub(half).max(origin);
+                    set_range(&mut piece, along_x, Some(new_lo), end);
+                    let g = new_lo.saturating_sub(self.margin).max(grown_lo);
+                    set_range(&mut bbox, along_x, Some(g), end);
+                } else {
+                    let new_hi = (peak + (peak - lo) + 1).min(core_end);
+                    set_range(&mut piece, along_x, start, Some(new_hi));
+                    let g = (new_hi + self.margin).min(grown_hi);
+                    set_range(&mut bbox, along_x, start, Some(g));
+                }
+            }
+            pieces.push((bbox, piece));
+        }
     }
 
     /// The cuts (absolute flow coordinates along x, or y when `!along_x`) that
@@ -858,6 +894,11 @@ impl Segmenter {
                 let lo = if k == 0 { origin } else { cuts[k - 1] };
                 let hi = cuts.get(k).copied().unwrap_or(origin + n);
                 prefix[hi - origin] - prefix[lo - origin] < self.scaled.sum
+                    || rule.press_swing
+                        && !has_press_swing(
+                            &self.smoothed[lo - origin..hi - origin],
+                            &self.divergence[lo - origin..hi - origin],
+                        )
             });
             match weak {
                 Some(k) => {
@@ -867,6 +908,20 @@ impl Segmenter {
             }
         }
     }
+}
+
+/// Whether a piece's smoothed motion profile `p` (the flow along the cut
+/// axis, summed across) swings from below zero to above it about the
+/// piece's divergence peak (`divergence`, the same cells): a press pushes
+/// the gel away from it on both sides ([`SplitRule::press_swing`]).
+fn has_press_swing(p: &[f64], divergence: &[f64]) -> bool {
+    let Some(peak) = (0..divergence.len()).max_by(|&a, &b| divergence[a].total_cmp(&divergence[b]))
+    else {
+        return false;
+    };
+    let before = p[..=peak].iter().copied().fold(f64::INFINITY, f64::min);
+    let after = p[peak..].iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    before < 0.0 && after > 0.0
 }
 
 impl Segmenter {
@@ -966,7 +1021,11 @@ fn set_range(b: &mut BoundingBox, along_x: bool, start: Option<usize>, end: Opti
 /// when the flow is at least as wide as tall, else y (row sums of `v`). For
 /// a strip-shaped skin that is its length, along which contacts lie; across
 /// it the flow of a rod is mostly noise (and a yawed press adds a shear
-/// whose noise-sized structure there would split it).
+/// whose noise-sized structure there would split it). With `across` (a
+/// sensor that locates contacts in 2-D, [`SplitRule::for_geometry`]), each
+/// piece is then cut the same way along the other side too, from the
+/// profile of the flow along that side: on a fingertip's gel contacts lie
+/// anywhere.
 ///
 /// Peaks closer than `border` to the image's ends are not contacts: the
 /// flow is least constrained there and a single press shows a spurious
@@ -1004,6 +1063,20 @@ pub struct SplitRule {
     /// before the far rules, only `min_peak` counts.
     #[serde(default)]
     pub far_min_peak: f32,
+    /// Each piece is also cut along the image's shorter side (the
+    /// profile of the flow along that side, summed across it). Absent
+    /// (false) in rules from before it.
+    #[serde(default)]
+    pub across: bool,
+    /// Each piece must show a press's swing: the motion along the cut axis
+    /// (summed across) below zero before the piece's divergence peak and
+    /// above zero after it, as a press pushes the gel away from it both
+    /// ways. Beside a press sheared along that axis the gel is squeezed
+    /// ahead of it and a positive lobe of divergence follows, which with
+    /// the valley looks like a second press; there the motion only returns
+    /// towards zero. Absent (false) in rules from before it.
+    #[serde(default)]
+    pub press_swing: bool,
 }
 
 impl SplitRule {
@@ -1032,7 +1105,35 @@ impl SplitRule {
         border: 32,
         far_px: 250,
         far_min_peak: 0.3,
+        across: false,
+        press_swing: false,
     };
+
+    /// The rule for a sensor that locates contacts in 2-D (a flat
+    /// fingertip's gel): cuts along both image sides (`across`), from
+    /// peaks of 0.2 of the highest (a flat punch's divergence spreads along
+    /// its rim: an 8 mm punch at 1.5 N peaks at a third of a 5 mm sphere's
+    /// at 2 N beside it), without the far rules (they answer the strip's
+    /// far motion along its arc; a fingertip's image is a few hundred
+    /// pixels across). The rest as [`SplitRule::DEFAULT`].
+    pub const FLAT: SplitRule = SplitRule {
+        min_peak: 0.2,
+        far_px: 0,
+        far_min_peak: 0.0,
+        across: true,
+        press_swing: true,
+        ..SplitRule::DEFAULT
+    };
+
+    /// The rule for `geometry`: [`SplitRule::FLAT`] where contacts are
+    /// located in 2-D, else [`SplitRule::DEFAULT`].
+    pub fn for_geometry(geometry: &crate::geometry::SensorGeometry) -> SplitRule {
+        if geometry.locates_in_2d() {
+            SplitRule::FLAT
+        } else {
+            SplitRule::DEFAULT
+        }
+    }
 
     /// Errors unless `smooth >= 1`, `depth` finite and > 0 and `min_peak`
     /// and `far_min_peak` in [0, 1].

@@ -126,6 +126,8 @@ fn split_rule(v: &str) -> Result<SplitArg, String> {
         far_min_peak: p
             .get(5)
             .map_or(SplitRule::DEFAULT.far_min_peak, |&m| m as f32),
+        across: false,
+        press_swing: false,
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(SplitArg(Some(r)))
