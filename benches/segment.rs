@@ -1,13 +1,15 @@
 //! The whole segmentation (threshold, erode, dilate, external contours, sums,
 //! margins) of a 1920x1080 flow and of a 480x270 native-level flow, one
-//! thread; and its stages at 1080p; and a 1080p scene whose one region the
-//! split rule cuts in two, with and without the rule.
+//! thread; and its stages at 1080p; a 1080p scene whose one region the
+//! split rule cuts in two, with and without the rule; and a fingertip's
+//! 320x240 flow with two presses one above the other, with the flat
+//! sensor's rule (which cuts them apart along the rows) and the default.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use optical_tactile::flow::FlowField;
 use optical_tactile::segment::contours::ContourFinder;
 use optical_tactile::segment::morphology::{Mask, Morphology};
-use optical_tactile::segment::{Segmenter, SegmenterConfig, Thresholds};
+use optical_tactile::segment::{Segmenter, SegmenterConfig, SplitRule, Thresholds};
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -114,6 +116,41 @@ fn bench(c: &mut Criterion) {
     g.bench_function(BenchmarkId::new("flooded_nosplit", "1920x1080"), |b| {
         b.iter(|| whole.segment_into(black_box(&f), &mut out).unwrap())
     });
+    // Two presses (outward flow peaking 3 px on a ring of 12 px) 50 px apart
+    // along the rows of a fingertip's 320x240 flow.
+    let mut f = FlowField::zeros(320, 240);
+    for ((y, x), u) in f.u.indexed_iter_mut() {
+        for cy in [95.0f32, 145.0] {
+            let (dx, dy) = (x as f32 - 160.0, y as f32 - cy);
+            *u += 3.0 / 12.0 * dx * (0.5 - (dx * dx + dy * dy) / 288.0).exp();
+        }
+    }
+    for ((y, x), v) in f.v.indexed_iter_mut() {
+        for cy in [95.0f32, 145.0] {
+            let (dx, dy) = (x as f32 - 160.0, y as f32 - cy);
+            *v += 3.0 / 12.0 * dy * (0.5 - (dx * dx + dy * dy) / 288.0).exp();
+        }
+    }
+    let config = SegmenterConfig {
+        thresholds: Thresholds::HIGH,
+        margin: 24,
+        scale: 1.0,
+    };
+    for (name, rule) in [
+        ("flat_rule", SplitRule::FLAT),
+        ("default_rule", SplitRule::DEFAULT),
+    ] {
+        let mut seg = Segmenter::new(config)
+            .unwrap()
+            .with_split(Some(rule))
+            .unwrap();
+        seg.segment_into(&f, &mut out).unwrap();
+        let expected = if rule.across { 2 } else { 1 };
+        assert_eq!(out.len(), expected, "{name}: {out:?}");
+        g.bench_function(BenchmarkId::new(name, "320x240"), |b| {
+            b.iter(|| seg.segment_into(black_box(&f), &mut out).unwrap())
+        });
+    }
     g.finish();
 }
 
