@@ -1031,11 +1031,14 @@ fn set_range(b: &mut BoundingBox, along_x: bool, start: Option<usize>, end: Opti
 /// flow is least constrained there and a single press shows a spurious
 /// divergence peak at the strip's end (simulator, accurate DIS).
 ///
-/// Limits: only contacts side by side along that direction are
-/// separated, and only if the weaker one's peak is at least `min_peak`
-/// times the stronger's (the simulator's strip and the paper's rods); a piece whose
-/// summed `|flow|` is below [`Thresholds::sum`] is given back to its
-/// neighbour.
+/// Limits: only contacts side by side along that direction (or, with
+/// `across`, along either image side) are separated, and only if the
+/// weaker one's peak is at least `min_peak` times the stronger's (the
+/// simulator's strip and the paper's rods); a piece whose summed `|flow|`
+/// is below [`Thresholds::sum`] (or, with `press_swing`, that shows no
+/// press's swing) is given back to its neighbour, so a press sheared
+/// strongly enough that its motion along the axis never falls below zero
+/// stays joined to a neighbour.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SplitRule {
     /// Width of the box filter applied twice to the profile before
