@@ -65,7 +65,8 @@ pub enum Command {
         #[command(flatten)]
         options: SingleArgs,
     },
-    /// Two indenters at a given spacing, force ramps.
+    /// Two indenters at a given spacing, force ramps (rods across the strip;
+    /// with --sensor fingertip, two spheres side by side)
     Pair {
         /// Common options.
         #[command(flatten)]
@@ -414,9 +415,11 @@ pub struct PairArgs {
     /// Chord position of the midpoint, mm.
     #[arg(long, value_name = "X", allow_negative_numbers = true, default_value_t = Pair::default().x_mm)]
     pub x_mm: f64,
-    /// Distance between the rods along the arc, mm.
-    #[arg(long, value_name = "S", default_value_t = Pair::default().spacing_mm)]
-    pub spacing_mm: f64,
+    /// Distance between the rods along the arc (with --sensor fingertip,
+    /// between two spheres' centres side by side along x), mm [default: 40;
+    /// 8 with --sensor fingertip].
+    #[arg(long, value_name = "S")]
+    pub spacing_mm: Option<f64>,
     /// Peak force of the left rod, N.
     #[arg(long, value_name = "F", default_value_t = Pair::default().force_n)]
     pub force_n: f64,
@@ -426,7 +429,7 @@ pub struct PairArgs {
     /// Frames including the reference.
     #[arg(long, value_name = "N", default_value_t = Pair::default().frames)]
     pub frames: usize,
-    /// Rod diameter, mm.
+    /// Rod (with --sensor fingertip, sphere) diameter, mm.
     #[arg(long, value_name = "D", default_value_t = Pair::default().indenter_mm)]
     pub indenter_mm: f64,
 }
@@ -665,7 +668,11 @@ impl Command {
             Command::Pair { common, options: o } => run(
                 Scenario::Pair(Pair {
                     x_mm: o.x_mm,
-                    spacing_mm: o.spacing_mm,
+                    spacing_mm: o.spacing_mm.unwrap_or(if common.is_fingertip() {
+                        Pair::fingertip().spacing_mm
+                    } else {
+                        Pair::default().spacing_mm
+                    }),
                     force_n: o.force_n,
                     force2_n: o.force2_n,
                     frames: o.frames,

@@ -98,6 +98,18 @@ fn the_fingertip_sensor_and_its_scenarios() {
     assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 3));
     let (sc, _) = run("characterization --sensor strip --out d");
     assert!(matches!(sc, Scenario::Characterization(ref o) if o.repeats == 5));
+    // Two spheres 8 mm apart on the fingertip's gel, rods 40 mm apart on
+    // the strip, unless told.
+    let spacing = |line: &str| match run(line).0 {
+        Scenario::Pair(o) => o.spacing_mm,
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(spacing("pair --sensor fingertip --out d"), 8.0);
+    assert_eq!(spacing("pair --out d"), 40.0);
+    assert_eq!(
+        spacing("pair --sensor fingertip --spacing-mm 7 --out d"),
+        7.0
+    );
     // Spot checks: the scenario's default unless asked.
     assert!(matches!(sc, Scenario::Characterization(ref o) if o.spot_checks.is_none()));
     let (sc, _) = run("characterization --sensor fingertip --out d --spot-checks 40");

@@ -135,7 +135,11 @@ fn scenario_options(
             Scenario::Single(s)
         }
         "pair" => {
-            let mut s = scenario::Pair::default();
+            let mut s = if fingertip {
+                scenario::Pair::fingertip()
+            } else {
+                scenario::Pair::default()
+            };
             set_fields!(
                 kw,
                 s,

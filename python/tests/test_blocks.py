@@ -137,6 +137,14 @@ def test_simulated_fingertip_sensor(tmp_path):
     ot.simulate("characterization", tmp_path / "c", sensor="fingertip", subset=2)
     geometry = json.loads((tmp_path / "c" / "geometry.json").read_text())
     assert geometry["kind"] == "flat"
+    # A pair on the flat gel: two spheres 8 mm apart on its centre line;
+    # spheres set too far apart to fit on the gel are refused.
+    ot.simulate("pair", tmp_path / "pair", sensor="fingertip", frames=3)
+    last = json.loads(open(tmp_path / "pair" / "truth.jsonl").read().splitlines()[-1])
+    assert sorted(c["x_mm"] for c in last["contacts"]) == [-4.0, 4.0]
+    assert all(c["y_mm"] == 0.0 for c in last["contacts"])
+    with pytest.raises(ValueError, match="spacing_mm"):
+        ot.simulate("pair", tmp_path / "far", sensor="fingertip", spacing_mm=30.0)
     # A position sweep on the strip: one load moved in equal steps.
     ot.simulate("single", tmp_path / "s", frames=4, x_mm=10.0, sweep_to_mm=12.0)
     xs = [r["contacts"][0]["x_mm"] for r in map(json.loads, open(tmp_path / "s" / "truth.jsonl")) if r["contacts"]]

@@ -120,12 +120,15 @@ impl Default for Single {
     }
 }
 
-/// Two indenters at a given spacing, pressing together with force ramps.
+/// Two indenters at a given spacing, pressing together with force ramps:
+/// rods across the strip or, on a flat sensor, two spheres side by side
+/// along x on its centre line (`y = 0`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pair {
     /// Chord position of the midpoint between the rods, mm.
     pub x_mm: f64,
-    /// Distance between the rods along the arc, mm.
+    /// Distance between the rods along the arc (between the spheres' centres
+    /// on a flat sensor), mm.
     pub spacing_mm: f64,
     /// Peak force of the first (left) rod, N.
     pub force_n: f64,
@@ -133,7 +136,7 @@ pub struct Pair {
     pub force2_n: f64,
     /// Number of frames including the reference.
     pub frames: usize,
-    /// Rod diameter, mm.
+    /// Rod (or sphere) diameter, mm.
     pub indenter_mm: f64,
 }
 
@@ -146,6 +149,18 @@ impl Default for Pair {
             force2_n: 1.5,
             frames: 10,
             indenter_mm: 5.0,
+        }
+    }
+}
+
+impl Pair {
+    /// The pair on a flat fingertip sensor: two 5 mm spheres 8 mm apart (a
+    /// gap of 3 mm between them on its 24 mm gel), the rest as
+    /// [`Pair::default`].
+    pub fn fingertip() -> Self {
+        Pair {
+            spacing_mm: 8.0,
+            ..Pair::default()
         }
     }
 }
@@ -1070,27 +1085,43 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair, progress: Progress<'_>) 
         skin.arc_to_chord(s_mid + 0.5 * o.spacing_mm),
     ];
     let peaks = [o.force_n, o.force2_n];
+    let flat = matches!(
+        skin.geometry,
+        optical_tactile::geometry::SensorGeometry::Flat(_)
+    );
     let at = |k: usize| -> Vec<Press> {
         if k == 0 {
             return vec![];
         }
         (0..2)
             .map(|i| {
-                Press::rod(
-                    xs[i],
-                    [0.0, 0.0, -peaks[i] * ramp(k, o.frames)],
-                    o.indenter_mm,
-                )
+                let f = [0.0, 0.0, -peaks[i] * ramp(k, o.frames)];
+                if flat {
+                    Press::sphere(xs[i], 0.0, f, o.indenter_mm)
+                } else {
+                    Press::rod(xs[i], f, o.indenter_mm)
+                }
             })
             .collect()
     };
     sensor.loads(&at(o.frames - 1))?;
-    // Both rods must really be on the skin (arc_to_chord never fails).
+    // Both rods must really be on the skin (arc_to_chord never fails), and
+    // on a flat sensor both spheres wholly on its gel.
+    let inset = if flat { 0.5 * o.indenter_mm } else { 0.0 };
     for s in [s_mid - 0.5 * o.spacing_mm, s_mid + 0.5 * o.spacing_mm] {
-        if s.abs() > skin.half_length() {
+        if s.abs() + inset > skin.half_length() {
+            let what = if flat { "a sphere" } else { "a rod" };
             return Err(Error::param(
                 "spacing_mm",
-                format!("a rod at arc length {s:.1} mm is off the skin"),
+                format!(
+                    "{what} at {s:.1} mm{} is off the skin (|x| <= {:.1} mm)",
+                    if flat {
+                        " (its centre)"
+                    } else {
+                        " of arc length"
+                    },
+                    skin.half_length() - inset
+                ),
             ));
         }
     }
