@@ -62,6 +62,11 @@ impl Skin {
         self.geometry.width_mm()
     }
 
+    /// Whether the skin is flat (a fingertip's gel), not the curved strip.
+    pub fn is_flat(&self) -> bool {
+        matches!(self.geometry, SensorGeometry::Flat(_))
+    }
+
     /// Half the arc length of the sensing area, mm.
     pub fn half_length(&self) -> f64 {
         0.5 * self.length_mm

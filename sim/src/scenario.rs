@@ -1085,10 +1085,27 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair, progress: Progress<'_>) 
         skin.arc_to_chord(s_mid + 0.5 * o.spacing_mm),
     ];
     let peaks = [o.force_n, o.force2_n];
-    let flat = matches!(
-        skin.geometry,
-        optical_tactile::geometry::SensorGeometry::Flat(_)
-    );
+    let flat = skin.is_flat();
+    // Both rods must really be on the skin (arc_to_chord never fails), and
+    // on a flat sensor both spheres wholly on its gel: said of the spacing
+    // before any load is checked.
+    let inset = if flat { 0.5 * o.indenter_mm } else { 0.0 };
+    for s in [s_mid - 0.5 * o.spacing_mm, s_mid + 0.5 * o.spacing_mm] {
+        if s.abs() + inset > skin.half_length() {
+            let what = if flat {
+                "a sphere's centre"
+            } else {
+                "a rod at arc length"
+            };
+            return Err(Error::param(
+                "spacing_mm",
+                format!(
+                    "{what} {s:.1} mm is off the skin (|x| <= {:.1} mm)",
+                    skin.half_length() - inset
+                ),
+            ));
+        }
+    }
     let at = |k: usize| -> Vec<Press> {
         if k == 0 {
             return vec![];
@@ -1105,26 +1122,6 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair, progress: Progress<'_>) 
             .collect()
     };
     sensor.loads(&at(o.frames - 1))?;
-    // Both rods must really be on the skin (arc_to_chord never fails), and
-    // on a flat sensor both spheres wholly on its gel.
-    let inset = if flat { 0.5 * o.indenter_mm } else { 0.0 };
-    for s in [s_mid - 0.5 * o.spacing_mm, s_mid + 0.5 * o.spacing_mm] {
-        if s.abs() + inset > skin.half_length() {
-            let what = if flat { "a sphere" } else { "a rod" };
-            return Err(Error::param(
-                "spacing_mm",
-                format!(
-                    "{what} at {s:.1} mm{} is off the skin (|x| <= {:.1} mm)",
-                    if flat {
-                        " (its centre)"
-                    } else {
-                        " of arc length"
-                    },
-                    skin.half_length() - inset
-                ),
-            ));
-        }
-    }
     let mut w = SequenceWriter::new(c, "pair", o.frames, progress)?;
     for k in 0..o.frames {
         w.frame(sensor, &at(k))?;
@@ -1386,10 +1383,7 @@ fn characterization(
     o: &Characterization,
     progress: Progress<'_>,
 ) -> Result<Summary> {
-    let flat = matches!(
-        c.config.skin.geometry,
-        optical_tactile::geometry::SensorGeometry::Flat(_)
-    );
+    let flat = c.config.skin.is_flat();
     let mut all = if flat {
         flat_protocol(o.repeats)
     } else {
