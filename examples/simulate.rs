@@ -393,7 +393,7 @@ pub struct SingleArgs {
     /// Frames including the reference.
     #[arg(long, value_name = "N", default_value_t = Single::default().frames)]
     pub frames: usize,
-    /// Rod diameter, mm.
+    /// Rod (with --sensor fingertip, sphere) diameter, mm.
     #[arg(long, value_name = "D", default_value_t = Single::default().indenter_mm)]
     pub indenter_mm: f64,
     /// Force tilt in the x-z plane, deg.

@@ -54,7 +54,8 @@ impl Common {
     }
 }
 
-/// One indenter pressing with a force ramp.
+/// One indenter pressing with a force ramp: a rod across the strip, or on a
+/// flat sensor a sphere of the rod's diameter on its centre line (`y = 0`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Single {
     /// Chord position, mm.
@@ -762,6 +763,26 @@ pub fn run_with_progress(
         }
         Scenario::Rest(o) => check_frames(o.frames)?,
     }
+    // Rods under a drone's body, on a flat fingertip's gel: refused, not
+    // written as frames nothing can be seen in.
+    if common.config.skin.is_flat() {
+        let strip_only = match scenario {
+            Scenario::Perches(_) => Some("perches"),
+            Scenario::Mapping(_) => Some("mapping"),
+            Scenario::Presses(_) => Some("presses of rods"),
+            _ => None,
+        };
+        if let Some(name) = strip_only {
+            return Err(Error::param(
+                "sensor",
+                format!(
+                    "{name} is a scenario of the curved strip (rods across it); on a flat \
+                     sensor use single, pair, shear, rest, characterization or the presses of \
+                     round tips"
+                ),
+            ));
+        }
+    }
     let sensor = SyntheticSensor::new(common.config, common.seed)?;
     match scenario {
         Scenario::Single(o) => single(&sensor, common, o, progress),
@@ -787,14 +808,27 @@ fn single(
     o: &Single,
     progress: Progress<'_>,
 ) -> Result<Summary> {
+    // On a flat sensor the rod is a sphere of its diameter on the centre
+    // line (a rod across a fingertip's gel is too light a load to see).
+    let flat = c.config.skin.is_flat();
+    let tip = |p: Press| {
+        if flat {
+            Press {
+                y_mm: Some(0.0),
+                ..p
+            }
+        } else {
+            p
+        }
+    };
     // Reject a bad contact (at either end of a sweep) before writing anything.
     let f = tilted_force(1.0, o.yaw_deg, o.pitch_deg);
     for x in [Some(o.x_mm), o.sweep_to_mm].into_iter().flatten() {
-        sensor.loads(&[Press::rod(x, f, o.indenter_mm)])?;
+        sensor.loads(&[tip(Press::rod(x, f, o.indenter_mm))])?;
     }
     let mut w = SequenceWriter::new(c, "single", o.frames, progress)?;
     for k in 0..o.frames {
-        w.frame(sensor, o.press(k).as_slice())?;
+        w.frame(sensor, o.press(k).map(tip).as_slice())?;
     }
     Ok(Summary {
         out: c.out.clone(),

@@ -620,3 +620,54 @@ fn a_contact_changes_the_gels_light_about_it() {
         assert!(err.to_string().contains("contact_light"), "{err}");
     }
 }
+
+/// On the flat sensor `single` and `pair` press spheres on the centre line
+/// (their rods' diameters), the flat sensor's dots moving under them; the
+/// strip's rod scenarios under a drone (perches, mapping, presses of rods)
+/// and a pair too wide for the gel are refused before anything is written.
+#[test]
+fn single_and_pair_press_spheres_and_the_strip_scenarios_are_refused() {
+    use optical_tactile_sim::scenario::{Mapping, Pair, Perches, Presses, Single};
+    let (_dir, out) = tmp("flat_scenarios");
+    let mut c = Common::new(&out);
+    c.flow = false;
+    c.config = SimConfig::fingertip();
+    for (sc, at) in [
+        (
+            Scenario::Single(Single {
+                x_mm: 3.0,
+                frames: 3,
+                ..Single::default()
+            }),
+            vec![3.0],
+        ),
+        (
+            Scenario::Pair(Pair {
+                frames: 3,
+                ..Pair::fingertip()
+            }),
+            vec![-4.0, 4.0],
+        ),
+    ] {
+        scenario::run(&sc, &c).unwrap();
+        let truth: Vec<FrameRecord> = io::read_jsonl(out.join("truth.jsonl")).unwrap();
+        let last = truth.last().unwrap();
+        let xs: Vec<f64> = last.contacts.iter().map(|p| p.x_mm).collect();
+        assert_eq!(xs, at, "{sc:?}");
+        assert!(last.contacts.iter().all(|p| p.y_mm == 0.0));
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+    for sc in [
+        Scenario::Perches(Perches::default()),
+        Scenario::Mapping(Mapping::default()),
+        Scenario::Presses(Presses::default()),
+        Scenario::Pair(Pair {
+            spacing_mm: 30.0,
+            ..Pair::fingertip()
+        }),
+    ] {
+        let e = scenario::run(&sc, &c).unwrap_err();
+        assert!(matches!(e, Error::InvalidParameter { .. }), "{sc:?}: {e}");
+        assert!(!out.exists(), "{sc:?}");
+    }
+}
