@@ -42,11 +42,10 @@ impl Pipeline {
     /// The pipeline `args` ask for: the calibration loaded (an error names
     /// the file) with the flags' overrides, or the raw sensor.
     pub fn build(args: &NodeArgs) -> Result<Pipeline, String> {
-        let split = args.split.then_some(SplitRule::DEFAULT);
         if args.raw {
             let mut config = ExtractorConfig::default()
                 .with_exposure(args.exposure.unwrap_or_default())
-                .with_split(split);
+                .with_split(args.split.then_some(SplitRule::DEFAULT));
             if let Some(p) = args.preset {
                 config = config.with_flow(DisParams::preset(p));
             }

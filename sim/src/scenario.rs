@@ -802,25 +802,24 @@ fn ramp(k: usize, n: usize) -> f64 {
     k as f64 / (n - 1) as f64
 }
 
+/// `rod` as the skin takes it: on the strip as it is, on a flat sensor a
+/// sphere of its diameter at its x on the centre line (a rod across a
+/// fingertip's gel is too light a load to see).
+fn on_skin(skin: &crate::Skin, rod: Press) -> Press {
+    if skin.is_flat() {
+        Press::sphere(rod.x_mm, 0.0, rod.force_n, rod.diameter_mm)
+    } else {
+        rod
+    }
+}
+
 fn single(
     sensor: &SyntheticSensor,
     c: &Common,
     o: &Single,
     progress: Progress<'_>,
 ) -> Result<Summary> {
-    // On a flat sensor the rod is a sphere of its diameter on the centre
-    // line (a rod across a fingertip's gel is too light a load to see).
-    let flat = c.config.skin.is_flat();
-    let tip = |p: Press| {
-        if flat {
-            Press {
-                y_mm: Some(0.0),
-                ..p
-            }
-        } else {
-            p
-        }
-    };
+    let tip = |p: Press| on_skin(&c.config.skin, p);
     // Reject a bad contact (at either end of a sweep) before writing anything.
     let f = tilted_force(1.0, o.yaw_deg, o.pitch_deg);
     for x in [Some(o.x_mm), o.sweep_to_mm].into_iter().flatten() {
@@ -1147,11 +1146,7 @@ fn pair(sensor: &SyntheticSensor, c: &Common, o: &Pair, progress: Progress<'_>) 
         (0..2)
             .map(|i| {
                 let f = [0.0, 0.0, -peaks[i] * ramp(k, o.frames)];
-                if flat {
-                    Press::sphere(xs[i], 0.0, f, o.indenter_mm)
-                } else {
-                    Press::rod(xs[i], f, o.indenter_mm)
-                }
+                on_skin(skin, Press::rod(xs[i], f, o.indenter_mm))
             })
             .collect()
     };
