@@ -1,6 +1,8 @@
 //! Criterion bench of the profile model's per-frame work on the strip: the
 //! joint force match of a frame's contacts (`ForceMatcher::measure`) and
 //! the relocation search that runs before it (`ForceMatcher::relocate`),
+//! the shear-free columns' second measurement and match after it
+//! (`ForceMatcher::shear_free_columns`; the bench includes the first match),
 //! with the shipped calibration's model (`fixtures/calibration.json`: 300 px
 //! of reach, degree 2, the size term, far tails), the same model without
 //! its tails and with the best relocation (`Relocation::Best`, as fitted
@@ -18,6 +20,7 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use optical_tactile::calibration::Calibration;
+use optical_tactile::contact::RawContact;
 use optical_tactile::contact::profile::{ForceMatcher, ProfileModel, Relocation};
 
 const CELLS: usize = 1600;
@@ -61,6 +64,32 @@ fn bench_profile(c: &mut Criterion) {
         let n = columns.len();
         let mut matcher = ForceMatcher::new();
         let mut out = Vec::new();
+        // The columns measured again without the tangential motion, after
+        // the first match (`ForceMatcher::shear_free_columns`, a model fitted
+        // with `calibrate --shear-free-columns`): its cost beside `measure`.
+        let free = ProfileModel {
+            shear_free_columns: true,
+            ..model.clone()
+        };
+        let mut raws: Vec<RawContact> = columns
+            .iter()
+            .map(|&x_px| RawContact {
+                x_px,
+                ..Default::default()
+            })
+            .collect();
+        g.bench_function(BenchmarkId::new("shear_free", format!("{n}, tails")), |b| {
+            b.iter(|| {
+                for (r, &c) in raws.iter_mut().zip(&columns) {
+                    r.x_px = c;
+                }
+                matcher
+                    .shear_free_columns_of_profiles(&free, &mut raws, &pu, &pv, 1.0, 8.0, |r| {
+                        Ok(r.x_px)
+                    })
+                    .expect("shear-free columns")
+            })
+        });
         for (model, what) in [
             (&model, "tails"),
             (&untailed, "no tails"),

@@ -56,7 +56,9 @@
 //! contact's match column is moved to where the profile model fits its
 //! motion best, to a fraction of a pixel (`--relocation best`); with them
 //! only a clearly misplaced one is (`--relocation clear`, see
-//! `contact::profile::Relocation`).
+//! `contact::profile::Relocation`). `--shear-free-columns` measures each
+//! contact's column again without its matched tangential motion
+//! (`contact::profile::ProfileModel::shear_free_columns`).
 //!
 //! When the first reference shows a regular grid of markers (a dot grid on
 //! a plain gel), the dots are followed one by one and their motion written
@@ -197,6 +199,12 @@ struct Cli {
     /// best without].
     #[arg(long, value_enum, value_name = "WHEN")]
     relocation: Option<RelocationArg>,
+    /// Measure each contact's column again without its matched tangential
+    /// motion, in the fit and at run time (strip, slope-peak columns):
+    /// puts the column of a wide rod pressed at a tilt back on its load
+    /// line (docs/calibration.md, "Shear-free columns").
+    #[arg(long)]
+    shear_free_columns: bool,
     /// Follow the dots of a regular marker grid one by one and let their
     /// motion replace the flow around them: `auto` when the first
     /// reference shows a regular grid (docs/pipeline.md, step 4).
@@ -284,6 +292,7 @@ struct Args {
     no_size_term: bool,
     no_profile_tail: bool,
     relocation: Option<Relocation>,
+    shear_free_columns: bool,
     dot_tracking: DotTrackingArg,
     /// `--dot-fit`.
     dot_fit: bool,
@@ -548,6 +557,7 @@ impl Cli {
             no_size_term: self.no_size_term,
             no_profile_tail: self.no_profile_tail,
             relocation: self.relocation.map(Relocation::from),
+            shear_free_columns: self.shear_free_columns,
             dot_tracking: self.dot_tracking,
             dot_fit: self.dot_fit,
             flow: self.preset,
@@ -701,6 +711,7 @@ fn run(args: Args) -> Result<(), Failure> {
                 size_term: p.size_term && !args.no_size_term,
                 tail_px: if args.no_profile_tail { 0.0 } else { p.tail_px },
                 relocation: args.relocation.or(p.relocation),
+                shear_free_columns: args.shear_free_columns || p.shear_free_columns,
                 ..p
             }),
             ..base

@@ -981,3 +981,72 @@ fn relocated_contacts_then_match_their_forces() {
         .is_err()
     );
 }
+
+/// A press as the strip's camera sees it: the normal load (a press is
+/// negative) spreads the markers apart about the load line, its slope a
+/// wide, flat-topped peak there (a wide rod); the tangential load moves
+/// them one way, an even bump narrower than that peak.
+fn press_response(ch: usize, k: usize, c: f64, t: f64) -> f64 {
+    let z = (c - CENTRE) / SPAN;
+    let w = [24.0, 30.0, 45.0][k];
+    let g = (-(t / w).powi(2)).exp();
+    let shape = match k {
+        0 => g,
+        1 => g * (1.0 + t / w),
+        _ => -t / w * g,
+    };
+    let gain = if ch == 0 {
+        [1.0, 0.1, 1.0]
+    } else {
+        [0.1, 1.0, 0.1]
+    };
+    (1.0 + 0.3 * z) * shape * gain[k]
+}
+
+/// Why columns are measured again without the tangential motion: the
+/// tangential bump's slope rises beside the load line and pulls the slope
+/// peak off it (on the simulated strip by up to 26 px under a pitched
+/// 10 mm rod); less the bump matched at the contact's match column (here
+/// on the load line, as a calibrated location puts it), the slope peaks
+/// at the load line again, and the forces are matched there.
+#[test]
+fn shear_free_columns_put_a_sheared_press_back_on_its_load_line() {
+    use optical_tactile::contact::{ContactLocator, RawContact};
+    let mut model = fit(&training_set_of(press_response, (75, 250), 12), 1);
+    let sigma = 8.0;
+    let mut locator = ContactLocator::new();
+    let mut m = ForceMatcher::new();
+    for (truth, force) in [
+        (cell(200), [0.9, 0.0, -2.0]),
+        (413.3, [-0.7, 0.05, -1.5]),
+        (cell(150), [0.5, 0.0, -0.8]),
+    ] {
+        let p = profiles_of(press_response, &[truth], &[force]);
+        let mut plain = [truth];
+        locator.slope_peak_in_profile(&p[0], &mut plain, SCALE, sigma, 1e6);
+        assert!((plain[0] - truth).abs() > 8.0, "{truth}: {plain:?}");
+        let mut raws = [RawContact {
+            x_px: plain[0],
+            ..Default::default()
+        }];
+        let mut run = |model: &ProfileModel, raws: &mut [RawContact]| {
+            m.shear_free_columns_of_profiles(model, raws, &p[0], &p[1], SCALE, sigma, |_| Ok(truth))
+                .unwrap()
+        };
+        // Without the flag nothing moves.
+        model.shear_free_columns = false;
+        assert_eq!(run(&model, &mut raws), 0);
+        assert_eq!(raws[0].x_px, plain[0]);
+        model.shear_free_columns = true;
+        assert_eq!(run(&model, &mut raws), 1);
+        assert!(
+            (raws[0].x_px - truth).abs() < 0.5,
+            "{truth}: {}",
+            raws[0].x_px
+        );
+        let f = raws[0].local_force.unwrap();
+        for k in 0..3 {
+            assert!((f[k] - force[k]).abs() < 0.02, "{f:?} vs {force:?}");
+        }
+    }
+}

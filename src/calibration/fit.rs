@@ -293,6 +293,14 @@ pub struct ProfileFitOptions {
     /// and [`Relocation::Best`] without them.
     #[serde(default)]
     pub relocation: Option<Relocation>,
+    /// Measure every column again without the contacts' tangential motion
+    /// ([`ProfileModel::shear_free_columns`]) when the columns are measured
+    /// at the slope peak ([`ContactPointMethod::SlopePeak`]); otherwise it
+    /// does nothing. Off by default: on the simulated strip it puts a wide
+    /// rod pressed at a tilt back on its load line (docs/results.md) but
+    /// reads a few presses near the strip's ends worse.
+    #[serde(default)]
+    pub shear_free_columns: bool,
 }
 
 fn default_tail_step_px() -> f64 {
@@ -316,6 +324,7 @@ impl Default for ProfileFitOptions {
             tail_px: MAX_PROFILE_REACH_PX,
             tail_step_px: default_tail_step_px(),
             relocation: None,
+            shear_free_columns: false,
         }
     }
 }
@@ -1009,6 +1018,34 @@ pub fn fit_dataset_with_sweeps(
     geometry: SensorGeometry,
     options: &FitOptions,
 ) -> Result<DatasetFit> {
+    fit_columns_as_measured(
+        extractions,
+        sweeps,
+        config,
+        contact_point,
+        crop,
+        geometry,
+        options,
+        false,
+    )
+}
+
+/// [`fit_dataset_with_sweeps`] on extractions whose columns are
+/// `shear_free` (measured again, [`shear_free_extractions`]) or not yet.
+/// A fit that asks for shear-free columns and has not measured them fits
+/// its first profile model, measures every test's and sweep's column
+/// again with it, as a sensor will, and fits everything again on those.
+#[allow(clippy::too_many_arguments)]
+fn fit_columns_as_measured(
+    extractions: &[Extraction],
+    sweeps: &[Extraction],
+    config: &ExtractorConfig,
+    contact_point: ContactPointMethod,
+    crop: Roi,
+    geometry: SensorGeometry,
+    options: &FitOptions,
+    shear_free: bool,
+) -> Result<DatasetFit> {
     if !sweeps.is_empty() && geometry.locates_in_2d() {
         return Err(Error::param(
             "sweeps",
@@ -1058,11 +1095,38 @@ pub fn fit_dataset_with_sweeps(
         Some(p) => {
             let mut model = fit_profile(extractions, &geometry, &setup.crop, p, &pass1)?;
             model.relocation = relocation_for(p.relocation, !sweeps.is_empty());
+            let sigma_px = match contact_point {
+                ContactPointMethod::SlopePeak { sigma_px }
+                    if p.shear_free_columns && model.anchor.is_some() =>
+                {
+                    Some(sigma_px)
+                }
+                _ => None,
+            };
+            if let (Some(sigma_px), false) = (sigma_px, shear_free) {
+                let again =
+                    |set: &[Extraction]| shear_free_extractions(&model, set, &pass1, sigma_px);
+                return fit_columns_as_measured(
+                    &again(extractions)?,
+                    &again(sweeps)?,
+                    config,
+                    contact_point,
+                    crop,
+                    geometry,
+                    options,
+                    true,
+                );
+            }
+            model.shear_free_columns = sigma_px.is_some();
             if let Some(fix) = matched_layer_ratios(&model, sweeps, &groups, &pass1)? {
                 location_fix = Some(fix.clone());
                 pass1.column_correction = Some(fix);
             }
-            relocated = relocate(&model, extractions, &pass1)?;
+            // Shear-free columns were measured after a sensor's relocation
+            // (`shear_free_extractions`); a sensor does not relocate again.
+            if !model.shear_free_columns {
+                relocated = relocate(&model, extractions, &pass1)?;
+            }
             let moved = relocated.as_deref().unwrap_or(extractions);
             if let Some(tilted) = with_matched_ratios(&model, moved, &pass1)? {
                 relocated = Some(tilted);
@@ -1626,6 +1690,49 @@ fn relocate(
         }
     }
     Ok(Some(out))
+}
+
+/// The extractions with every detected column measured as a sensor with a
+/// model of shear-free columns measures it
+/// ([`Calibration::match_forces_with`]): moved where `cal`'s match
+/// column is clearly misplaced ([`ForceMatcher::relocate`]), matched at
+/// `cal`'s match column, then moved to the slope peak (smoothing
+/// `sigma_px`) of the profile less its modelled tangential motion
+/// ([`ForceMatcher::shear_free_columns`]).
+fn shear_free_extractions(
+    model: &ProfileModel,
+    extractions: &[Extraction],
+    cal: &Calibration,
+    sigma_px: f64,
+) -> Result<Vec<Extraction>> {
+    let model = ProfileModel {
+        shear_free_columns: true,
+        ..model.clone()
+    };
+    let mut matcher = ForceMatcher::new();
+    let mut out = extractions.to_vec();
+    for e in &mut out {
+        let Some(raw) = e.raw.as_mut() else {
+            continue;
+        };
+        let (pu, pv) = (&e.profiles[0], &e.profiles[1]);
+        let before = cal.match_column(&model, raw)?;
+        let mut column = [before];
+        matcher.relocate(&model, &mut column, pu, pv, e.scale)?;
+        raw.x_px += column[0] - before;
+        let mut one = [*raw];
+        matcher.shear_free_columns_of_profiles(
+            &model,
+            &mut one,
+            pu,
+            pv,
+            e.scale,
+            sigma_px,
+            |r| cal.match_column(&model, r),
+        )?;
+        raw.x_px = one[0].x_px;
+    }
+    Ok(out)
 }
 
 /// Each detected test's local force matched by `model` at the column

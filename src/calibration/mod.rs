@@ -1090,7 +1090,10 @@ impl Calibration {
     /// of `scale` full-resolution pixels per cell), all contacts at once;
     /// without one, does nothing. With an anchored model, a contact whose
     /// motion is clearly elsewhere than its measured point first has its
-    /// `x_px` moved there ([`ForceMatcher::relocate_and_measure_contacts_at`]). Each contact is matched at
+    /// `x_px` moved there ([`ForceMatcher::relocate_and_measure_contacts_at`]);
+    /// with a model that measures shear-free columns, each contact's `x_px`
+    /// is then measured again without its tangential motion
+    /// ([`ForceMatcher::shear_free_columns`]). Each contact is matched at
     /// [`Calibration::match_column`]; with a [`ColumnCorrection`], its
     /// matched normal force is then multiplied by the correction's gain at
     /// that column ([`ColumnCorrection::correct_local_force`]). With tilt
@@ -1117,6 +1120,9 @@ impl Calibration {
                 if model.anchor.is_some() {
                     matcher
                         .relocate_and_measure_contacts_at(model, raws, u, v, scale, column_of)?;
+                    if let Some(sigma_px) = self.shear_free_sigma_px(model) {
+                        matcher.shear_free_columns(model, raws, scale, sigma_px, column_of)?;
+                    }
                 } else {
                     matcher.measure_contacts_at(model, raws, u, v, scale, column_of)?;
                 }
@@ -1152,6 +1158,19 @@ impl Calibration {
                 Ok(())
             }
             _ => Ok(()),
+        }
+    }
+
+    /// The slope peak's smoothing with which `model` measures shear-free
+    /// columns ([`ProfileModel::shear_free_columns`]): `None` unless the
+    /// model asks for them and this calibration measures its columns at
+    /// the slope peak ([`ContactPointMethod::SlopePeak`]).
+    pub fn shear_free_sigma_px(&self, model: &ProfileModel) -> Option<f64> {
+        match self.contact_point_method() {
+            ContactPointMethod::SlopePeak { sigma_px } if model.shear_free_columns => {
+                Some(sigma_px)
+            }
+            _ => None,
         }
     }
 

@@ -720,6 +720,48 @@ impl ContactLocator {
         }
     }
 
+    /// [`ContactPointMethod::SlopePeak`] on a given along-arc profile
+    /// (`profile`, cells of `scale` full-resolution pixels, any units):
+    /// each column of `columns_px` moves to the steepest rise of the
+    /// profile within `window_px` of it and short of halfway to the others;
+    /// a column whose range has no rising slope stays. Used on a profile
+    /// less the contacts' modelled tangential motion
+    /// ([`crate::contact::profile::ForceMatcher::shear_free_columns`]).
+    pub fn slope_peak_in_profile(
+        &mut self,
+        profile: &[f64],
+        columns_px: &mut [f64],
+        scale: f64,
+        sigma_px: f64,
+        window_px: f64,
+    ) {
+        let n = profile.len();
+        if columns_px.is_empty() || n < 3 || !(scale > 0.0 && sigma_px > 0.0) {
+            return;
+        }
+        self.profile.clear();
+        self.profile.extend_from_slice(profile);
+        self.smooth_slope(sigma_px / scale);
+        self.starts.clear();
+        self.starts
+            .extend(columns_px.iter().map(|&x| to_grid(x, scale)));
+        for (k, x) in columns_px.iter_mut().enumerate() {
+            let Some((lo, hi)) = neighbour_range(&self.starts, k, 0, n) else {
+                continue;
+            };
+            let w = window_px / scale;
+            let me = self.starts[k];
+            let lo = lo.max((me - w).ceil().max(0.0) as usize);
+            let hi = hi.min(((me + w).floor() + 1.0).max(0.0) as usize);
+            if lo >= hi {
+                continue;
+            }
+            if let Some(c) = rising_peak(&self.smooth, lo, hi) {
+                *x = from_grid(c, scale);
+            }
+        }
+    }
+
     /// [`ContactPointMethod::SlopePeak2d`]: per contact, the slope peak of
     /// `u` summed over the rows of its band along x, then that of `v`
     /// summed over the columns of its band along y.
@@ -1556,6 +1598,43 @@ mod tests {
                 (r[0].x_px - want).abs() < 1e-9 || r[0].x_px == 10.0,
                 "{} vs {}", r[0].x_px, want
             );
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config {
+            cases: 48,
+            rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(9),
+            failure_persistence: None,
+            ..Default::default()
+        })]
+        /// The slope peak of a given profile within a window about the
+        /// start: the oracle's peak over the window's cells.
+        #[test]
+        fn the_slope_peak_in_a_window_matches_its_oracle(
+            vals in proptest::collection::vec(-3.0f32..3.0, 60),
+            sigma in 0.5f64..8.0,
+            scale in proptest::sample::select(vec![1.0f64, 2.0, 4.0]),
+            start in 0.0f64..59.0,
+            window in 0.5f64..30.0,
+        ) {
+            let u = Array2::from_shape_vec((1, 60), vals).unwrap();
+            let profile: Vec<f64> = u.iter().map(|&x| f64::from(x)).collect();
+            let first = from_grid(start, scale);
+            let mut col = [first];
+            ContactLocator::new().slope_peak_in_profile(
+                &profile, &mut col, scale, sigma, window * scale,
+            );
+            let lo = (start - window).ceil().max(0.0) as usize;
+            let hi = ((start + window).floor() + 1.0).min(60.0) as usize;
+            let want = slope_oracle(&u, scale, sigma, lo, hi);
+            proptest::prop_assert!(
+                (col[0] - want).abs() < 1e-9 || col[0] == first,
+                "{} vs {}", col[0], want
+            );
+            // Never further than the window and the parabola's half cell.
+            proptest::prop_assert!((col[0] - first).abs() <= (window + 0.5) * scale + 1e-9);
         }
     }
 
