@@ -894,6 +894,53 @@ fn the_dense_tilted_fixture_reads_a_tilted_press_closer() {
     assert!(worst_bundled >= 0.3, "{worst_bundled}");
 }
 
+/// The shear-free fixture measures each column again without its matched
+/// tangential motion (`ProfileModel::shear_free_columns`): a 10 mm rod
+/// pressed at 2.14 N with its force pitched 13 deg outwards, where the
+/// dense tilted file's column holds on the markers ahead of the rod and
+/// its normal force reads about 1 N off, reads within 0.2 N and 0.5 mm;
+/// the file keeps the dense tilted file's settings otherwise.
+#[test]
+fn the_shear_free_fixture_reads_a_pitched_wide_rod_on_its_load_line() {
+    use optical_tactile::TactileSensor;
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    let tilted = Calibration::load(dir.join("calibration_dense_tilted.json")).unwrap();
+    let free = Calibration::load(dir.join("calibration_dense_tilted_shear_free.json")).unwrap();
+    assert!(free.profile.as_ref().unwrap().shear_free_columns);
+    assert!(!tilted.profile.as_ref().unwrap().shear_free_columns);
+    assert_eq!(free.setup.pipeline, tilted.setup.pipeline);
+    assert_eq!(free.column_correction.as_ref().unwrap().layers.len(), 2);
+    let t = free.report.as_ref().unwrap().test.as_ref().unwrap().total;
+    assert!(t.n > 1300 && t.x_mm < 0.12 && t.fz < 0.035, "{t:?}");
+    for x_mm in [-88.734, -81.899] {
+        let press = rod_press(x_mm, 2.2, 10.0, -13.0);
+        let mut errors = Vec::new();
+        for cal in [&tilted, &free] {
+            let mut sensor = TactileSensor::from_calibration(cal.clone()).unwrap();
+            let (contacts, truth) = last_frame_contacts(&press, &mut sensor, "shear-free");
+            let t = &truth[0];
+            let c = contacts
+                .iter()
+                .min_by(|a, b| {
+                    (a.location_mm[0] - t.x_mm)
+                        .abs()
+                        .total_cmp(&(b.location_mm[0] - t.x_mm).abs())
+                })
+                .expect("the press found");
+            errors.push((
+                (c.location_mm[0] - t.x_mm).abs(),
+                (c.force_n[2] - t.fz_n).abs(),
+            ));
+        }
+        println!("{x_mm}: {errors:?}");
+        assert!(errors[0].1 > 0.6, "at {x_mm} mm: {errors:?}");
+        assert!(
+            errors[1].0 < 0.5 && errors[1].1 < 0.2,
+            "at {x_mm} mm: {errors:?}"
+        );
+    }
+}
+
 /// One rod pressed once (a reference frame, then the loaded one), its
 /// force pitched along the strip by `pitch_deg`.
 fn rod_press(
