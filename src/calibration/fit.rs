@@ -297,8 +297,9 @@ pub struct ProfileFitOptions {
     /// ([`ProfileModel::shear_free_columns`]) when the columns are measured
     /// at the slope peak ([`ContactPointMethod::SlopePeak`]); otherwise it
     /// does nothing. Off by default: on the simulated strip it puts a wide
-    /// rod pressed at a tilt back on its load line (docs/results.md) but
-    /// reads a few presses near the strip's ends worse.
+    /// rod pressed at a tilt back on its load line but reads a few presses
+    /// near the strip's ends worse, and on a second simulated sensor most
+    /// figures worse (docs/results.md, "Shear-free columns").
     #[serde(default)]
     pub shear_free_columns: bool,
 }
