@@ -1599,16 +1599,7 @@ mod tests {
                 "{} vs {}", r[0].x_px, want
             );
         }
-    }
 
-    proptest::proptest! {
-        #![proptest_config(proptest::test_runner::Config {
-            cases: 48,
-            rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
-            rng_seed: proptest::test_runner::RngSeed::Fixed(9),
-            failure_persistence: None,
-            ..Default::default()
-        })]
         /// The slope peak of a given profile within a window about the
         /// start: the oracle's peak over the window's cells.
         #[test]
