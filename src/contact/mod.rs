@@ -697,27 +697,16 @@ impl ContactLocator {
         scale: f64,
         sigma_px: f64,
     ) {
-        let n = u.ncols();
-        if raws.is_empty() || n < 3 {
+        if raws.is_empty() || u.ncols() < 3 {
             return;
         }
         column_profile_into(u, 1.0, &mut self.profile);
-        self.smooth_slope(sigma_px / scale);
         self.starts.clear();
         self.starts
             .extend(raws.iter().map(|r| to_grid(r.x_px, scale)));
-        for (k, raw) in raws.iter_mut().enumerate() {
-            // The search stops short of halfway to the neighbouring
-            // contacts. It is not cut to the patch's box: a weak press's box
-            // is narrower than its motion and, on the simulator's protocol,
-            // cutting there cost 0.36 against 0.24 mm.
-            let Some((lo, hi)) = neighbour_range(&self.starts, k, 0, n) else {
-                continue;
-            };
-            if let Some(c) = rising_peak(&self.smooth, lo, hi) {
-                raw.x_px = from_grid(c, scale);
-            }
-        }
+        self.peaks_of_profile(sigma_px / scale, f64::INFINITY, |k, c| {
+            raws[k].x_px = from_grid(c, scale);
+        });
     }
 
     /// [`ContactPointMethod::SlopePeak`] on a given along-arc profile
@@ -735,29 +724,43 @@ impl ContactLocator {
         sigma_px: f64,
         window_px: f64,
     ) {
-        let n = profile.len();
-        if columns_px.is_empty() || n < 3 || !(scale > 0.0 && sigma_px > 0.0) {
+        if columns_px.is_empty() || profile.len() < 3 || !(scale > 0.0 && sigma_px > 0.0) {
             return;
         }
         self.profile.clear();
         self.profile.extend_from_slice(profile);
-        self.smooth_slope(sigma_px / scale);
         self.starts.clear();
         self.starts
             .extend(columns_px.iter().map(|&x| to_grid(x, scale)));
-        for (k, x) in columns_px.iter_mut().enumerate() {
-            let Some((lo, hi)) = neighbour_range(&self.starts, k, 0, n) else {
+        self.peaks_of_profile(sigma_px / scale, window_px / scale, |k, c| {
+            columns_px[k] = from_grid(c, scale);
+        });
+    }
+
+    /// The slope peak of the loaded profile (smoothing `sigma` cells) for
+    /// each start of `self.starts` (cells), within `window` cells of it and
+    /// short of halfway to the other starts, handed to `found(k, cell)`; a
+    /// start without a rising slope in its range gets nothing.
+    fn peaks_of_profile(&mut self, sigma: f64, window: f64, mut found: impl FnMut(usize, f64)) {
+        let n = self.profile.len();
+        self.smooth_slope(sigma);
+        for (k, &me) in self.starts.iter().enumerate() {
+            // The search stops short of halfway to the neighbouring
+            // contacts. It is not cut to the patch's box: a weak press's box
+            // is narrower than its motion and, on the simulator's protocol,
+            // cutting there cost 0.36 against 0.24 mm.
+            let Some((mut lo, mut hi)) = neighbour_range(&self.starts, k, 0, n) else {
                 continue;
             };
-            let w = window_px / scale;
-            let me = self.starts[k];
-            let lo = lo.max((me - w).ceil().max(0.0) as usize);
-            let hi = hi.min(((me + w).floor() + 1.0).max(0.0) as usize);
-            if lo >= hi {
-                continue;
+            if window.is_finite() {
+                lo = lo.max((me - window).ceil().max(0.0) as usize);
+                hi = hi.min(((me + window).floor() + 1.0).max(0.0) as usize);
+                if lo >= hi {
+                    continue;
+                }
             }
             if let Some(c) = rising_peak(&self.smooth, lo, hi) {
-                *x = from_grid(c, scale);
+                found(k, c);
             }
         }
     }
