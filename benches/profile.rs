@@ -13,6 +13,12 @@
 //! bump per contact): the cost does not depend on the values, and the
 //! relocation searches every candidate column whatever it finds.
 //!
+//! `profile/weights`: the confidence weights of a 1600x200 flow
+//! (`ProfileWeighting::reweight_into`, the profiles of a calibration with
+//! `weighted_profiles`) against the plain column sums of the same flow
+//! (`column_profile_into`, u and v), on a textured frame moved by a smooth
+//! press.
+//!
 //! `cargo bench --bench profile` (on a shared machine compare the two
 //! functions' ratio within one run).
 
@@ -117,5 +123,51 @@ fn bench_profile(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_profile);
+fn bench_weights(c: &mut Criterion) {
+    use ndarray::Array2;
+    use optical_tactile::contact::confidence::ProfileWeighting;
+    use optical_tactile::contact::profile::column_profile_into;
+    use optical_tactile::flow::FlowField;
+    let (h, w) = (200, CELLS);
+    let reference = Array2::from_shape_fn((h, w), |(i, j)| {
+        let (x, y) = (j as f32, i as f32);
+        120.0 + 60.0 * (0.9 * x + 0.4 * y).sin() * (0.7 * y - 0.3 * x).cos()
+    });
+    let press = |j: usize| {
+        let t = (j as f32 - 800.0) / 40.0;
+        -3.0 * t * (-t * t).exp()
+    };
+    let flow = FlowField {
+        u: Array2::from_shape_fn((h, w), |(_, j)| press(j)),
+        v: Array2::from_shape_fn((h, w), |(_, j)| 0.2 * press(j)),
+    };
+    // The frame the flow explains (to the nearest pixel).
+    let current = Array2::from_shape_fn((h, w), |(i, j)| {
+        let src = (j as f32 - press(j)).round().clamp(0.0, (w - 1) as f32) as usize;
+        reference[[i, src]]
+    });
+    let mut g = c.benchmark_group("profile/weights");
+    g.measurement_time(Duration::from_secs(3));
+    g.warm_up_time(Duration::from_millis(500));
+    let mut weighting = ProfileWeighting::new();
+    weighting.set_reference(reference.view());
+    let mut out = FlowField::zeros(0, 0);
+    g.bench_function("reweight", |b| {
+        b.iter(|| {
+            weighting
+                .reweight_into(current.view(), &flow, 1, &mut out)
+                .expect("weights")
+        })
+    });
+    let (mut pu, mut pv) = (Vec::new(), Vec::new());
+    g.bench_function("plain column sums", |b| {
+        b.iter(|| {
+            column_profile_into(flow.u.view(), 1.0, &mut pu);
+            column_profile_into(flow.v.view(), 1.0, &mut pv);
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_profile, bench_weights);
 criterion_main!(benches);

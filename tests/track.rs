@@ -249,10 +249,11 @@ fn extractor_settings_come_from_the_calibration() {
             dot_tracking: true,
             dot_fit: true,
             light_box_px: Some(16),
+            weighted_profiles: true,
         }),
     );
     let c = ExtractorConfig::from_setup(&cal.setup).unwrap();
-    assert!(c.dot_tracking && c.dot_fit);
+    assert!(c.dot_tracking && c.dot_fit && c.weighted_profiles);
     assert_eq!(c.light_box_px, Some(16));
     assert_eq!(c.flow, DisParams::preset(DisPreset::Fast));
     assert_eq!((c.margin_px, c.subpixel), (16, false));

@@ -838,7 +838,7 @@ pub fn extract_dataset(
                     ex.set_reference(&reference)?;
                     ex.extract(&frame)?;
                     let raws = ex.locate(contact_point)?.to_vec();
-                    let (flow, s) = ex.finest_flow();
+                    let (flow, s) = ex.profile_flow();
                     let s = s as f64;
                     let mut profiles = [Vec::new(), Vec::new()];
                     if !raws.is_empty() {
@@ -1072,6 +1072,7 @@ fn fit_columns_as_measured(
             dot_tracking: config.dot_tracking,
             dot_fit: config.dot_tracking && config.dot_fit,
             light_box_px: config.light_box_px,
+            weighted_profiles: config.weighted_profiles,
         }),
     };
     // Pass 1: the location maps (the rotation does not affect them).

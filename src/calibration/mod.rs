@@ -323,6 +323,12 @@ pub struct PipelineSettings {
     /// were not.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub light_box_px: Option<usize>,
+    /// Whether the motion profiles weighed each flow cell by how well the
+    /// frame matched the reference there
+    /// ([`crate::sensor::ExtractorConfig::weighted_profiles`]). Absent
+    /// (false) in older files and when off.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub weighted_profiles: bool,
 }
 
 impl SensorSetup {

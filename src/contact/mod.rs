@@ -1,6 +1,7 @@
 //! Contacts: the raw quantities of a contact patch (docs/pipeline.md, step 7) and the
 //! calibrated contact a user acts on.
 
+pub mod confidence;
 pub mod profile;
 
 use ndarray::ArrayView2;
@@ -1490,6 +1491,7 @@ mod tests {
             dot_tracking: false,
             dot_fit: false,
             light_box_px: None,
+            weighted_profiles: false,
         };
         assert_eq!(
             p.contact_point_method(),
