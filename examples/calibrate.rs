@@ -106,9 +106,7 @@ use optical_tactile::frame::Roi;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::{SplitRule, Thresholds};
-use optical_tactile::sensor::{
-    ExtractorConfig, fitting_flow_preset, fitting_light_box, fitting_weighted_profiles,
-};
+use optical_tactile::sensor::{ExtractorConfig, fitting_flow_preset, fitting_light_box};
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
 /// every test, fits the polynomial maps and prints the paper's Tables I and
@@ -228,11 +226,12 @@ struct Cli {
     #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(0..=16384))]
     light_box: Option<u32>,
     /// Weigh each flow cell by how well the frame warped back by the flow
-    /// matches the reference there when the motion profiles are summed
-    /// (docs/pipeline.md, step 8) [default: on for the curved strip, off
-    /// for a flat sensor].
-    #[arg(long, value_name = "on|off", action = clap::ArgAction::Set, value_parser = cli_support::on_off)]
-    weighted_profiles: Option<bool>,
+    /// matches the reference there when the motion profiles along the arc
+    /// are summed (docs/pipeline.md, step 8; the curved strip). On the
+    /// simulator it reads one sensor closer and another's presses worse:
+    /// fit with and without it and compare.
+    #[arg(long, value_name = "on|off", default_value = "off", action = clap::ArgAction::Set, value_parser = cli_support::on_off)]
+    weighted_profiles: bool,
     /// Crop of the frames [default: the whole image].
     #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     crop: Option<Roi>,
@@ -308,8 +307,8 @@ struct Args {
     flow: Option<DisPreset>,
     /// `--light-box`; `None`: as [`fitting_light_box`] says.
     light_box: Option<usize>,
-    /// `--weighted-profiles`; `None`: as [`fitting_weighted_profiles`] says.
-    weighted_profiles: Option<bool>,
+    /// `--weighted-profiles`.
+    weighted_profiles: bool,
     crop: Option<Roi>,
     predictions: Option<TextOut>,
     quiet: bool,
@@ -691,9 +690,7 @@ fn run(args: Args) -> Result<(), Failure> {
             Some(r) => Some(r),
             None => fitting_light_box(&geometry, pitch, config.flow.patch_size),
         };
-        config.weighted_profiles = args
-            .weighted_profiles
-            .unwrap_or_else(|| fitting_weighted_profiles(&geometry));
+        config.weighted_profiles = args.weighted_profiles;
         let t0 = Instant::now();
         let ex = extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {
             extract_dataset(&args.dir, &rows, &config, contact_point, args.crop, p)

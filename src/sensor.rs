@@ -113,8 +113,16 @@ pub struct ExtractorConfig {
     /// matches the reference there when the motion profiles are summed
     /// over the height ([`crate::contact::confidence`]): the contact's
     /// column and the forces matched to the profiles
-    /// ([`ContactExtractor::profile_flow`]). Off by default; `calibrate`
-    /// turns it on for the curved strip ([`fitting_weighted_profiles`]).
+    /// ([`ContactExtractor::profile_flow`]). Off by default (`calibrate
+    /// --weighted-profiles on` fits with it).
+    ///
+    /// Why an option: on the simulated strip it reads the protocol's test
+    /// points closer on two sensors (Fz 0.028 N against 0.035 N and 0.029
+    /// against 0.032 N, with tilted sweeps and the `dense` flow) and random
+    /// presses closer on the first (Fz 0.031-0.037 N against 0.035-0.040 N
+    /// over four press seeds), but random presses worse on the second (Fz
+    /// 0.050 N against 0.042 N), whose frames are noisier (docs/results.md,
+    /// "Confidence-weighted profiles").
     pub weighted_profiles: bool,
 }
 
@@ -561,21 +569,6 @@ pub fn fitting_light_box(
     patch_size: usize,
 ) -> Option<usize> {
     flat_random_markers(geometry, grid_pitch).then_some(LIGHT_BOX_PATCHES * patch_size.max(1))
-}
-
-/// Whether `calibrate` weighs the motion profiles' cells by the flow's
-/// confidence ([`ExtractorConfig::weighted_profiles`]) on a sensor of this
-/// geometry: on the curved strip, whose contacts are read from profiles
-/// summed over the strip's height; not on a flat sensor, whose contacts are
-/// read in 2-D.
-///
-/// Why: on the simulated strip, fitted with the tilted sweeps and the
-/// `dense` flow, the weights read random presses closer on four press
-/// seeds (Fz 0.031-0.037 N against 0.035-0.040, location 0.090-0.098 mm
-/// against 0.098-0.104) and the held-out points too (docs/results.md,
-/// "Confidence-weighted profiles").
-pub fn fitting_weighted_profiles(geometry: &SensorGeometry) -> bool {
-    !geometry.locates_in_2d()
 }
 
 /// Whether a sensor shows random markers on a flat surface: located in 2-D

@@ -508,7 +508,7 @@ mod tests {
                 flow.v[[i, j]] = -1.0;
             }
         }
-        let (weighting, out) = reweighted(&r, &c, &flow);
+        let (_, out) = reweighted(&r, &c, &flow);
         assert_eq!(out.v, flow.v, "the motion across is left as it is");
         let truth = 3.0 * h as f64;
         let plain = column_sums(&flow.u);
