@@ -898,8 +898,9 @@ fn the_dense_tilted_fixture_reads_a_tilted_press_closer() {
 /// tangential motion (`ProfileModel::shear_free_columns`): a 10 mm rod
 /// pressed at 2.14 N with its force pitched 13 deg outwards, where the
 /// dense tilted file's column holds on the markers ahead of the rod and
-/// its normal force reads about 1 N off, reads within 0.2 N and 0.5 mm;
-/// the file keeps the dense tilted file's settings otherwise.
+/// its normal force reads 0.6 N or more off at one of two places, reads
+/// within 0.2 N and 0.5 mm at both; the file keeps the dense tilted file's
+/// settings otherwise.
 #[test]
 fn the_shear_free_fixture_reads_a_pitched_wide_rod_on_its_load_line() {
     use optical_tactile::TactileSensor;
@@ -908,10 +909,16 @@ fn the_shear_free_fixture_reads_a_pitched_wide_rod_on_its_load_line() {
     let free = Calibration::load(dir.join("calibration_dense_tilted_shear_free.json")).unwrap();
     assert!(free.profile.as_ref().unwrap().shear_free_columns);
     assert!(!tilted.profile.as_ref().unwrap().shear_free_columns);
-    assert_eq!(free.setup.pipeline, tilted.setup.pipeline);
+    // The dense tilted file's settings but the profiles' weights (this
+    // file is fitted on the plain column sums).
+    let mut plain = tilted.setup.pipeline.clone().unwrap();
+    assert!(plain.weighted_profiles);
+    plain.weighted_profiles = false;
+    assert_eq!(free.setup.pipeline, Some(plain));
     assert_eq!(free.column_correction.as_ref().unwrap().layers.len(), 2);
     let t = free.report.as_ref().unwrap().test.as_ref().unwrap().total;
     assert!(t.n > 1300 && t.x_mm < 0.12 && t.fz < 0.035, "{t:?}");
+    let mut worst_tilted: f64 = 0.0;
     for x_mm in [-88.734, -81.899] {
         let press = rod_press(x_mm, 2.2, 10.0, -13.0);
         let mut errors = Vec::new();
@@ -933,12 +940,13 @@ fn the_shear_free_fixture_reads_a_pitched_wide_rod_on_its_load_line() {
             ));
         }
         println!("{x_mm}: {errors:?}");
-        assert!(errors[0].1 > 0.6, "at {x_mm} mm: {errors:?}");
+        worst_tilted = worst_tilted.max(errors[0].1);
         assert!(
             errors[1].0 < 0.5 && errors[1].1 < 0.2,
             "at {x_mm} mm: {errors:?}"
         );
     }
+    assert!(worst_tilted > 0.6, "{worst_tilted}");
 }
 
 /// One rod pressed once (a reference frame, then the loaded one), its
@@ -2379,4 +2387,61 @@ fn spot_checks_keep_a_flat_sensors_location_maps_from_bending_through_the_column
     assert_eq!(n_val(&with), [spots.len(); 5]);
     let val = samples.iter().filter(|s| s.split == Split::Val).count();
     assert_eq!(n_val(&without), [val; 5]);
+}
+
+/// A calibration with `weighted_profiles` (the dense tilted fixture) sums
+/// its motion profiles from the flow reweighted by the flow's confidence
+/// (`ContactExtractor::profile_flow`): under a strong press the weighted
+/// column sums move about the contact and stay where nothing moves; with
+/// the weights off the profile flow is the finest flow itself.
+#[test]
+fn weighted_profiles_reweigh_the_flow_about_a_press() {
+    use optical_tactile::capture::{FrameSource, SequenceSource};
+    use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
+    use optical_tactile_sim::scenario::{self, Common};
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    let tilted = Calibration::load(dir.join("calibration_dense_tilted.json")).unwrap();
+    let tmp = scratch("weighted-profiles");
+    let mut common = Common::new(tmp.path());
+    common.flow = false;
+    scenario::run(&rod_press(-85.0, 2.8, 10.0, 0.0), &common).unwrap();
+    let mut seq = SequenceSource::open(tmp.path()).unwrap();
+    let frames: Vec<_> = std::iter::from_fn(|| seq.next_frame())
+        .map(|f| f.unwrap())
+        .collect();
+    let column_sums = |a: &ndarray::Array2<f32>| -> Vec<f64> {
+        a.columns()
+            .into_iter()
+            .map(|c| c.iter().map(|&x| f64::from(x)).sum())
+            .collect()
+    };
+    for weighted in [true, false] {
+        let mut config = ExtractorConfig::from_setup(&tilted.setup).unwrap();
+        assert!(config.weighted_profiles);
+        config.weighted_profiles = weighted;
+        let mut ex = ContactExtractor::new(config).unwrap();
+        ex.set_reference(&frames[0].image).unwrap();
+        ex.extract(&frames[1].image).unwrap();
+        let (finest, scale) = ex.finest_flow();
+        let (profile, profile_scale) = ex.profile_flow();
+        assert_eq!(scale, profile_scale);
+        let (plain, summed) = (column_sums(&finest.u), column_sums(&profile.u));
+        let peak = plain.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let moved = plain
+            .iter()
+            .zip(&summed)
+            .map(|(a, b)| (a - b).abs())
+            .collect::<Vec<_>>();
+        if !weighted {
+            assert!(moved.iter().all(|&d| d == 0.0));
+            continue;
+        }
+        // The press is near column 360: the sums move there, by up to a
+        // few percent of the profile's peak, and hardly at all beyond the
+        // skin's motion at the far end of the strip.
+        let near = moved[300..420].iter().fold(0.0f64, |m, &d| m.max(d));
+        let far = moved[1300..1550].iter().fold(0.0f64, |m, &d| m.max(d));
+        assert!(near > 0.01 * peak, "near {near}, peak {peak}");
+        assert!(far < 0.01 * peak, "far {far}, peak {peak}");
+    }
 }
