@@ -22,13 +22,19 @@
 //! the `fine` flow), and everything else alike.
 //!
 //! Both the mismatch and the texture scale with the image's contrast, and
-//! the median sets the scale of the weights, so they do not change with the
-//! exposure. A column whose cells all weigh nothing keeps its plain motion.
+//! the median sets the scale of the weights, so they hardly change with the
+//! exposure (the texture's floor, [`TEXTURE_FLOOR`], does not scale). A
+//! column whose cells all weigh nothing keeps its plain motion.
 //!
 //! Measured on the simulated strip (docs/results.md, "Confidence-weighted
 //! profiles"): DIS's error under a 2.8 N rod averages 0.48 px in the
 //! contact's region against 0.11 px over the frame; in the fifth of its
-//! boxes that match worst it is 0.83 px, in the rest 0.39 px.
+//! boxes that match worst it is 0.83 px, in the rest 0.39 px. A calibration
+//! fitted with the weights reads that sensor closer at the protocol's points
+//! and between them; on a second simulated sensor with noisier frames only
+//! at the points, and presses between them worse, so a calibration uses the
+//! weights only when fitted with them
+//! ([`crate::sensor::ExtractorConfig::weighted_profiles`]).
 
 use ndarray::{Array2, ArrayView2, Zip};
 use rayon::prelude::*;
