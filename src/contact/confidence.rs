@@ -19,7 +19,9 @@
 //! the motion along the arc is reweighted: the across force read from the
 //! plain sums across the strip reads the protocol's test points as well
 //! (0.0037 N against 0.0039 N with both reweighted, on the simulator with
-//! the `fine` flow), and everything else alike.
+//! the `fine` flow), and everything else alike there (a second, noisier
+//! simulated sensor read random presses less badly with both reweighted:
+//! docs/results.md).
 //!
 //! Both the mismatch and the texture scale with the image's contrast, and
 //! the median sets the scale of the weights, so they hardly change with the
