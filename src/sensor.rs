@@ -630,14 +630,14 @@ struct LightDivision {
 }
 
 impl LightDivision {
-    /// `image` divided by its own light over boxes of half-side `r`, at the
-    /// reference's level (`reference`: `image` is the reference, whose mean
-    /// sets that level).
     /// The last frame [`divide`](Self::divide) gave.
     fn divided(&self) -> &Array2<f32> {
         &self.out
     }
 
+    /// `image` divided by its own light over boxes of half-side `r`, at the
+    /// reference's level (`reference`: `image` is the reference, whose mean
+    /// sets that level).
     fn divide(&mut self, image: &ArrayRef2<f32>, r: usize, reference: bool) -> &Array2<f32> {
         if reference {
             let n = image.len().max(1) as f64;
