@@ -618,6 +618,19 @@ pub struct ContactExtractor {
     weighted_flow: FlowField,
 }
 
+/// [`ContactExtractor::profile_flow`] from the extractor's fields (so that
+/// [`ContactExtractor::locate`] can read it beside its mutable ones): the
+/// reweighted flow when `weighted`, else the finest flow; at the finest
+/// flow's scale either way.
+fn profile_flow_of<'a>(
+    weighted: bool,
+    grid: &'a AnalysisGrid,
+    weighted_flow: &'a FlowField,
+) -> (&'a FlowField, usize) {
+    let (finest, scale) = grid.finest();
+    (if weighted { weighted_flow } else { finest }, scale)
+}
+
 /// The working set of [`ExtractorConfig::light_box_px`]: the reference's
 /// mean light (the level every divided frame is brought to), the running
 /// sums and local light of the last frame, and the divided frame.
@@ -718,10 +731,11 @@ impl ContactExtractor {
     /// ([`crate::markers::round`]). Errors on a method parameter out of its
     /// range.
     pub fn locate(&mut self, method: ContactPointMethod) -> Result<&[RawContact]> {
-        let (flow, scale) = match self.config.weighted_profiles {
-            true => (&self.weighted_flow, self.grid.finest().1),
-            false => self.grid.finest(),
-        };
+        let (flow, scale) = profile_flow_of(
+            self.config.weighted_profiles,
+            &self.grid,
+            &self.weighted_flow,
+        );
         // The unseen patches (motion past the skin's texture only) are not
         // contacts, but they bound each contact's search as any neighbour
         // does: the contacts come out as they would with them.
@@ -1051,12 +1065,11 @@ impl ContactExtractor {
     /// the reference there ([`ProfileWeighting::reweight_into`]), so that a
     /// column's sum is the weighted mean of its cells times its height.
     pub fn profile_flow(&self) -> (&FlowField, usize) {
-        let (finest, scale) = self.grid.finest();
-        if self.config.weighted_profiles {
-            (&self.weighted_flow, scale)
-        } else {
-            (finest, scale)
-        }
+        profile_flow_of(
+            self.config.weighted_profiles,
+            &self.grid,
+            &self.weighted_flow,
+        )
     }
 
     /// The patches of the last frame (native-resolution boxes), in the order

@@ -74,7 +74,8 @@ pub struct ProfileWeighting {
     /// Scratch of the box sums.
     spare: Array2<f32>,
     weights: Array2<f32>,
-    prefix: Vec<f64>,
+    /// Per column: its height over its summed weight (0: kept plain).
+    gains: Vec<f64>,
     window: Vec<f32>,
     order: Vec<f32>,
 }
@@ -224,17 +225,17 @@ impl ProfileWeighting {
         out.v = flow.v.as_standard_layout().into_owned();
         let (h, w) = flow.u.dim();
         // Per column: the height over the summed weight (0: keep the column).
-        self.prefix.clear();
-        self.prefix.resize(w, 0.0);
+        self.gains.clear();
+        self.gains.resize(w, 0.0);
         for row in self.weights.rows() {
-            for (t, &x) in self.prefix.iter_mut().zip(row) {
+            for (t, &x) in self.gains.iter_mut().zip(row) {
                 *t += f64::from(x);
             }
         }
-        for t in self.prefix.iter_mut() {
+        for t in self.gains.iter_mut() {
             *t = if *t > 0.0 { h as f64 / *t } else { 0.0 };
         }
-        let (gains, weights) = (&self.prefix, self.weights.view());
+        let (gains, weights) = (&self.gains, self.weights.view());
         rows_of(&mut out.u).for_each(|(i, row)| {
             for ((x, &wt), &g) in row.iter_mut().zip(weights.row(i)).zip(gains) {
                 if g > 0.0 {
