@@ -16,8 +16,9 @@
 //! `profile/weights`: the confidence weights of a 1600x200 flow
 //! (`ProfileWeighting::reweight_into`, the profiles of a calibration with
 //! `weighted_profiles`) against the plain column sums of the same flow
-//! (`column_profile_into`, u and v), on a textured frame moved by a smooth
-//! press.
+//! (`column_profile_into`, u and v), and those sums with the spread
+//! profile of v after them (`across_profiles_into`, the profiles of a model
+//! with the spread channel), on a textured frame moved by a smooth press.
 //!
 //! `cargo bench --bench profile` (on a shared machine compare the two
 //! functions' ratio within one run).
@@ -164,6 +165,17 @@ fn bench_weights(c: &mut Criterion) {
         b.iter(|| {
             column_profile_into(flow.u.view(), 1.0, &mut pu);
             column_profile_into(flow.v.view(), 1.0, &mut pv);
+        })
+    });
+    g.bench_function("column sums and spread", |b| {
+        b.iter(|| {
+            column_profile_into(flow.u.view(), 1.0, &mut pu);
+            optical_tactile::contact::profile::across_profiles_into(
+                flow.v.view(),
+                1.0,
+                true,
+                &mut pv,
+            );
         })
     });
     g.finish();

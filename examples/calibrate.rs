@@ -59,6 +59,8 @@
 //! `contact::profile::Relocation`). `--shear-free-columns` measures each
 //! contact's column again without its matched tangential motion
 //! (`contact::profile::ProfileModel::shear_free_columns`).
+//! `--spread-channel off` fits the profile model without its spread
+//! channel (`contact::profile::ProfileModel::spread`).
 //!
 //! When the first reference shows a regular grid of markers (a dot grid on
 //! a plain gel), the dots are followed one by one and their motion written
@@ -232,6 +234,11 @@ struct Cli {
     /// fit with and without it and compare.
     #[arg(long, value_name = "on|off", default_value = "off", action = clap::ArgAction::Set, value_parser = cli_support::on_off)]
     weighted_profiles: bool,
+    /// Match the forces on the across motion's first moment about the
+    /// strip's centre line too, the gel squeezed out sideways by a press
+    /// (docs/pipeline.md, step 9; the curved strip).
+    #[arg(long, value_name = "on|off", default_value = "on", action = clap::ArgAction::Set, value_parser = cli_support::on_off)]
+    spread_channel: bool,
     /// Crop of the frames [default: the whole image].
     #[arg(long, value_name = "x,y,w,h", value_parser = cli_support::roi)]
     crop: Option<Roi>,
@@ -309,6 +316,8 @@ struct Args {
     light_box: Option<usize>,
     /// `--weighted-profiles`.
     weighted_profiles: bool,
+    /// `--spread-channel`.
+    spread_channel: bool,
     crop: Option<Roi>,
     predictions: Option<TextOut>,
     quiet: bool,
@@ -572,6 +581,7 @@ impl Cli {
             flow: self.preset,
             light_box: self.light_box.map(|r| r as usize),
             weighted_profiles: self.weighted_profiles,
+            spread_channel: self.spread_channel,
             crop: self.crop,
             predictions: self.predictions,
             quiet: self.quiet,
@@ -723,6 +733,7 @@ fn run(args: Args) -> Result<(), Failure> {
                 tail_px: if args.no_profile_tail { 0.0 } else { p.tail_px },
                 relocation: args.relocation.or(p.relocation),
                 shear_free_columns: args.shear_free_columns || p.shear_free_columns,
+                spread_channel: args.spread_channel && p.spread_channel,
                 ..p
             }),
             ..base

@@ -30,7 +30,7 @@ use super::{
 };
 use crate::contact::profile::{
     ColumnMap, ForceMatcher, MAX_PROFILE_REACH_PX, ProfileModel, ProfileSample, Relocation,
-    SizeTerm, column_profile_into,
+    SizeTerm, across_profiles_into, column_profile_into,
 };
 use crate::contact::{ContactPointMethod, RawContact, sensor_displacements};
 use crate::error::{Error, Result};
@@ -302,6 +302,11 @@ pub struct ProfileFitOptions {
     /// figures worse (docs/results.md, "Shear-free columns").
     #[serde(default)]
     pub shear_free_columns: bool,
+    /// Fit the spread channel ([`ProfileModel::spread`]): the response of
+    /// the across motion's first moment about the strip's centre line. On
+    /// by default; off in files from before it.
+    #[serde(default)]
+    pub spread_channel: bool,
 }
 
 fn default_tail_step_px() -> f64 {
@@ -326,6 +331,7 @@ impl Default for ProfileFitOptions {
             tail_step_px: default_tail_step_px(),
             relocation: None,
             shear_free_columns: false,
+            spread_channel: true,
         }
     }
 }
@@ -717,8 +723,11 @@ pub struct Extraction {
     pub raw: Option<RawContact>,
     /// How many patches were found.
     pub patches: usize,
-    /// The frame's motion profiles along x and y
-    /// ([`crate::contact::profile::column_profile_into`]; empty if nothing was detected).
+    /// The frame's motion profiles: along x
+    /// ([`crate::contact::profile::column_profile_into`]) and across, its
+    /// column sums followed by its spread profile
+    /// ([`crate::contact::profile::across_profiles_into`]); empty if nothing
+    /// was detected.
     pub profiles: [Vec<f64>; 2],
     /// The flow grid's scale (full-resolution pixels per cell).
     pub scale: f64,
@@ -843,7 +852,7 @@ pub fn extract_dataset(
                     let mut profiles = [Vec::new(), Vec::new()];
                     if !raws.is_empty() {
                         column_profile_into(flow.u.view(), s, &mut profiles[0]);
-                        column_profile_into(flow.v.view(), s, &mut profiles[1]);
+                        across_profiles_into(flow.v.view(), s, true, &mut profiles[1]);
                     }
                     let beyond_markers = raws.first().is_some_and(|r| ex.beyond_markers(r));
                     let dots_followed = raws.first().is_some_and(|r| ex.dots_followed(r));
@@ -1919,16 +1928,19 @@ fn fit_profile(
     if tail_px <= model.reach_px() {
         return Ok(model);
     }
-    let samples = profile_samples(&train, geometry, model.anchor.as_ref());
+    let samples = profile_samples(&train, geometry, model.anchor.as_ref(), model.spread);
     model.with_tail(&samples, options.tail_step_px, tail_px)
 }
 
 /// The profile samples of the training tests, each at its anchor column of
-/// the true position (or at its measured column without an anchor map).
+/// the true position (or at its measured column without an anchor map),
+/// with their spread profiles when `spread` (the model then fits the
+/// spread channel), else with the across motion's column sums alone.
 fn profile_samples<'a>(
     train: &[&'a Extraction],
     geometry: &SensorGeometry,
     anchor: Option<&ColumnMap>,
+    spread: bool,
 ) -> Vec<ProfileSample<'a>> {
     train
         .iter()
@@ -1938,7 +1950,11 @@ fn profile_samples<'a>(
             Some(ProfileSample {
                 column_px: anchor.map_or(raw.x_px, |a| a.column(r.x_mm)),
                 profile_u: &e.profiles[0],
-                profile_v: &e.profiles[1],
+                profile_v: if spread {
+                    &e.profiles[1]
+                } else {
+                    &e.profiles[1][..e.profiles[1].len().min(e.profiles[0].len())]
+                },
                 scale: e.scale,
                 local_force: geometry.sensor_to_local(r.x_mm, [r.fx_n, r.fy_n, r.fz_n]),
                 size_mm: Some(r.indenter_mm),
@@ -1956,7 +1972,7 @@ fn fit_profile_at(
     options: ProfileFitOptions,
     anchor: Option<ColumnMap>,
 ) -> Result<ProfileModel> {
-    let samples = profile_samples(train, geometry, anchor.as_ref());
+    let samples = profile_samples(train, geometry, anchor.as_ref(), options.spread_channel);
     let size = if options.size_term {
         SizeTerm::for_sizes(samples.iter().filter_map(|s| s.size_mm))
     } else {

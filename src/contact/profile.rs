@@ -54,6 +54,88 @@ pub fn column_profile_into(component: ArrayView2<'_, f32>, scale: f64, out: &mut
     }
 }
 
+/// The spread profile of the across motion `v`: per column, the first
+/// moment of `v` about the grid's middle row, each row weighted by its
+/// signed distance from it in units of half the height, times `scale`
+/// (full-resolution units, as [`column_profile_into`]), into `out`.
+///
+/// A press squeezes the gel out sideways, away from the centre line on both
+/// sides, which the column sums cancel and the moment keeps (see
+/// [`ProfileModel::spread`]).
+pub fn spread_profile_into(v: ArrayView2<'_, f32>, scale: f64, out: &mut Vec<f64>) {
+    out.clear();
+    out.resize(v.ncols(), 0.0);
+    spread_profile_of(v, scale, out);
+}
+
+/// [`spread_profile_into`] into `out`, one cell per column of `v`, all 0.
+fn spread_profile_of(v: ArrayView2<'_, f32>, scale: f64, out: &mut [f64]) {
+    let (h, n) = v.dim();
+    if n == 0 || h == 0 {
+        return;
+    }
+    let middle = (h as f64 - 1.0) / 2.0;
+    let half = (h as f64 / 2.0).max(0.5);
+    let v = v.as_standard_layout();
+    let rows = v.as_slice().expect("standard layout is contiguous");
+    for (y, row) in rows.chunks_exact(n).enumerate() {
+        let weight = (y as f64 - middle) / half;
+        for (o, &x) in out.iter_mut().zip(row) {
+            *o += weight * f64::from(x);
+        }
+    }
+    for o in out.iter_mut() {
+        *o *= scale;
+    }
+}
+
+/// The across-motion profiles a [`ProfileModel`] is matched on: the column
+/// sums of `v` ([`column_profile_into`]) and, with `spread`, its spread
+/// profile ([`spread_profile_into`]) after them, into `out` (twice the
+/// columns long then).
+pub fn across_profiles_into(v: ArrayView2<'_, f32>, scale: f64, spread: bool, out: &mut Vec<f64>) {
+    column_profile_into(v, scale, out);
+    if spread {
+        let n = out.len();
+        out.resize(2 * n, 0.0);
+        spread_profile_of(v, scale, &mut out[n..]);
+    }
+}
+
+/// The channels of a pair of profiles (see [`channels`]).
+#[derive(Clone, Copy)]
+struct Channels<'a> {
+    all: [&'a [f64]; 3],
+    len: usize,
+}
+
+impl<'a> Channels<'a> {
+    fn as_slice(&self) -> &[&'a [f64]] {
+        &self.all[..self.len]
+    }
+}
+
+/// The channels of a pair of profiles: the motion along x, the column sums
+/// of the motion along y and, when `profile_v` is twice as long as
+/// `profile_u` ([`across_profiles_into`] with the spread), the spread
+/// profile. `None` for lengths that are neither.
+fn channels<'a>(profile_u: &'a [f64], profile_v: &'a [f64]) -> Option<Channels<'a>> {
+    let n = profile_u.len();
+    if profile_v.len() == n {
+        Some(Channels {
+            all: [profile_u, profile_v, &[]],
+            len: 2,
+        })
+    } else if n > 0 && profile_v.len() == 2 * n {
+        Some(Channels {
+            all: [profile_u, &profile_v[..n], &profile_v[n..]],
+            len: 3,
+        })
+    } else {
+        None
+    }
+}
+
 /// One training contact for [`ProfileModel::fit`].
 #[derive(Clone, Copy, Debug)]
 pub struct ProfileSample<'a> {
@@ -61,7 +143,9 @@ pub struct ProfileSample<'a> {
     pub column_px: f64,
     /// Profile of the flow along x ([`column_profile_into`]).
     pub profile_u: &'a [f64],
-    /// Profile of the flow along y.
+    /// Profiles of the flow along y ([`across_profiles_into`]): its column
+    /// sums, followed by its spread profile when the model is to have the
+    /// spread channel ([`ProfileModel::spread`]).
     pub profile_v: &'a [f64],
     /// Flow grid scale of the profiles (full-resolution pixels per cell).
     pub scale: f64,
@@ -150,6 +234,23 @@ pub struct ProfileModel {
     /// 2.1 N). Less the modelled bump, the slope peaks at the load line.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub shear_free_columns: bool,
+    /// Whether the model has a third channel, the spread profile
+    /// ([`spread_profile_into`]): `kernels` and the tail's then hold three
+    /// channels, and the across-motion profile a model is matched on must
+    /// carry the spread profile after its column sums
+    /// ([`across_profiles_into`]). `false` (older files): two channels.
+    ///
+    /// Why: the motion along the arc alone confuses a normal load with a
+    /// tangential one at a slightly other column (the normal response is
+    /// odd about the contact, its shift by a pixel or two is an even bump
+    /// like the tangential response), so the normal force read there
+    /// follows every pixel the column is off. A rod pressed in also
+    /// squeezes the gel out sideways, away from the strip's centre line on
+    /// both sides; a load along the arc does not. The column sums of the
+    /// across motion cancel that spreading; its first moment about the
+    /// middle row keeps it, an observable of the normal load alone.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub spread: bool,
 }
 
 /// When [`ForceMatcher::relocate_contacts`] moves a contact's match column
@@ -472,6 +573,10 @@ impl ProfileModel {
             tail: None,
             relocation: Relocation::Clear,
             shear_free_columns: false,
+            // Fitted when every sample carries a spread profile.
+            spread: samples
+                .iter()
+                .all(|s| !s.profile_u.is_empty() && s.profile_v.len() == 2 * s.profile_u.len()),
         };
         model.kernels = model.fit_offsets(samples, step_px, half_width, true)?;
         model.validate()?;
@@ -535,7 +640,7 @@ impl ProfileModel {
         let unknowns = components * (self.degree + 1);
         // A tail offset is trusted from twice as many samples as unknowns.
         let min_rows = if strict { unknowns } else { 2 * unknowns };
-        let mut kernels = vec![vec![vec![0.0; 2 * half_width + 1]; unknowns]; 2];
+        let mut kernels = vec![vec![vec![0.0; 2 * half_width + 1]; unknowns]; self.channels()];
         let mut design = vec![0.0; unknowns];
         let mut ata = vec![0.0; unknowns * unknowns];
         let mut atb = vec![0.0; unknowns];
@@ -546,7 +651,11 @@ impl ProfileModel {
                 atb.fill(0.0);
                 let mut rows = 0usize;
                 for s in samples {
-                    let prof = if ch == 0 { s.profile_u } else { s.profile_v };
+                    let Some(prof) = channels(s.profile_u, s.profile_v)
+                        .and_then(|c| c.as_slice().get(ch).copied())
+                    else {
+                        continue;
+                    };
                     let Some(y) = sample_profile(prof, s.scale, s.column_px + t) else {
                         continue;
                     };
@@ -608,15 +717,17 @@ impl ProfileModel {
             }
             // Cannot overflow: bounded above.
             let n = 2 * half_width + 1;
-            if kernels.len() != 2
+            if kernels.len() != self.channels()
                 || kernels
                     .iter()
                     .any(|c| c.len() != unknowns || c.iter().any(|k| k.len() != n))
             {
                 return bad(format!(
-                    "expected 2 {what}channels of {unknowns} kernels of {n} samples (degree {}, \
-                     {what}half_width {half_width})",
-                    self.degree
+                    "expected {} {what}channels of {unknowns} kernels of {n} samples (degree {}, \
+                     {what}half_width {half_width}, spread {})",
+                    self.channels(),
+                    self.degree,
+                    self.spread
                 ));
             }
             if kernels.iter().flatten().flatten().any(|x| !x.is_finite()) {
@@ -632,6 +743,12 @@ impl ProfileModel {
             a.validate()?;
         }
         Ok(())
+    }
+
+    /// Profile channels: along x, across, and the spread with
+    /// [`ProfileModel::spread`].
+    pub fn channels(&self) -> usize {
+        2 + usize::from(self.spread)
     }
 
     /// Unknowns per contact: 3, or 4 with the size term.
@@ -677,6 +794,7 @@ impl ProfileModel {
             let t = self.tail.as_ref().filter(|_| tail)?;
             (&t.kernels, t.step_px, t.half_width)
         };
+        let kernels = kernels.get(ch)?;
         let idx = t_px / step_px + half_width as f64;
         let last = (2 * half_width) as f64;
         if !(0.0..=last).contains(&idx) {
@@ -690,7 +808,7 @@ impl ProfileModel {
         for (k, o) in out.iter_mut().take(self.components()).enumerate() {
             let mut p = 1.0;
             for m in 0..=self.degree {
-                let kern = &kernels[ch][k * (self.degree + 1) + m];
+                let kern = &kernels[k * (self.degree + 1) + m];
                 *o += p * ((1.0 - a) * kern[i0] + a * kern[i1]);
                 p *= z;
             }
@@ -701,17 +819,27 @@ impl ProfileModel {
     /// Takes the modelled motion of a contact at `column_px` with
     /// `unknowns` (its local force, then the size term's unknown if the
     /// model has one) out of the profiles `[u, v]` (cells of `scale`
-    /// pixels) in the cells whose pixel lies in `window`, far tails
-    /// included.
+    /// pixels; `v` with its spread profile after its column sums when it is
+    /// twice as long as `u`) in the cells whose pixel lies in `window`, far
+    /// tails included.
     fn subtract_motion(
         &self,
         column_px: f64,
         unknowns: &[f64],
         scale: f64,
         (lo, hi): (f64, f64),
-        profiles: [&mut [f64]; 2],
+        [profile_u, profile_v]: [&mut [f64]; 2],
     ) {
-        for (ch, prof) in profiles.into_iter().enumerate() {
+        let n = profile_u.len();
+        let mut profiles = vec![profile_u];
+        if n > 0 && profile_v.len() == 2 * n {
+            let (sums, spread) = profile_v.split_at_mut(n);
+            profiles.push(sums);
+            profiles.push(spread);
+        } else {
+            profiles.push(profile_v);
+        }
+        for (ch, prof) in profiles.into_iter().enumerate().take(self.channels()) {
             for (j, p) in prof.iter_mut().enumerate() {
                 let x = (j as f64 + 0.5) * scale - 0.5;
                 if x < lo || x > hi {
@@ -945,7 +1073,7 @@ impl ForceMatcher {
         scale: f64,
         column_of: impl FnMut(&RawContact) -> Result<f64>,
     ) -> Result<()> {
-        self.load_profiles(u, v, scale)?;
+        self.load_profiles(model, u, v, scale)?;
         self.solve_loaded(model, raws, scale, column_of)
     }
 
@@ -961,7 +1089,7 @@ impl ForceMatcher {
         scale: f64,
         mut column_of: impl FnMut(&RawContact) -> Result<f64>,
     ) -> Result<usize> {
-        self.load_profiles(u, v, scale)?;
+        self.load_profiles(model, u, v, scale)?;
         let moved = self.relocate_loaded(model, raws, scale, &mut column_of)?;
         self.solve_loaded(model, raws, scale, column_of)?;
         Ok(moved)
@@ -1053,9 +1181,11 @@ impl ForceMatcher {
         self.shear_free_columns(model, raws, scale, sigma_px, column_of)
     }
 
-    /// The frame's column profiles of `u` and `v` into the matcher's buffers.
+    /// The frame's column profiles of `u` and `v` (with the spread profile
+    /// when `model` has that channel) into the matcher's buffers.
     fn load_profiles(
         &mut self,
+        model: &ProfileModel,
         u: ArrayView2<'_, f32>,
         v: ArrayView2<'_, f32>,
         scale: f64,
@@ -1068,7 +1198,7 @@ impl ForceMatcher {
             ));
         }
         column_profile_into(u, scale, &mut self.profile_u);
-        column_profile_into(v, scale, &mut self.profile_v);
+        across_profiles_into(v, scale, model.spread, &mut self.profile_v);
         Ok(())
     }
 
@@ -1140,7 +1270,7 @@ impl ForceMatcher {
         scale: f64,
         column_of: impl FnMut(&RawContact) -> Result<f64>,
     ) -> Result<usize> {
-        self.load_profiles(u, v, scale)?;
+        self.load_profiles(model, u, v, scale)?;
         self.relocate_loaded(model, raws, scale, column_of)
     }
 
@@ -1198,6 +1328,7 @@ impl NormalEquations {
         scale: f64,
     ) -> Result<()> {
         check_match_inputs(columns_px, profile_u, profile_v, scale)?;
+        model_channels(model, profile_u, profile_v)?;
         if model.relocation == Relocation::Best && columns_px.len() > 1 {
             // The other contacts' motion, matched jointly at their current
             // columns (with the far tails), is taken out of the profiles,
@@ -1387,6 +1518,7 @@ impl NormalEquations {
         (lo, hi): (f64, f64),
         (stride, tails): (usize, bool),
     ) -> Option<f64> {
+        let chans = model_channels(model, profile_u, profile_v).ok()?;
         let comps = model.components();
         let n = comps * columns_px.len();
         self.ata.clear();
@@ -1397,7 +1529,7 @@ impl NormalEquations {
         self.row.resize(n, 0.0);
         let mut yy = 0.0;
         let first = ((lo + 0.5) / scale - 0.5).ceil().max(0.0) as usize;
-        for (ch, prof) in [profile_u, profile_v].into_iter().enumerate() {
+        for (ch, &prof) in chans.as_slice().iter().enumerate() {
             for (j, &y) in prof.iter().enumerate().skip(first).step_by(stride) {
                 let x = (j as f64 + 0.5) * scale - 0.5;
                 if x > hi {
@@ -1480,7 +1612,8 @@ impl NormalEquations {
         self.row.clear();
         self.row.resize(n, 0.0);
         let reach = model.reach_px();
-        for (ch, prof) in [profile_u, profile_v].into_iter().enumerate() {
+        let chans = model_channels(model, profile_u, profile_v)?;
+        for (ch, &prof) in chans.as_slice().iter().enumerate() {
             for (j, &y) in prof.iter().enumerate() {
                 let x = (j as f64 + 0.5) * scale - 0.5;
                 if !columns_px.iter().any(|c| (x - c).abs() <= reach) {
@@ -1547,9 +1680,30 @@ pub fn shear_free_profile(
     }
 }
 
+/// The profile channels `model` is matched on ([`channels`]), or an error
+/// when the profiles lack one (the spread of a model with the spread
+/// channel, [`ProfileModel::spread`]).
+fn model_channels<'a>(
+    model: &ProfileModel,
+    profile_u: &'a [f64],
+    profile_v: &'a [f64],
+) -> Result<Channels<'a>> {
+    match channels(profile_u, profile_v) {
+        Some(mut c) if c.len >= model.channels() => {
+            c.len = model.channels();
+            Ok(c)
+        }
+        _ => Err(Error::shape(
+            "profile v (a model with the spread channel needs the spread profile after the sums)",
+            (profile_u.len() * (model.channels() - 1), 1),
+            (profile_v.len(), 1),
+        )),
+    }
+}
+
 /// The checks [`ForceMatcher::measure`] and [`ForceMatcher::relocate`] make
-/// of their inputs: a finite scale > 0, profiles of one length, finite
-/// columns.
+/// of their inputs: a finite scale > 0, an across profile as long as the
+/// profile along x (or twice, with the spread profile), finite columns.
 fn check_match_inputs(
     columns_px: &[f64],
     profile_u: &[f64],
@@ -1559,9 +1713,9 @@ fn check_match_inputs(
     if !(scale > 0.0 && scale.is_finite()) {
         return Err(Error::param("scale", format!("must be > 0, got {scale}")));
     }
-    if profile_u.len() != profile_v.len() {
+    if channels(profile_u, profile_v).is_none() {
         return Err(Error::shape(
-            "profile v against u",
+            "profile v against u (as long, or twice with the spread profile)",
             (profile_u.len(), 1),
             (profile_v.len(), 1),
         ));
