@@ -5,8 +5,8 @@
 
 use ndarray::Array2;
 use optical_tactile::contact::profile::{
-    ForceMatcher, ProfileModel, ProfileSample, across_profiles_into, column_profile_into,
-    spread_profile_into,
+    ForceMatcher, ProfileModel, ProfileSample, SPREAD_WEIGHT, across_profiles_into,
+    column_profile_into, spread_profile_into,
 };
 use optical_tactile_sim::rng::SplitMix64;
 
@@ -112,7 +112,7 @@ proptest::proptest! {
         for (x, g) in got.iter().enumerate() {
             let mut want = 0.0;
             for y in 0..h {
-                let weight = (y as f64 - (h as f64 - 1.0) / 2.0) / (h as f64 / 2.0);
+                let weight = SPREAD_WEIGHT * (y as f64 - (h as f64 - 1.0) / 2.0) / (h as f64 / 2.0);
                 want += weight * f64::from(v[[y, x]]) * scale;
             }
             proptest::prop_assert!((g - want).abs() <= 1e-9 * (1.0 + want.abs()), "column {}: {} against {}", x, g, want);
