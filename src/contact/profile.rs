@@ -35,22 +35,31 @@ use crate::error::{Error, Result};
 /// units), into `out`.
 pub fn column_profile_into(component: ArrayView2<'_, f32>, scale: f64, out: &mut Vec<f64>) {
     out.clear();
+    out.resize(component.ncols(), 0.0);
+    add_row_weighted_sums(component, scale, |_| 1.0, out);
+}
+
+/// Per column of `component`, the sum over its rows of `weight(row)` times
+/// the component, times `scale`, added to `out` (one cell per column).
+fn add_row_weighted_sums(
+    component: ArrayView2<'_, f32>,
+    scale: f64,
+    weight: impl Fn(usize) -> f64,
+    out: &mut [f64],
+) {
     let n = component.ncols();
-    out.resize(n, 0.0);
-    if n == 0 {
+    if n == 0 || component.nrows() == 0 {
         return;
     }
     // Plain row slices are several times cheaper than the strided iterator
     // (no copy for a standard-layout flow plane, the usual case).
     let component = component.as_standard_layout();
     let rows = component.as_slice().expect("standard layout is contiguous");
-    for row in rows.chunks_exact(n) {
+    for (y, row) in rows.chunks_exact(n).enumerate() {
+        let w = weight(y) * scale;
         for (o, &x) in out.iter_mut().zip(row) {
-            *o += f64::from(x);
+            *o += w * f64::from(x);
         }
-    }
-    for o in out.iter_mut() {
-        *o *= scale;
     }
 }
 
@@ -77,25 +86,16 @@ pub fn spread_profile_into(v: ArrayView2<'_, f32>, scale: f64, out: &mut Vec<f64
     spread_profile_of(v, scale, out);
 }
 
-/// [`spread_profile_into`] into `out`, one cell per column of `v`, all 0.
+/// [`spread_profile_into`] added to `out`, one cell per column of `v`.
 fn spread_profile_of(v: ArrayView2<'_, f32>, scale: f64, out: &mut [f64]) {
-    let (h, n) = v.dim();
-    if n == 0 || h == 0 {
-        return;
-    }
-    let middle = (h as f64 - 1.0) / 2.0;
-    let half = (h as f64 / 2.0).max(0.5);
-    let v = v.as_standard_layout();
-    let rows = v.as_slice().expect("standard layout is contiguous");
-    for (y, row) in rows.chunks_exact(n).enumerate() {
-        let weight = SPREAD_WEIGHT * (y as f64 - middle) / half;
-        for (o, &x) in out.iter_mut().zip(row) {
-            *o += weight * f64::from(x);
-        }
-    }
-    for o in out.iter_mut() {
-        *o *= scale;
-    }
+    let h = v.nrows() as f64;
+    let (middle, half) = ((h - 1.0) / 2.0, (h / 2.0).max(0.5));
+    add_row_weighted_sums(
+        v,
+        scale,
+        |y| SPREAD_WEIGHT * (y as f64 - middle) / half,
+        out,
+    );
 }
 
 /// The across-motion profiles a [`ProfileModel`] is matched on: the column
