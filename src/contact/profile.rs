@@ -111,6 +111,13 @@ pub fn across_profiles_into(v: ArrayView2<'_, f32>, scale: f64, spread: bool, ou
     }
 }
 
+/// Whether an across profile of `v_len` cells carries the spread profile
+/// after the column sums of a profile along x of `u_len` cells
+/// ([`across_profiles_into`]).
+fn carries_spread(u_len: usize, v_len: usize) -> bool {
+    u_len > 0 && v_len == 2 * u_len
+}
+
 /// The channels of a pair of profiles (see [`channels`]).
 #[derive(Clone, Copy)]
 struct Channels<'a> {
@@ -135,7 +142,7 @@ fn channels<'a>(profile_u: &'a [f64], profile_v: &'a [f64]) -> Option<Channels<'
             all: [profile_u, profile_v, &[]],
             len: 2,
         })
-    } else if n > 0 && profile_v.len() == 2 * n {
+    } else if carries_spread(n, profile_v.len()) {
         Some(Channels {
             all: [profile_u, &profile_v[..n], &profile_v[n..]],
             len: 3,
@@ -585,7 +592,7 @@ impl ProfileModel {
             // Fitted when every sample carries a spread profile.
             spread: samples
                 .iter()
-                .all(|s| !s.profile_u.is_empty() && s.profile_v.len() == 2 * s.profile_u.len()),
+                .all(|s| carries_spread(s.profile_u.len(), s.profile_v.len())),
         };
         model.kernels = model.fit_offsets(samples, step_px, half_width, true)?;
         model.validate()?;
@@ -841,7 +848,7 @@ impl ProfileModel {
     ) {
         let n = profile_u.len();
         let mut profiles = vec![profile_u];
-        if n > 0 && profile_v.len() == 2 * n {
+        if carries_spread(n, profile_v.len()) {
             let (sums, spread) = profile_v.split_at_mut(n);
             profiles.push(sums);
             profiles.push(spread);
