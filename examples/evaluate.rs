@@ -2,14 +2,15 @@
 //!
 //! ```text
 //! cargo run --release --example evaluate -- contacts.jsonl truth.jsonl [--gate MM] \
-//!     [--beyond N] [--worst K] [--json FILE|-]
+//!     [--beyond N] [--worst K] [--bands MM] [--json FILE|-]
 //! ```
 //! Prints a markdown table: location and force MAE over matched contacts,
 //! misses, false contacts, how many contacts are off by more than `--beyond`
 //! newtons on each axis (0.3 by default), and per-frame latency if the
 //! prediction recorded it; then the `--worst` contacts of largest 3-D force
 //! error (5 by default, 0 for none), with their frames, so that the tail
-//! behind a mean can be looked at.
+//! behind a mean can be looked at. `--bands MM` adds the errors per band of
+//! MM along the true x (where on the sensor the errors are).
 //! `--json -` writes the scores to stdout and the table to stderr. With no
 //! frame in common or no matched contact there is nothing to score: the
 //! table is printed, no scores are written and the exit status is 1.
@@ -49,6 +50,10 @@ struct Cli {
     #[arg(long, value_name = "K", default_value_t = ScoreOptions::default().worst as u32,
           value_parser = clap::value_parser!(u32).range(0..=MAX_WORST as i64))]
     worst: u32,
+    /// Score the contacts apart per band of this width along the true x, mm
+    /// (a table after the others; `bands` in the JSON).
+    #[arg(long, value_name = "MM", value_parser = cli_support::positive)]
+    bands: Option<f64>,
     /// Write the scores as JSON to FILE, or to stdout with `-` (the table
     /// then goes to stderr).
     #[arg(long, value_name = "FILE|-")]
@@ -65,6 +70,7 @@ fn run(a: &Cli) -> Result<(), Failure> {
         gate_mm: a.gate,
         beyond_n: a.beyond,
         worst: a.worst as usize,
+        band_mm: a.bands,
     };
     let e = score_with(&pred, &truth, &options);
     let mut report = Sink::report(a.json.as_ref().is_some_and(TextOut::is_stdout));

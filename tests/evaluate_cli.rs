@@ -1,5 +1,6 @@
-//! The `evaluate` example end to end: the tail counts and the worst list
-//! reach its JSON, and bad options are clear usage errors.
+//! The `evaluate` example end to end: the tail counts, the worst list and
+//! the position bands reach its JSON, and bad options are clear usage
+//! errors.
 
 #[allow(dead_code)]
 #[path = "../examples/evaluate.rs"]
@@ -81,6 +82,31 @@ fn the_tail_and_the_worst_contacts_reach_the_json() {
     assert_eq!(e["worst"].as_array().unwrap().len(), 1);
     let e = run(&["--worst", "0"]);
     assert!(e["worst"].as_array().unwrap().is_empty());
+    assert!(e.get("bands").is_none(), "no bands unless asked: {e}");
+
+    // Bands of 15 mm: [0, 15) holds the presses at 0 and 10 mm (Fz off by
+    // 0.05 and 0.4 N), [15, 30) the one at 20, [30, 45) the one at 30.
+    let e = run(&["--bands", "15"]);
+    let bands = e["bands"].as_array().unwrap();
+    let got: Vec<(f64, u64, f64)> = bands
+        .iter()
+        .map(|b| {
+            (
+                b["from_mm"].as_f64().unwrap(),
+                b["matched"].as_u64().unwrap(),
+                b["mae_force_n"][2].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let want = [(0.0, 2, 0.225), (15.0, 1, 0.2), (30.0, 1, 0.35)];
+    assert_eq!(got.len(), want.len(), "{got:?}");
+    for (g, w) in got.iter().zip(want) {
+        assert!(
+            g.0 == w.0 && g.1 == w.1 && (g.2 - w.2).abs() < 1e-9,
+            "{got:?}"
+        );
+    }
+    assert_eq!(bands[0]["beyond"], 1);
 }
 
 #[test]
@@ -94,6 +120,9 @@ fn bad_bars_and_list_lengths_are_usage_errors() {
         ("--beyond", "NaN", "expected a positive number"),
         ("--worst", "1001", "1001 is not in 0..=1000"),
         ("--worst", "-1", "--worst"),
+        ("--bands", "0", "expected a positive number"),
+        ("--bands", "inf", "expected a positive number"),
+        ("--bands", "ten", "expected a positive number"),
     ] {
         // `--flag=value`: a value of `-1` alone would read as a flag.
         let option = format!("{flag}={value}");

@@ -18,7 +18,7 @@
 //! assert!((e.mae_x_mm - 0.5).abs() < 1e-12);
 //! ```
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 
 use serde::Serialize;
@@ -84,6 +84,49 @@ pub struct Evaluation {
     /// How the matched predictions' force sigmas (`fx_sigma_n` ... in the
     /// contacts file) cover their errors, when some carry them.
     pub sigma_coverage: Option<SigmaCoverage>,
+    /// The errors per band of the true position along x
+    /// ([`ScoreOptions::band_mm`]), bands in increasing x; empty without.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub bands: Vec<BandErrors>,
+}
+
+/// The errors of the matched contacts whose true x lies in one band
+/// `[from_mm, from_mm + width)`: where on the sensor the errors are.
+///
+/// Why: a calibration is fitted and scored at the protocol's points, and
+/// one mean over presses anywhere hides where between them it reads worse
+/// (on the simulated strip, towards its ends).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct BandErrors {
+    /// The band's lower edge, mm (true x).
+    pub from_mm: f64,
+    /// Its upper edge (excluded), mm.
+    pub to_mm: f64,
+    /// Matched contacts in the band.
+    pub matched: usize,
+    /// Mean 3-D location error, mm.
+    pub mean_location_error_mm: f64,
+    /// Mean |Fx|, |Fy|, |Fz| error, N.
+    pub mae_force_n: [f64; 3],
+    /// Largest |Fz| error, N.
+    pub max_fz_error_n: f64,
+    /// Contacts whose error on some axis exceeds [`Evaluation::beyond_n`].
+    pub beyond: usize,
+    /// Fraction of the band's contacts carrying sigmas whose |Fz| error
+    /// lies within one `fz_sigma_n`; `None` when none carries them.
+    pub fz_within_one_sigma: Option<f64>,
+}
+
+/// Running sums of one [`BandErrors`].
+#[derive(Default)]
+struct BandSums {
+    matched: usize,
+    location: f64,
+    force: [f64; 3],
+    max_fz: f64,
+    beyond: usize,
+    with_sigma: usize,
+    fz_within: usize,
 }
 
 /// How well the predicted force sigmas describe the errors: the fractions
@@ -110,6 +153,10 @@ pub struct ScoreOptions {
     /// List this many matched contacts of largest 3-D force error
     /// ([`Evaluation::worst`]; 0: none).
     pub worst: usize,
+    /// Score the matched contacts apart per band of this width along the
+    /// true x, mm ([`Evaluation::bands`]); `None`: no bands. A width that
+    /// is not finite and > 0 gives no bands.
+    pub band_mm: Option<f64>,
 }
 
 impl Default for ScoreOptions {
@@ -119,6 +166,7 @@ impl Default for ScoreOptions {
             gate_mm: 10.0,
             beyond_n: 0.3,
             worst: 5,
+            band_mm: None,
         }
     }
 }
@@ -226,6 +274,8 @@ pub fn score_with(
     let mut latencies = Vec::new();
     // Contacts with sigmas; per axis, errors within one and two sigmas.
     let (mut with_sigma, mut one, mut two) = (0usize, [0usize; 3], [0usize; 3]);
+    let band_mm = options.band_mm.filter(|w| *w > 0.0 && w.is_finite());
+    let mut bands: BTreeMap<i64, BandSums> = BTreeMap::new();
     for p in pred {
         if let Some(l) = p.latency_ms {
             latencies.push(l);
@@ -263,6 +313,23 @@ pub fn score_with(
             }
             let error_3d = errors.iter().map(|x| x * x).sum::<f64>().sqrt();
             sums[7] += error_3d;
+            let sigma_fz = a.fx_sigma_n.and(a.fy_sigma_n).and(a.fz_sigma_n);
+            if let Some(w) = band_mm {
+                // Saturating: a far position lands in the outermost band
+                // an i64 can name, not in a wrong one.
+                let band = bands.entry((b.x_mm / w).floor() as i64).or_default();
+                band.matched += 1;
+                band.location += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                for (acc, err) in band.force.iter_mut().zip(&errors) {
+                    *acc += err.abs();
+                }
+                band.max_fz = band.max_fz.max(errors[2].abs());
+                band.beyond += usize::from(errors.iter().any(|e| e.abs() > options.beyond_n));
+                if let Some(sigma) = sigma_fz {
+                    band.with_sigma += 1;
+                    band.fz_within += usize::from(errors[2].abs() <= sigma);
+                }
+            }
             if options.worst > 0 {
                 e.worst.push(WorstContact {
                     frame: p.frame.clone(),
@@ -296,6 +363,25 @@ pub fn score_with(
         }
     }
     keep_worst(&mut e.worst, options.worst);
+    if let Some(w) = band_mm {
+        e.bands = bands
+            .into_iter()
+            .map(|(i, b)| {
+                let k = b.matched as f64;
+                BandErrors {
+                    from_mm: i as f64 * w,
+                    to_mm: (i as f64 + 1.0) * w,
+                    matched: b.matched,
+                    mean_location_error_mm: b.location / k,
+                    mae_force_n: b.force.map(|f| f / k),
+                    max_fz_error_n: b.max_fz,
+                    beyond: b.beyond,
+                    fz_within_one_sigma: (b.with_sigma > 0)
+                        .then(|| b.fz_within as f64 / b.with_sigma as f64),
+                }
+            })
+            .collect();
+    }
     if with_sigma > 0 {
         let k = with_sigma as f64;
         e.sigma_coverage = Some(SigmaCoverage {
@@ -458,6 +544,31 @@ impl Evaluation {
                     "| {}{mark} | {x:.1}, {y:.1} | {fx:.2} / {fy:.2} / {fz:.2} | {ex:+.2} / {ey:+.2} / {ez:+.2} \
                      | {gx:+.3} / {gy:+.3} / {gz:+.3} | {:.3} |",
                     w.frame, w.force_error_3d_n
+                );
+            }
+        }
+        if !self.bands.is_empty() {
+            let _ = write!(
+                s,
+                "\n| true x (mm) | contacts | 3-D location error (mm) | MAE Fx / Fy / Fz (N) \
+                 | largest Fz error (N) | beyond {} N | Fz within 1 sigma |\n\
+                 |---|---|---|---|---|---|---|\n",
+                self.beyond_n
+            );
+            for b in &self.bands {
+                let [fx, fy, fz] = b.mae_force_n;
+                let within = b
+                    .fz_within_one_sigma
+                    .map_or("n/a".to_string(), |v| format!("{:.0}%", 100.0 * v));
+                let _ = writeln!(
+                    s,
+                    "| {:.0} to {:.0} | {} | {:.3} | {fx:.4} / {fy:.4} / {fz:.4} | {:.3} | {} | {within} |",
+                    b.from_mm,
+                    b.to_mm,
+                    b.matched,
+                    b.mean_location_error_mm,
+                    b.max_fz_error_n,
+                    b.beyond
                 );
             }
         }
@@ -644,6 +755,7 @@ mod tests {
             gate_mm: 5.0,
             beyond_n,
             worst,
+            band_mm: None,
         };
         // The bar is strict: the Fz error of exactly 0.25 is not beyond it.
         assert_eq!(score_with(&pred, &truth, &opts(0.25, 5)).beyond, [1, 0, 2]);
@@ -656,6 +768,111 @@ mod tests {
         );
         let e = score_with(&pred, &truth, &opts(0.3, 0));
         assert!(e.worst.is_empty() && !e.to_markdown().contains("worst contacts"));
+    }
+
+    #[test]
+    fn bands_score_the_contacts_by_where_they_are_and_add_up_to_the_whole() {
+        // True contacts at -15, -5, 5, 12 and 25 mm; the predictions read
+        // Fz off by 0.1, 0.2, 0.4, 0.0 and 0.5 N, x off by 1 mm at 12 mm.
+        let at = [
+            (-15.0, 0.1),
+            (-5.0, 0.2),
+            (5.0, 0.4),
+            (12.0, 0.0),
+            (25.0, 0.5),
+        ];
+        let truth: Vec<FrameRecord> = at
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, _))| f(&i.to_string(), vec![c(x, -1.0)], None))
+            .collect();
+        let pred: Vec<FrameRecord> = at
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, err))| {
+                let mut p = c(if x == 12.0 { 13.0 } else { x }, -1.0 - err);
+                // Sigmas on all but the last: 0.25 N covers 0.1 and 0.2.
+                if i < 4 {
+                    (p.fx_sigma_n, p.fy_sigma_n, p.fz_sigma_n) = (Some(1.0), Some(1.0), Some(0.25));
+                }
+                f(&i.to_string(), vec![p], None)
+            })
+            .collect();
+        let options = |band_mm| ScoreOptions {
+            band_mm,
+            ..ScoreOptions::default()
+        };
+        let e = score_with(&pred, &truth, &options(Some(10.0)));
+        let edges: Vec<(f64, f64, usize)> = e
+            .bands
+            .iter()
+            .map(|b| (b.from_mm, b.to_mm, b.matched))
+            .collect();
+        assert_eq!(
+            edges,
+            vec![
+                (-20.0, -10.0, 1),
+                (-10.0, 0.0, 1),
+                (0.0, 10.0, 1),
+                (10.0, 20.0, 1),
+                (20.0, 30.0, 1)
+            ]
+        );
+        let fz: Vec<f64> = e.bands.iter().map(|b| b.mae_force_n[2]).collect();
+        for (got, want) in fz.iter().zip([0.1, 0.2, 0.4, 0.0, 0.5]) {
+            assert!((got - want).abs() < 1e-12, "{fz:?}");
+        }
+        assert!((e.bands[3].mean_location_error_mm - 1.0).abs() < 1e-12);
+        let beyond: Vec<usize> = e.bands.iter().map(|b| b.beyond).collect();
+        assert_eq!(beyond, vec![0, 0, 1, 0, 1]);
+        let within: Vec<Option<f64>> = e.bands.iter().map(|b| b.fz_within_one_sigma).collect();
+        assert_eq!(
+            within,
+            vec![Some(1.0), Some(1.0), Some(0.0), Some(1.0), None]
+        );
+        let md = e.to_markdown();
+        assert!(md.contains("| true x (mm) | contacts |"), "{md}");
+        assert!(md.contains("| -20 to -10 | 1 |"), "{md}");
+        assert!(
+            md.contains("| 20 to 30 | 1 | 0.000 | 0.0000 / 0.0000 / 0.5000 | 0.500 | 1 | n/a |"),
+            "{md}"
+        );
+
+        // Wider bands: the contacts pool, and the bands' sums are the whole's.
+        let e = score_with(&pred, &truth, &options(Some(20.0)));
+        assert_eq!(
+            e.bands.iter().map(|b| b.matched).collect::<Vec<_>>(),
+            vec![2, 2, 1]
+        );
+        let pooled: f64 = e
+            .bands
+            .iter()
+            .map(|b| b.matched as f64 * b.mae_force_n[2])
+            .sum();
+        assert!((pooled / e.matched as f64 - e.mae_fz_n).abs() < 1e-12);
+        let located: f64 = e
+            .bands
+            .iter()
+            .map(|b| b.matched as f64 * b.mean_location_error_mm)
+            .sum();
+        assert!((located / e.matched as f64 - e.mean_location_error_mm).abs() < 1e-12);
+
+        // No bands asked, or a width that names none: no table.
+        for w in [
+            None,
+            Some(0.0),
+            Some(-5.0),
+            Some(f64::NAN),
+            Some(f64::INFINITY),
+        ] {
+            let e = score_with(&pred, &truth, &options(w));
+            assert!(e.bands.is_empty(), "{w:?}");
+            assert!(!e.to_markdown().contains("true x (mm)"));
+        }
+        // A width far below the positions' scale: every contact its own
+        // band, none lost.
+        let e = score_with(&pred, &truth, &options(Some(1e-300)));
+        assert_eq!(e.bands.iter().map(|b| b.matched).sum::<usize>(), 5);
     }
 
     #[test]
