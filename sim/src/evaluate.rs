@@ -304,7 +304,8 @@ pub fn score_with(
             sums[0] += d[0].abs();
             sums[1] += d[1].abs();
             sums[2] += d[2].abs();
-            sums[3] += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let location_3d = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            sums[3] += location_3d;
             let errors = [a.fx_n - b.fx_n, a.fy_n - b.fy_n, a.fz_n - b.fz_n];
             for (k, err) in errors.iter().enumerate() {
                 sums[4 + k] += err.abs();
@@ -319,7 +320,7 @@ pub fn score_with(
                 // an i64 can name, not in a wrong one.
                 let band = bands.entry((b.x_mm / w).floor() as i64).or_default();
                 band.matched += 1;
-                band.location += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                band.location += location_3d;
                 for (acc, err) in band.force.iter_mut().zip(&errors) {
                     *acc += err.abs();
                 }
