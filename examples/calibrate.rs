@@ -761,6 +761,9 @@ fn run(args: Args) -> Result<(), Failure> {
                 String::new()
             }
         );
+        if let Some(w) = report::missed_tests_warning(fit.misses.iter().sum(), ex.len()) {
+            eprintln!("[{preset}] warning: {w}");
+        }
         if let Some(c) = &fit.calibration.column_correction {
             eprintln!(
                 "[{preset}] {}",

@@ -256,6 +256,34 @@ pub fn min_detectable_force(
     })
 }
 
+/// The share of a characterization's tests that may give no contact before
+/// [`missed_tests_warning`] warns.
+pub const MISSED_TESTS_WARNING_FRACTION: f64 = 0.05;
+
+/// A warning for a fit in which more than
+/// [`MISSED_TESTS_WARNING_FRACTION`] of the `total` tests gave no contact
+/// (`missed` of them); `None` otherwise.
+///
+/// Why: the segmentation thresholds are flow magnitudes in pixels, and a
+/// sensor whose gel moves less (stiffer or thinner, or seen at a lower
+/// pixel density) or whose frames are noisier falls below them. The fit
+/// then quietly learns only the presses it sees: on a simulated strip with
+/// a 70 kPa, 6 mm gel the `high` preset missed 2295 of 7200 tests and
+/// detected nothing reliably below 3 N.
+pub fn missed_tests_warning(missed: usize, total: usize) -> Option<String> {
+    if total == 0 || (missed as f64) <= MISSED_TESTS_WARNING_FRACTION * total as f64 {
+        return None;
+    }
+    Some(format!(
+        "{missed} of {total} tests ({:.0}%) gave no contact: the segmentation thresholds are \
+         too high for this sensor's motion, and the calibration only knows the presses they \
+         let through (the F_min row of Table I says from which force every press is seen). \
+         Fit again with lower thresholds (`low`, or each preset in turn, keeping the most \
+         sensitive one that reports nothing at rest).",
+        100.0 * missed as f64 / total as f64
+    ))
+}
+
 /// One column of the paper's Table I: a threshold preset, its minimum
 /// detectable force and the test errors of the calibration fitted with it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -365,5 +393,27 @@ fn mae_rows<'a>(s: &mut String, columns: impl Iterator<Item = &'a QuantityMae> +
             let _ = write!(s, " {:.*} |", prec, get(m));
         }
         s.push('\n');
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missed_tests_warn_above_five_percent_only() {
+        assert_eq!(missed_tests_warning(0, 7200), None);
+        // 5% exactly is still quiet; one more test warns.
+        assert_eq!(missed_tests_warning(360, 7200), None);
+        let w = missed_tests_warning(361, 7200).expect("above 5%");
+        assert!(
+            w.starts_with("361 of 7200 tests (5%) gave no contact"),
+            "{w}"
+        );
+        let w = missed_tests_warning(2295, 7200).unwrap();
+        assert!(w.contains("(32%)") && w.contains("lower thresholds"), "{w}");
+        // No test, nothing to say (and no division by zero).
+        assert_eq!(missed_tests_warning(0, 0), None);
+        assert_eq!(missed_tests_warning(3, 0), None);
     }
 }
