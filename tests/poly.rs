@@ -725,3 +725,94 @@ fn huber_fit_resists_gross_outliers() {
         Err(Error::InvalidParameter { .. })
     ));
 }
+
+#[test]
+fn an_optional_group_may_be_left_out_by_the_search() {
+    // Candidates: the optional group also at order 0.
+    let spec = |optional: bool| {
+        let shear = VarGroup::new("s", &["s"], 2);
+        PolySpec::new(
+            vec![
+                VarGroup::new("x", &["x"], 2),
+                if optional { shear.or_none() } else { shear },
+            ],
+            CrossTerms::MaxOfGroups,
+        )
+        .unwrap()
+    };
+    assert_eq!(
+        candidate_orders(&spec(true)),
+        vec![
+            vec![1, 0],
+            vec![1, 1],
+            vec![1, 2],
+            vec![2, 0],
+            vec![2, 1],
+            vec![2, 2]
+        ]
+    );
+    assert!(candidate_orders(&spec(false)).iter().all(|o| o[1] >= 1));
+
+    // y depends on x alone; s is noise of a few samples' range, so a fit
+    // with s overfits the training set and reads the validation set worse.
+    let mut rng = Rng(7);
+    let mk = |n, rng: &mut Rng| {
+        let x = Array2::from_shape_fn((n, 2), |(_, j)| {
+            if j == 0 {
+                rng.uniform(-1.0, 1.0)
+            } else {
+                rng.normal()
+            }
+        });
+        let y: Array1<f64> = x
+            .rows()
+            .into_iter()
+            .map(|r| 1.0 + 2.0 * r[0] - r[0] * r[0] + 0.05 * rng.normal())
+            .collect();
+        (x, y)
+    };
+    let (xt, yt) = mk(12, &mut rng);
+    let (xv, yv) = mk(200, &mut rng);
+    let search = |optional| {
+        search_orders(
+            &spec(optional),
+            FitData::new(xt.view(), yt.view()),
+            FitData::new(xv.view(), yv.view()),
+            None,
+            &LeastSquares::default(),
+        )
+        .unwrap()
+        .1
+    };
+    let (with, without) = (search(true), search(false));
+    assert_eq!(with.orders, vec![2, 0]);
+    assert!(without.orders[1] >= 1);
+    assert!(
+        with.val_mae < without.val_mae,
+        "{} against {}",
+        with.val_mae,
+        without.val_mae
+    );
+
+    // Where s does carry the target, the search keeps it.
+    let mk = |n, rng: &mut Rng| {
+        let x = Array2::from_shape_fn((n, 2), |_| rng.uniform(-1.0, 1.0));
+        let y: Array1<f64> = x
+            .rows()
+            .into_iter()
+            .map(|r| r[0] + 0.8 * r[1] + 0.01 * rng.normal())
+            .collect();
+        (x, y)
+    };
+    let (xt, yt) = mk(100, &mut rng);
+    let (xv, yv) = mk(100, &mut rng);
+    let (_, rep) = search_orders(
+        &spec(true),
+        FitData::new(xt.view(), yt.view()),
+        FitData::new(xv.view(), yv.view()),
+        None,
+        &LeastSquares::default(),
+    )
+    .unwrap();
+    assert!(rep.orders[1] >= 1, "{:?}", rep.orders);
+}

@@ -44,9 +44,9 @@ use crate::sensor::{ContactExtractor, ExtractorConfig};
 pub struct FitOptions {
     /// Largest order of `g1` and `g2` (orders `1..=max` are tried).
     pub location_max_order: u32,
-    /// Largest order of the shear ratio in `g1` (orders `1..=max` are tried;
-    /// 0 leaves it out, the paper's `g1(x2d)`). Cross terms with `x2d` up to
-    /// the order of `x2d`.
+    /// Largest order of the shear ratio in `g1` (orders `0..=max` are tried
+    /// on the strip, `1..=max` on a flat sensor; 0 leaves it out, the
+    /// paper's `g1(x2d)`). Cross terms with `x2d` up to the order of `x2d`.
     #[serde(default)]
     pub location_shear_order: u32,
     /// Cross-term rule of `g1` between `x2d` and the shear ratio. The
@@ -484,11 +484,13 @@ pub fn fit(samples: &[Sample], setup: &SensorSetup, options: &FitOptions) -> Res
         };
         (spec(&G1_2D_VARIABLES)?, spec(&G2_2D_VARIABLES)?)
     } else {
-        // g1 always has the shear input (order 0 = unused, then the paper's map).
+        // g1 always has the shear input (order 0 = unused, then the paper's
+        // map); the search may leave it out where the validation points read
+        // closer without it.
         let g1 = PolySpec::new(
             vec![
                 VarGroup::new("x2d", &["x2d"], options.location_max_order),
-                VarGroup::new("shear", &["shear"], options.location_shear_order),
+                VarGroup::new("shear", &["shear"], options.location_shear_order).or_none(),
             ],
             options.location_cross,
         )?;
