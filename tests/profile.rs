@@ -9,6 +9,9 @@ use optical_tactile::contact::profile::{
 };
 use optical_tactile_sim::rng::SplitMix64;
 
+#[path = "common/synthetic.rs"]
+mod synthetic;
+
 const N: usize = 400; // profile cells
 const SCALE: f64 = 2.0; // full-resolution pixels per cell
 const CENTRE: f64 = 399.5;
@@ -56,18 +59,7 @@ fn profiles_of(
     cols: &[f64],
     forces: &[[f64; 3]],
 ) -> [Vec<f64>; 2] {
-    let mut out = [vec![0.0; N], vec![0.0; N]];
-    for (ch, prof) in out.iter_mut().enumerate() {
-        for (j, p) in prof.iter_mut().enumerate() {
-            let x = (j as f64 + 0.5) * SCALE - 0.5;
-            for (c, f) in cols.iter().zip(forces) {
-                for (k, fk) in f.iter().enumerate() {
-                    *p += fk * response(ch, k, *c, x - c);
-                }
-            }
-        }
-    }
-    out
+    synthetic::channel_profiles(N, SCALE, response, cols, forces)
 }
 
 /// A training contact: column, local force, profiles (u, v).

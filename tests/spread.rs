@@ -10,6 +10,9 @@ use optical_tactile::contact::profile::{
 };
 use optical_tactile_sim::rng::SplitMix64;
 
+#[path = "common/synthetic.rs"]
+mod synthetic;
+
 const N: usize = 300; // profile cells
 const SCALE: f64 = 2.0; // full-resolution pixels per cell
 const CENTRE: f64 = 299.5;
@@ -40,18 +43,7 @@ fn response(ch: usize, k: usize, c: f64, t: f64) -> f64 {
 /// The profiles of contacts at `cols` with local forces `forces`: along x,
 /// and across with (or without) the spread after the sums.
 fn profiles(cols: &[f64], forces: &[[f64; 3]], spread: bool) -> [Vec<f64>; 2] {
-    let mut ch = [vec![0.0; N], vec![0.0; N], vec![0.0; N]];
-    for (c, prof) in ch.iter_mut().enumerate() {
-        for (j, p) in prof.iter_mut().enumerate() {
-            let x = (j as f64 + 0.5) * SCALE - 0.5;
-            for (col, f) in cols.iter().zip(forces) {
-                for (k, fk) in f.iter().enumerate() {
-                    *p += fk * response(c, k, *col, x - col);
-                }
-            }
-        }
-    }
-    let [u, mut v, s] = ch;
+    let [u, mut v, s] = synthetic::channel_profiles(N, SCALE, response, cols, forces);
     if spread {
         v.extend_from_slice(&s);
     }
