@@ -314,7 +314,11 @@ pub fn score_with(
             }
             let error_3d = errors.iter().map(|x| x * x).sum::<f64>().sqrt();
             sums[7] += error_3d;
-            let sigma_fz = a.fx_sigma_n.and(a.fy_sigma_n).and(a.fz_sigma_n);
+            // The three sigmas, when the prediction carries them all.
+            let sigmas = match (a.fx_sigma_n, a.fy_sigma_n, a.fz_sigma_n) {
+                (Some(x), Some(y), Some(z)) => Some([x, y, z]),
+                _ => None,
+            };
             if let Some(w) = band_mm {
                 // Saturating: a far position lands in the outermost band
                 // an i64 can name, not in a wrong one.
@@ -326,9 +330,9 @@ pub fn score_with(
                 }
                 band.max_fz = band.max_fz.max(errors[2].abs());
                 band.beyond += usize::from(errors.iter().any(|e| e.abs() > options.beyond_n));
-                if let Some(sigma) = sigma_fz {
+                if let Some(sigma) = sigmas {
                     band.with_sigma += 1;
-                    band.fz_within += usize::from(errors[2].abs() <= sigma);
+                    band.fz_within += usize::from(errors[2].abs() <= sigma[2]);
                 }
             }
             if options.worst > 0 {
@@ -347,9 +351,9 @@ pub fn score_with(
                     keep_worst(&mut e.worst, options.worst);
                 }
             }
-            if let (Some(sx), Some(sy), Some(sz)) = (a.fx_sigma_n, a.fy_sigma_n, a.fz_sigma_n) {
+            if let Some(sigmas) = sigmas {
                 with_sigma += 1;
-                for (k, (err, sigma)) in errors.iter().zip([sx, sy, sz]).enumerate() {
+                for (k, (err, sigma)) in errors.iter().zip(sigmas).enumerate() {
                     one[k] += usize::from(err.abs() <= sigma);
                     two[k] += usize::from(err.abs() <= 2.0 * sigma);
                 }
