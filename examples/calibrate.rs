@@ -94,8 +94,9 @@ use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::correction::ColumnCorrection;
 use optical_tactile::calibration::fit::{
-    DatasetFit, Extraction, extract_dataset, extract_sweeps, fit_dataset_with_sweeps,
-    load_cell_spread, read_dataset, read_dataset_geometry, read_dataset_sweeps,
+    AutoThresholds, DatasetFit, Extraction, MAX_REST_PAIRS, extract_dataset, extract_sweeps,
+    fit_dataset_with_sweeps, load_cell_spread, read_dataset, read_dataset_geometry,
+    read_dataset_sweeps, rest_contacts, rest_pairs,
 };
 use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileFitOptions};
 use optical_tactile::calibration::report::{self, ThresholdRow};
@@ -123,9 +124,12 @@ struct Cli {
     /// tables then go to stderr).
     #[arg(long, value_name = "FILE|-")]
     out: TextOut,
-    /// Threshold preset to fit; `all` fits the three, --out gets `high` and
-    /// the others go beside it as NAME.low.json and NAME.mid.json.
-    #[arg(long, value_enum, default_value_t = PresetArg::High)]
+    /// Threshold preset to fit; `auto` tries `high`, `mid`, `low` in turn and
+    /// keeps the first that sees all but 5% of the tests, else the most
+    /// sensitive one that finds no contact between the dataset's reference
+    /// images; `all` fits the three, --out gets `high` and the others go
+    /// beside it as NAME.low.json and NAME.mid.json.
+    #[arg(long, value_enum, default_value_t = PresetArg::Auto)]
     thresholds: PresetArg,
     /// Fit with flow magnitude MAGNITUDE px and patch sum SUM (full
     /// resolution) and the `low` kernels, labelled `custom` (instead of
@@ -254,6 +258,7 @@ struct Cli {
 /// `--thresholds`.
 #[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
 enum PresetArg {
+    Auto,
     Low,
     Mid,
     High,
@@ -533,6 +538,7 @@ impl Cli {
     fn resolve(self) -> Result<Args, String> {
         let presets = match (self.thresholds_custom, self.thresholds) {
             (Some(_), _) => vec!["custom"],
+            (None, PresetArg::Auto) => vec!["auto"],
             (None, PresetArg::Low) => vec!["low"],
             (None, PresetArg::Mid) => vec!["mid"],
             (None, PresetArg::High) => vec!["high"],
@@ -688,7 +694,7 @@ fn run(args: Args) -> Result<(), Failure> {
     let mut table_ii = Vec::new();
     let mut spot_tables = Vec::new();
     let spots = rows.iter().filter(|r| r.split == Split::Spot).count();
-    for (k, preset) in args.presets.iter().enumerate() {
+    let config_for = |preset: &str| {
         let mut config = ExtractorConfig::default()
             .with_thresholds(thresholds(preset, args.custom))
             .with_dot_tracking(dot_tracking)
@@ -701,10 +707,45 @@ fn run(args: Args) -> Result<(), Failure> {
             None => fitting_light_box(&geometry, pitch, config.flow.patch_size),
         };
         config.weighted_profiles = args.weighted_profiles;
+        config
+    };
+    let extract_tests = |preset: &str, config: &ExtractorConfig| {
+        extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {
+            extract_dataset(&args.dir, &rows, config, contact_point, args.crop, p)
+        })
+    };
+    for (k, &asked) in args.presets.iter().enumerate() {
         let t0 = Instant::now();
-        let ex = extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {
-            extract_dataset(&args.dir, &rows, &config, contact_point, args.crop, p)
-        })?;
+        let (preset, config, ex) = if asked == "auto" {
+            let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
+            let mut auto = AutoThresholds::new();
+            while let Some(preset) = auto.next_preset() {
+                let config = config_for(preset.name());
+                let ex = extract_tests(preset.name(), &config)?;
+                let rest = rest_contacts(&args.dir, &pairs, &config, args.crop).map_err(err)?;
+                let t = auto.record(ex, rest).map_err(err)?;
+                eprintln!(
+                    "[auto] {preset}: {} of {} tests gave no contact, {}",
+                    t.missed,
+                    t.tests,
+                    if rest.pairs == 0 {
+                        "no two reference images to look at rest with".to_string()
+                    } else {
+                        format!(
+                            "{} of {} pairs of reference images a contact",
+                            rest.with_contact, rest.pairs
+                        )
+                    }
+                );
+            }
+            let (preset, ex) = auto.finish().expect("the search tried a preset");
+            eprintln!("[auto] fitting with `{preset}` (--thresholds low|mid|high to choose)");
+            (preset.name(), config_for(preset.name()), ex)
+        } else {
+            let config = config_for(asked);
+            let ex = extract_tests(asked, &config)?;
+            (asked, config, ex)
+        };
         let swept = if sweeps.is_empty() {
             Vec::new()
         } else {

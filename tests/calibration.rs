@@ -2446,3 +2446,49 @@ fn weighted_profiles_reweigh_the_flow_about_a_press() {
         assert!(far < 0.01 * peak, "far {far}, peak {peak}");
     }
 }
+
+/// `calibrate --thresholds auto` reads pairs of a dataset's reference
+/// images as frames with nothing touching: on a simulated characterization
+/// (noisy references, one per test) the `high` preset finds nothing on
+/// them, thresholds far below the frames' noise find a contact on every
+/// pair, and a pair whose image is missing is an error naming it.
+#[test]
+fn reference_pairs_tell_thresholds_that_fire_at_rest() {
+    use optical_tactile::calibration::fit::{
+        MAX_REST_PAIRS, read_dataset, rest_contacts, rest_pairs,
+    };
+    use optical_tactile::calibration::report::{ThresholdVerdict, threshold_verdict};
+    use optical_tactile::sensor::ExtractorConfig;
+    use optical_tactile_sim::scenario::{self, Characterization, Common, Scenario};
+    let tmp = scratch("rest-pairs");
+    let mut common = Common::new(tmp.path());
+    common.flow = false;
+    let protocol = Characterization {
+        subset: Some(6),
+        ..Characterization::default()
+    };
+    scenario::run(&Scenario::Characterization(protocol), &common).unwrap();
+    let rows = read_dataset(tmp.path()).unwrap();
+    let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
+    assert_eq!(pairs.len(), 3);
+    let quiet = ExtractorConfig::default().with_thresholds(Thresholds::HIGH);
+    let rest = rest_contacts(tmp.path(), &pairs, &quiet, None).unwrap();
+    assert_eq!((rest.pairs, rest.with_contact), (3, 0));
+    assert!(rest.quiet());
+    assert_eq!(threshold_verdict(0, 6, rest), ThresholdVerdict::Sees);
+    assert_eq!(threshold_verdict(1, 6, rest), ThresholdVerdict::Misses);
+    let jumpy = ExtractorConfig::default().with_thresholds(Thresholds {
+        magnitude: 1e-4,
+        sum: 0.0,
+        erode: 1,
+        dilate: 3,
+        shape: Shape::Rect,
+    });
+    let rest = rest_contacts(tmp.path(), &pairs, &jumpy, None).unwrap();
+    assert_eq!((rest.pairs, rest.with_contact), (3, 3));
+    assert_eq!(threshold_verdict(0, 6, rest), ThresholdVerdict::Noisy);
+    let mut missing = pairs.clone();
+    missing[1].1 = "frames/none.png".into();
+    let e = rest_contacts(tmp.path(), &missing, &quiet, None).unwrap_err();
+    assert!(e.to_string().contains("frames/none.png"), "{e}");
+}

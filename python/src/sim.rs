@@ -4,8 +4,9 @@ use std::path::PathBuf;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
 use optical_tactile::calibration::fit::{
-    FitOptions, extract_dataset, extract_sweeps, fit_dataset_with_sweeps, read_dataset,
-    read_dataset_geometry, read_dataset_sweeps,
+    AutoThresholds, FitOptions, MAX_REST_PAIRS, extract_dataset, extract_sweeps,
+    fit_dataset_with_sweeps, read_dataset, read_dataset_geometry, read_dataset_sweeps,
+    rest_contacts, rest_pairs,
 };
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::frame::Roi;
@@ -437,7 +438,11 @@ impl SyntheticSensor {
 /// frames, docs/formats.md; `simulate("characterization", ...)` makes one):
 /// runs the pipeline on every test (on all cores, the GIL released), then
 /// fits the location and force maps with the library's order search.
-/// `thresholds`: a preset name or a dict; `preset`: the flow preset
+/// `thresholds`: a preset name or a dict, or `"auto"` (the default): the
+/// presets `high`, `mid`, `low` in turn, keeping the first that gives a
+/// contact on all but 5% of the tests, else the most sensitive one that
+/// finds no contact on pairs of the dataset's reference images, as
+/// `calibrate --thresholds auto` does; `preset`: the flow preset
 /// (default: the library's); `crop`: `(x, y, w, h)` of the frames (default:
 /// the whole frame). The sensor's geometry is the dataset's `geometry.json`
 /// (a flat sensor's: contacts located in 2-D), else the curved strip. With
@@ -453,18 +458,22 @@ pub fn calibrate(
     preset: Option<&str>,
     crop: Option<(usize, usize, usize, usize)>,
 ) -> PyResult<Calibration> {
+    // `None` (or "auto"): the presets in turn, as `calibrate --thresholds auto`.
+    let auto = match thresholds {
+        None => true,
+        Some(t) => t.extract::<String>().is_ok_and(|s| s == "auto"),
+    };
     let setup = || -> Result<ExtractorConfig, Failure> {
         let mut config = ExtractorConfig::default();
-        config = config.with_thresholds(match thresholds {
-            None => Thresholds::HIGH,
-            Some(t) => params::thresholds(t, Thresholds::HIGH)?,
-        });
+        if let (false, Some(t)) = (auto, thresholds) {
+            config = config.with_thresholds(params::thresholds(t, Thresholds::HIGH)?);
+        }
         if let Some(p) = preset {
             config = config.with_flow(params::flow(p)?);
         }
         Ok(config)
     };
-    let config = setup().map_err(|e| e.into_py(py))?;
+    let mut config = setup().map_err(|e| e.into_py(py))?;
     let crop = crop.map(params::crop);
     let inner = detached(py, || {
         let rows = read_dataset(&dataset_dir)?;
@@ -480,7 +489,23 @@ pub fn calibrate(
         // force maps' inputs as `calibrate` does.
         let geometry = read_dataset_geometry(&dataset_dir)?.unwrap_or_default();
         let point = ContactPointMethod::for_geometry(&geometry);
-        let ex = extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?;
+        let ex = if auto {
+            let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
+            let mut search = AutoThresholds::new();
+            while let Some(p) = search.next_preset() {
+                let c = config.clone().with_thresholds(p);
+                let ex = extract_dataset(&dataset_dir, &rows, &c, point, crop, &|_, _| {})?;
+                let rest = rest_contacts(&dataset_dir, &pairs, &c, crop)?;
+                search.record(ex, rest)?;
+            }
+            let (p, ex) = search
+                .finish()
+                .ok_or_else(|| optical_tactile::Error::param("thresholds", "no preset tried"))?;
+            config = config.clone().with_thresholds(p);
+            ex
+        } else {
+            extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?
+        };
         // The dataset's sweeps.csv, if any, gives the per-column corrections.
         let sweeps = read_dataset_sweeps(&dataset_dir)?;
         let swept = extract_sweeps(&dataset_dir, &sweeps, &config, point, crop, &|_, _| {})?;

@@ -22,7 +22,7 @@ use super::correction::{
     SHEAR_RATIO_SMOOTHING, smooth_on_grid,
 };
 use super::poly::{self, CrossTerms, FitData, FitReport, PolySpec, Polynomial, VarGroup};
-use super::report::{self, DetectionLimit, PointTable, evaluate};
+use super::report::{self, DetectionLimit, PointTable, ThresholdVerdict, evaluate};
 use super::uncertainty::{ForceUncertainty, SpreadSample};
 use super::{
     Calibration, CalibrationReport, ForceFrame, ForceGuard, G1_2D_VARIABLES, G2_2D_VARIABLES,
@@ -37,6 +37,7 @@ use crate::error::{Error, Result};
 use crate::frame::Roi;
 use crate::geometry::SensorGeometry;
 use crate::io::{self, Split, TestRow};
+use crate::segment::ThresholdPreset;
 use crate::sensor::{ContactExtractor, ExtractorConfig};
 
 /// Options of [`fit`]: the largest order tried per map and variable group.
@@ -881,6 +882,182 @@ pub fn extract_dataset(
             },
         )
         .collect()
+}
+
+/// The most pairs of reference images [`rest_pairs`] returns: enough to
+/// see a false-contact rate of a few percent, a second's work.
+pub const MAX_REST_PAIRS: usize = 32;
+
+/// Pairs of distinct reference images of `rows` (the unloaded skin of
+/// different tests, recorded apart): frames with nothing touching, for
+/// [`rest_contacts`]. The references are sorted by name and the `k`-th is
+/// paired with the one half the list further on; at most `max` pairs,
+/// spread evenly over the list. Empty when the tests share fewer than two
+/// reference images.
+pub fn rest_pairs(rows: &[TestRow], max: usize) -> Vec<(String, String)> {
+    let mut refs: Vec<&str> = rows.iter().map(|r| r.reference.as_str()).collect();
+    refs.sort_unstable();
+    refs.dedup();
+    let half = refs.len() / 2;
+    let n = half.min(max);
+    (0..n)
+        .map(|i| {
+            let k = i * half / n;
+            (refs[k].to_string(), refs[k + half].to_string())
+        })
+        .collect()
+}
+
+/// What the segmentation reports on frames with nothing touching
+/// ([`rest_contacts`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RestCheck {
+    /// Pairs of reference images read.
+    pub pairs: usize,
+    /// Pairs on which at least one contact was found.
+    pub with_contact: usize,
+}
+
+impl RestCheck {
+    /// Whether no pair gave a contact (true, vacuously, without pairs).
+    pub fn quiet(&self) -> bool {
+        self.with_contact == 0
+    }
+}
+
+/// Runs the pipeline on each pair `(reference, frame)` of images (paths
+/// relative to `dir`, cropped to `crop` if given; [`rest_pairs`]), the
+/// first as the reference, and counts the pairs on which it finds a contact:
+/// with both images of the unloaded skin, each one is a false contact at
+/// rest. Errors name the pair whose images cannot be read or processed.
+pub fn rest_contacts(
+    dir: impl AsRef<Path>,
+    pairs: &[(String, String)],
+    config: &ExtractorConfig,
+    crop: Option<Roi>,
+) -> Result<RestCheck> {
+    let dir = dir.as_ref();
+    ContactExtractor::new(config.clone())?;
+    let found: Vec<bool> = pairs
+        .par_iter()
+        .map_init(
+            || ContactExtractor::new(config.clone()).expect("configuration checked above"),
+            |ex, (a, b)| {
+                let mut one = || -> Result<bool> {
+                    ex.set_reference(&load(dir, a, crop)?)?;
+                    Ok(!ex.extract(&load(dir, b, crop)?)?.is_empty())
+                };
+                one().map_err(|e| e.context(format!("rest pair (reference {a}, frame {b})")))
+            },
+        )
+        .collect::<Result<_>>()?;
+    Ok(RestCheck {
+        pairs: pairs.len(),
+        with_contact: found.iter().filter(|&&f| f).count(),
+    })
+}
+
+/// One threshold preset tried by [`AutoThresholds`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ThresholdTry {
+    /// The preset.
+    pub preset: ThresholdPreset,
+    /// Tests that gave no contact with it.
+    pub missed: usize,
+    /// Tests run.
+    pub tests: usize,
+    /// What it found at rest ([`rest_contacts`]).
+    pub rest: RestCheck,
+    /// What that makes of it.
+    pub verdict: ThresholdVerdict,
+}
+
+/// Chooses a characterization's segmentation thresholds among the presets
+/// from what each does on the dataset itself: `high`, `mid`, `low` in turn
+/// ([`AutoThresholds::ORDER`]), keeping the first that gives a contact on
+/// all but [`report::MISSED_TESTS_WARNING_FRACTION`] of the tests, else the
+/// most sensitive one that found no contact at rest; a preset that finds
+/// one at rest ends the search (a more sensitive one would too), and if
+/// even `high` does it is kept, as nothing less sensitive is offered.
+///
+/// The caller runs the pipeline: while [`next_preset`](Self::next_preset)
+/// names one, extract the tests with its thresholds ([`extract_dataset`]),
+/// read the rest pairs ([`rest_contacts`]) and [`record`](Self::record)
+/// them; then [`finish`](Self::finish).
+#[derive(Debug, Default)]
+pub struct AutoThresholds {
+    tried: Vec<ThresholdTry>,
+    kept: Option<(ThresholdPreset, Vec<Extraction>)>,
+    done: bool,
+}
+
+impl AutoThresholds {
+    /// The order the presets are tried in: the paper's robust choice first.
+    pub const ORDER: [ThresholdPreset; 3] = [
+        ThresholdPreset::High,
+        ThresholdPreset::Mid,
+        ThresholdPreset::Low,
+    ];
+
+    /// A search that has tried nothing.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The preset to try next, `None` once the search is over.
+    pub fn next_preset(&self) -> Option<ThresholdPreset> {
+        if self.done {
+            return None;
+        }
+        Self::ORDER.get(self.tried.len()).copied()
+    }
+
+    /// Records what [`next_preset`](Self::next_preset) did: its tests'
+    /// extractions and its rest check. Errors if the search is over.
+    pub fn record(
+        &mut self,
+        extractions: Vec<Extraction>,
+        rest: RestCheck,
+    ) -> Result<ThresholdTry> {
+        let preset = self
+            .next_preset()
+            .ok_or_else(|| Error::param("thresholds", "the preset search is over"))?;
+        let missed = extractions.iter().filter(|e| e.raw.is_none()).count();
+        let verdict = report::threshold_verdict(missed, extractions.len(), rest);
+        let t = ThresholdTry {
+            preset,
+            missed,
+            tests: extractions.len(),
+            rest,
+            verdict,
+        };
+        self.tried.push(t);
+        match verdict {
+            ThresholdVerdict::Noisy => {
+                self.done = true;
+                if self.kept.is_none() {
+                    self.kept = Some((preset, extractions));
+                }
+            }
+            ThresholdVerdict::Sees => {
+                self.done = true;
+                self.kept = Some((preset, extractions));
+            }
+            ThresholdVerdict::Misses => self.kept = Some((preset, extractions)),
+        }
+        Ok(t)
+    }
+
+    /// Every preset tried, in order.
+    pub fn tried(&self) -> &[ThresholdTry] {
+        &self.tried
+    }
+
+    /// The preset kept and its tests' extractions; `None` if nothing was
+    /// recorded.
+    pub fn finish(self) -> Option<(ThresholdPreset, Vec<Extraction>)> {
+        self.kept
+    }
 }
 
 /// A fitted calibration and how it did.
@@ -2180,6 +2357,83 @@ mod tests {
         e.row.fx_n = 2.0 * s;
         e.row.fz_n = -2.0 * c;
         e
+    }
+
+    #[test]
+    fn rest_pairs_pair_distinct_references_half_the_list_apart() {
+        let row = |reference: &str| {
+            let mut row = sweep_image(0.0, None).row;
+            row.reference = reference.to_string();
+            row
+        };
+        // Six distinct references, one shared by two tests.
+        let rows: Vec<TestRow> = ["r5", "r0", "r3", "r1", "r4", "r2", "r3"]
+            .into_iter()
+            .map(row)
+            .collect();
+        let pairs = rest_pairs(&rows, 32);
+        let want = |v: &[(&str, &str)]| -> Vec<(String, String)> {
+            v.iter()
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .collect()
+        };
+        assert_eq!(pairs, want(&[("r0", "r3"), ("r1", "r4"), ("r2", "r5")]));
+        // At most `max`, spread over the list; none without two references.
+        assert_eq!(rest_pairs(&rows, 2), want(&[("r0", "r3"), ("r1", "r4")]));
+        assert_eq!(rest_pairs(&rows, 1), want(&[("r0", "r3")]));
+        assert!(rest_pairs(&rows, 0).is_empty());
+        assert!(rest_pairs(&[row("a"), row("a")], 32).is_empty());
+        assert!(rest_pairs(&[], 32).is_empty());
+        let many: Vec<TestRow> = (0..1000).map(|i| row(&format!("r{i:04}"))).collect();
+        let pairs = rest_pairs(&many, MAX_REST_PAIRS);
+        assert_eq!(pairs.len(), MAX_REST_PAIRS);
+        assert!(pairs.iter().all(|(a, b)| a < b));
+        assert_eq!(pairs[0], ("r0000".to_string(), "r0500".to_string()));
+    }
+
+    #[test]
+    fn the_threshold_search_keeps_the_first_preset_that_sees_the_tests() {
+        // `n` tests, the first `missed` without a contact.
+        let tests = |n: usize, missed: usize| -> Vec<Extraction> {
+            (0..n)
+                .map(|i| sweep_image(0.0, (i >= missed).then_some(100.0)))
+                .collect()
+        };
+        let rest = |with_contact| RestCheck {
+            pairs: 8,
+            with_contact,
+        };
+        let run = |tries: &[(usize, usize)]| {
+            let mut auto = AutoThresholds::new();
+            for &(missed, at_rest) in tries {
+                assert!(auto.next_preset().is_some());
+                auto.record(tests(100, missed), rest(at_rest)).unwrap();
+            }
+            assert_eq!(auto.next_preset(), None, "{tries:?}");
+            let verdicts: Vec<_> = auto.tried().iter().map(|t| t.verdict).collect();
+            let (kept, ex) = auto.finish().unwrap();
+            (kept, ex.iter().filter(|e| e.raw.is_none()).count(), verdicts)
+        };
+        use ThresholdPreset::{High, Low, Mid};
+        use ThresholdVerdict::{Misses, Noisy, Sees};
+        // `high` sees all but 5%: kept, nothing else tried.
+        assert_eq!(run(&[(5, 0)]), (High, 5, vec![Sees]));
+        // `high` misses 10%, `mid` 3%: `mid`.
+        assert_eq!(run(&[(10, 0), (3, 0)]), (Mid, 3, vec![Misses, Sees]));
+        // Each misses more than 5%: the most sensitive, `low`.
+        assert_eq!(
+            run(&[(40, 0), (20, 0), (8, 0)]),
+            (Low, 8, vec![Misses, Misses, Misses])
+        );
+        // `mid` fires at rest: the search stops and keeps `high`.
+        assert_eq!(run(&[(10, 0), (0, 1)]), (High, 10, vec![Misses, Noisy]));
+        // Even `high` fires at rest: nothing less sensitive is offered.
+        assert_eq!(run(&[(0, 2)]), (High, 0, vec![Noisy]));
+        // Recording after the search is over is an error.
+        let mut auto = AutoThresholds::new();
+        auto.record(tests(10, 0), rest(0)).unwrap();
+        assert!(auto.record(tests(10, 0), rest(0)).is_err());
+        assert!(AutoThresholds::new().finish().is_none());
     }
 
     #[test]

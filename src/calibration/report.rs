@@ -6,6 +6,7 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
+use super::fit::RestCheck;
 use super::poly;
 use super::{Calibration, Prediction, Sample};
 use crate::error::{Error, Result};
@@ -278,10 +279,40 @@ pub fn missed_tests_warning(missed: usize, total: usize) -> Option<String> {
         "{missed} of {total} tests ({:.0}%) gave no contact: the segmentation thresholds are \
          too high for this sensor's motion, and the calibration only knows the presses they \
          let through (the F_min row of Table I says from which force every press is seen). \
-         Fit again with lower thresholds (`low`, or each preset in turn, keeping the most \
-         sensitive one that reports nothing at rest).",
+         Fit again with lower thresholds (`--thresholds auto` tries the presets in turn and \
+         keeps the most sensitive one that finds nothing at rest; below `low`, \
+         `--thresholds-custom`), and check the result at rest.",
         100.0 * missed as f64 / total as f64
     ))
+}
+
+/// What `calibrate --thresholds auto` makes of one threshold preset, tried
+/// from the least sensitive (`high`) to the most (`low`): it keeps the
+/// first that sees the protocol ([`ThresholdVerdict::Sees`]), else the most
+/// sensitive that stayed quiet at rest.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ThresholdVerdict {
+    /// At most [`MISSED_TESTS_WARNING_FRACTION`] of the tests gave no
+    /// contact and no rest pair gave one: keep this preset.
+    Sees,
+    /// Quiet at rest but more of the tests missed: a more sensitive preset
+    /// may see them.
+    Misses,
+    /// A contact on frames with nothing touching: this preset, and every
+    /// more sensitive one, reports contacts at rest.
+    Noisy,
+}
+
+/// The verdict on a preset that missed `missed` of `total` tests and read
+/// `rest` ([`super::fit::rest_contacts`]).
+pub fn threshold_verdict(missed: usize, total: usize, rest: RestCheck) -> ThresholdVerdict {
+    if !rest.quiet() {
+        ThresholdVerdict::Noisy
+    } else if missed_tests_warning(missed, total).is_none() {
+        ThresholdVerdict::Sees
+    } else {
+        ThresholdVerdict::Misses
+    }
 }
 
 /// One column of the paper's Table I: a threshold preset, its minimum
@@ -415,5 +446,34 @@ mod tests {
         // No test, nothing to say (and no division by zero).
         assert_eq!(missed_tests_warning(0, 0), None);
         assert_eq!(missed_tests_warning(3, 0), None);
+    }
+
+    #[test]
+    fn a_preset_is_kept_when_it_sees_the_tests_and_stays_quiet_at_rest() {
+        let quiet = RestCheck {
+            pairs: 32,
+            with_contact: 0,
+        };
+        let noisy = RestCheck {
+            pairs: 32,
+            with_contact: 1,
+        };
+        assert_eq!(threshold_verdict(360, 7200, quiet), ThresholdVerdict::Sees);
+        assert_eq!(
+            threshold_verdict(361, 7200, quiet),
+            ThresholdVerdict::Misses
+        );
+        // A contact at rest outweighs seeing every test.
+        assert_eq!(threshold_verdict(0, 7200, noisy), ThresholdVerdict::Noisy);
+        assert_eq!(
+            threshold_verdict(7200, 7200, noisy),
+            ThresholdVerdict::Noisy
+        );
+        // Without reference pairs nothing was seen at rest.
+        let none = RestCheck {
+            pairs: 0,
+            with_contact: 0,
+        };
+        assert_eq!(threshold_verdict(10, 7200, none), ThresholdVerdict::Sees);
     }
 }
