@@ -2491,4 +2491,15 @@ fn reference_pairs_tell_thresholds_that_fire_at_rest() {
     missing[1].1 = "frames/none.png".into();
     let e = rest_contacts(tmp.path(), &missing, &quiet, None).unwrap_err();
     assert!(e.to_string().contains("frames/none.png"), "{e}");
+    // A frame of another size than its reference, or not an image: an
+    // error naming the pair, not a panic.
+    let small = ndarray::Array2::<f32>::from_elem((40, 60), 128.0);
+    optical_tactile::io::write_gray_png(tmp.path().join("small.png"), &small.view()).unwrap();
+    std::fs::write(tmp.path().join("text.png"), "not an image").unwrap();
+    for bad in ["small.png", "text.png"] {
+        let mut odd = pairs.clone();
+        odd[0].1 = bad.into();
+        let e = rest_contacts(tmp.path(), &odd, &quiet, None).unwrap_err();
+        assert!(e.to_string().contains(bad), "{e}");
+    }
 }

@@ -256,7 +256,7 @@ def simulate(
 def calibrate(
     dataset_dir: PathLike,
     *,
-    thresholds: Optional[ThresholdsArg] = None,
+    thresholds: Optional[Union[Literal["auto"], ThresholdsArg]] = None,
     preset: Optional[PresetName] = None,
     crop: Optional[Box] = None,
 ) -> Calibration:

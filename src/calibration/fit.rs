@@ -2412,7 +2412,11 @@ mod tests {
             assert_eq!(auto.next_preset(), None, "{tries:?}");
             let verdicts: Vec<_> = auto.tried().iter().map(|t| t.verdict).collect();
             let (kept, ex) = auto.finish().unwrap();
-            (kept, ex.iter().filter(|e| e.raw.is_none()).count(), verdicts)
+            (
+                kept,
+                ex.iter().filter(|e| e.raw.is_none()).count(),
+                verdicts,
+            )
         };
         use ThresholdPreset::{High, Low, Mid};
         use ThresholdVerdict::{Misses, Noisy, Sees};
