@@ -195,6 +195,11 @@ pub struct CommonArgs {
     /// Exact number of markers (overrides --coverage).
     #[arg(long, value_name = "N")]
     pub markers: Option<usize>,
+    /// Depths of the markers below the skin, mm: the random markers lie
+    /// anywhere between MIN and MAX (MIN = MAX: all at one depth, as printed
+    /// dots), a dot grid at their mean [default: 0.5,4 on the strip].
+    #[arg(long, value_name = "MIN,MAX", allow_hyphen_values = true, value_parser = depth_range)]
+    pub marker_depth_mm: Option<(f64, f64)>,
     /// A GelSight-like sensor instead of the strip: a 320x240 image of a
     /// regular grid of dark dots on a bright, lit gel, on a short piece of
     /// the curved strip pressed by rods across it (--coverage and --markers
@@ -306,6 +311,9 @@ impl CommonArgs {
         }
         cfg.markers.coverage = self.coverage;
         cfg.markers.count = self.markers;
+        if let Some(d) = self.marker_depth_mm {
+            cfg.markers.depth_mm = d;
+        }
         cfg.noise.read = self.noise_read;
         cfg.noise.flicker = self.flicker;
         cfg.noise.exposure = self.exposure();
@@ -360,6 +368,15 @@ fn exposure_steps(s: &str) -> std::result::Result<Numbers, String> {
         return Err("expected EVERY,GAIN[,OFFSET[,LEVELS]] with EVERY and LEVELS >= 1".into());
     }
     Ok(Numbers(v))
+}
+
+/// `--marker-depth-mm`'s value: MIN,MAX with 0 < MIN <= MAX (the
+/// simulator checks MAX against the gel's thickness).
+fn depth_range(s: &str) -> std::result::Result<(f64, f64), String> {
+    match cli_support::number_list(s)?.as_slice() {
+        &[lo, hi] if lo > 0.0 && lo <= hi => Ok((lo, hi)),
+        _ => Err(format!("expected MIN,MAX with 0 < MIN <= MAX, got `{s}`")),
+    }
 }
 
 /// `--drift`'s value: GAIN,OFFSET,PERIOD, PERIOD above 0.

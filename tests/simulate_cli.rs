@@ -70,6 +70,18 @@ fn options_reach_the_scenario() {
     assert_eq!(c.config.material.youngs_kpa, 60.0);
     assert_eq!(c.config.markers.count, Some(500));
     assert!(c.config.full_frame);
+    let default_depths = run("single --out d").1.config.markers.depth_mm;
+    assert!(default_depths.0 < default_depths.1, "{default_depths:?}");
+    let depths = |line: &str| run(line).1.config.markers.depth_mm;
+    assert_eq!(depths("single --out d --marker-depth-mm 2,2"), (2.0, 2.0));
+    assert_eq!(
+        depths("presses --out d --marker-depth-mm 0.5,1.5"),
+        (0.5, 1.5)
+    );
+    for bad in ["0,1", "3,2", "2", "1,2,3", "-1,1", "a,b", "1,inf"] {
+        let e = usage_error(&format!("single --out d --marker-depth-mm {bad}"));
+        assert!(e.contains("marker-depth-mm"), "{bad}: {e}");
+    }
     let (sc, _) = run("mapping --out d --rods 0.5,1.5 --touches 3");
     let Scenario::Mapping(o) = sc else {
         panic!("{sc:?}")
