@@ -94,8 +94,8 @@ use clap::{Parser, ValueEnum};
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::calibration::correction::ColumnCorrection;
 use optical_tactile::calibration::fit::{
-    AutoThresholds, DatasetFit, Extraction, MAX_REST_PAIRS, extract_dataset, extract_sweeps,
-    fit_dataset_with_sweeps, load_cell_spread, read_dataset, read_dataset_geometry,
+    AutoThresholds, DatasetFit, Extraction, MAX_REST_PAIRS, RestCheck, extract_dataset,
+    extract_sweeps, fit_dataset_with_sweeps, load_cell_spread, read_dataset, read_dataset_geometry,
     read_dataset_sweeps, rest_contacts, rest_pairs,
 };
 use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileFitOptions};
@@ -714,28 +714,33 @@ fn run(args: Args) -> Result<(), Failure> {
             extract_dataset(&args.dir, &rows, config, contact_point, args.crop, p)
         })
     };
+    // Pairs of reference images: frames with nothing touching, on which
+    // every preset is checked for contacts at rest.
+    let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
+    let at_rest = |config: &ExtractorConfig| -> Result<(RestCheck, String), Failure> {
+        let rest = rest_contacts(&args.dir, &pairs, config, args.crop).map_err(err)?;
+        let said = if rest.pairs == 0 {
+            "no two reference images to look at rest with".to_string()
+        } else {
+            format!(
+                "{} of {} pairs of reference images a contact",
+                rest.with_contact, rest.pairs
+            )
+        };
+        Ok((rest, said))
+    };
     for (k, &asked) in args.presets.iter().enumerate() {
         let t0 = Instant::now();
         let (preset, config, ex) = if asked == "auto" {
-            let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
             let mut auto = AutoThresholds::new();
             while let Some(preset) = auto.next_preset() {
                 let config = config_for(preset.name());
                 let ex = extract_tests(preset.name(), &config)?;
-                let rest = rest_contacts(&args.dir, &pairs, &config, args.crop).map_err(err)?;
+                let (rest, said) = at_rest(&config)?;
                 let t = auto.record(ex, rest).map_err(err)?;
                 eprintln!(
-                    "[auto] {preset}: {} of {} tests gave no contact, {}",
-                    t.missed,
-                    t.tests,
-                    if rest.pairs == 0 {
-                        "no two reference images to look at rest with".to_string()
-                    } else {
-                        format!(
-                            "{} of {} pairs of reference images a contact",
-                            rest.with_contact, rest.pairs
-                        )
-                    }
+                    "[auto] {preset}: {} of {} tests gave no contact, {said}",
+                    t.missed, t.tests
                 );
             }
             let (preset, ex) = auto.finish().expect("the search tried a preset");
@@ -744,6 +749,14 @@ fn run(args: Args) -> Result<(), Failure> {
         } else {
             let config = config_for(asked);
             let ex = extract_tests(asked, &config)?;
+            let (rest, said) = at_rest(&config)?;
+            eprintln!("[{asked}] at rest: {said}");
+            if !rest.quiet() {
+                eprintln!(
+                    "[{asked}] warning: these thresholds find contacts with nothing touching the \
+                     skin; a sensor fitted with them will too (try less sensitive thresholds)"
+                );
+            }
             (asked, config, ex)
         };
         let swept = if sweeps.is_empty() {
