@@ -990,7 +990,6 @@ pub struct ThresholdTry {
 pub struct AutoThresholds {
     tried: Vec<ThresholdTry>,
     kept: Option<(ThresholdPreset, Vec<Extraction>)>,
-    done: bool,
 }
 
 impl AutoThresholds {
@@ -1006,12 +1005,13 @@ impl AutoThresholds {
         Self::default()
     }
 
-    /// The preset to try next, `None` once the search is over.
+    /// The preset to try next, `None` once the search is over (the last
+    /// preset tried saw the tests or fired at rest, or none is left).
     pub fn next_preset(&self) -> Option<ThresholdPreset> {
-        if self.done {
-            return None;
+        match self.tried.last() {
+            Some(t) if t.verdict != ThresholdVerdict::Misses => None,
+            _ => Self::ORDER.get(self.tried.len()).copied(),
         }
-        Self::ORDER.get(self.tried.len()).copied()
     }
 
     /// Records what [`next_preset`](Self::next_preset) did: its tests'
@@ -1034,18 +1034,9 @@ impl AutoThresholds {
             verdict,
         };
         self.tried.push(t);
-        match verdict {
-            ThresholdVerdict::Noisy => {
-                self.done = true;
-                if self.kept.is_none() {
-                    self.kept = Some((preset, extractions));
-                }
-            }
-            ThresholdVerdict::Sees => {
-                self.done = true;
-                self.kept = Some((preset, extractions));
-            }
-            ThresholdVerdict::Misses => self.kept = Some((preset, extractions)),
+        // A preset that fires at rest is kept only when it is the first.
+        if verdict != ThresholdVerdict::Noisy || self.kept.is_none() {
+            self.kept = Some((preset, extractions));
         }
         Ok(t)
     }
