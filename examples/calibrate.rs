@@ -199,6 +199,14 @@ struct Cli {
     /// is matched; docs/pipeline.md).
     #[arg(long)]
     no_profile_tail: bool,
+    /// Match every contact at its measured column, never at the anchor
+    /// map of its location. For markers on one layer (printed dots, one
+    /// sprayed layer), where the measured columns may read between the
+    /// protocol's points closer than the validation points can tell
+    /// (docs/calibration.md, "Which columns"): fit with and without it and
+    /// compare.
+    #[arg(long)]
+    measured_columns: bool,
     /// When a contact's match column moves to where its motion fits the
     /// profile model best: `clear` only for a clearly misplaced point,
     /// `best` always, to a fraction of a pixel [default: clear with sweeps,
@@ -310,6 +318,7 @@ struct Args {
     no_sweeps: bool,
     no_size_term: bool,
     no_profile_tail: bool,
+    measured_columns: bool,
     relocation: Option<Relocation>,
     shear_free_columns: bool,
     dot_tracking: DotTrackingArg,
@@ -580,6 +589,7 @@ impl Cli {
             no_sweeps: self.no_sweeps,
             no_size_term: self.no_size_term,
             no_profile_tail: self.no_profile_tail,
+            measured_columns: self.measured_columns,
             relocation: self.relocation.map(Relocation::from),
             shear_free_columns: self.shear_free_columns,
             dot_tracking: self.dot_tracking,
@@ -785,6 +795,11 @@ fn run(args: Args) -> Result<(), Failure> {
             profile: base.profile.map(|p| ProfileFitOptions {
                 size_term: p.size_term && !args.no_size_term,
                 tail_px: if args.no_profile_tail { 0.0 } else { p.tail_px },
+                anchor_max_degree: if args.measured_columns {
+                    0
+                } else {
+                    p.anchor_max_degree
+                },
                 relocation: args.relocation.or(p.relocation),
                 shear_free_columns: args.shear_free_columns || p.shear_free_columns,
                 spread_channel: args.spread_channel && p.spread_channel,
