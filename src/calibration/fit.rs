@@ -2311,8 +2311,8 @@ const CLEARLY_LOWER_T: f64 = 2.0;
 /// simulated strip's dataset the measured columns read two of the three
 /// validation points clearly closer than the cubic anchor map and the
 /// third alike (t over all tests above 2), but put random presses between
-/// the points 0.53-0.56 mm and Fz 0.085-0.106 N off against 0.21-0.22 mm
-/// and 0.065-0.080 N with the anchor map. What it costs: with the markers
+/// the points 0.53-0.56 mm and Fz 0.085-0.106 N off against 0.20-0.22 mm
+/// and 0.063-0.080 N with the anchor map kept. What it costs: with the markers
 /// at one depth the measured columns read two validation points clearly
 /// closer and the third (the middle one) not, so the anchor map is kept
 /// there too, where the measured columns read random presses closer (Fz
