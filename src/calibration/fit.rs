@@ -2320,17 +2320,15 @@ const CLEARLY_LOWER_T: f64 = 2.0;
 /// 0.020 N against 0.031-0.033 N; two perches 0.012-0.022 N per contact
 /// against 0.019-0.054 N).
 fn clearly_lower_at_every_point(a: &[Option<f64>], b: &[Option<f64>], points: &[u32]) -> bool {
-    let mut ids: Vec<u32> = points.to_vec();
-    ids.sort_unstable();
-    ids.dedup();
-    let of = |v: &[Option<f64>], id: u32| -> Vec<Option<f64>> {
-        v.iter()
-            .zip(points)
-            .filter(|&(_, &p)| p == id)
-            .map(|(x, _)| *x)
-            .collect()
-    };
-    !ids.is_empty() && ids.iter().all(|&id| clearly_lower(&of(a, id), &of(b, id)))
+    // Per point, its tests' errors in their order.
+    type Pairs = (Vec<Option<f64>>, Vec<Option<f64>>);
+    let mut per_point: std::collections::BTreeMap<u32, Pairs> = Default::default();
+    for ((x, y), &p) in a.iter().zip(b).zip(points) {
+        let (xs, ys) = per_point.entry(p).or_default();
+        xs.push(*x);
+        ys.push(*y);
+    }
+    !per_point.is_empty() && per_point.values().all(|(xs, ys)| clearly_lower(xs, ys))
 }
 
 /// Whether the errors `a` are lower than `b` on the same tests (pairs where
