@@ -104,12 +104,14 @@ use optical_tactile::calibration::uncertainty::ForceUncertainty;
 use optical_tactile::calibration::{ForceFrame, Sample};
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::contact::profile::Relocation;
-use optical_tactile::flow::dis::{DisParams, DisPreset};
+use optical_tactile::flow::dis::DisPreset;
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::{FlatSurface, SensorGeometry};
 use optical_tactile::io::{self, FrameRecord, Split};
-use optical_tactile::segment::{SplitRule, Thresholds};
-use optical_tactile::sensor::{ExtractorConfig, fitting_flow_preset, fitting_light_box};
+use optical_tactile::segment::Thresholds;
+use optical_tactile::sensor::{
+    ExtractorConfig, FittingChoices, fitting_extractor, fitting_flow_preset,
+};
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
 /// every test, fits the polynomial maps and prints the paper's Tables I and
@@ -653,36 +655,35 @@ fn run(args: Args) -> Result<(), Failure> {
         .unwrap_or_else(|| Roi::full(first.ncols(), first.nrows()));
     // A regular grid's pitch: what tells a motion beyond the markers (half
     // of it, against a torn flow on random markers) and whether the dots
-    // can be followed.
-    let pitch = crop
-        .crop(&first)
-        .ok()
-        .and_then(|v| optical_tactile::markers::grid_pitch(&v.to_owned()));
-    let dot_tracking = match args.dot_tracking {
-        DotTrackingArg::On => true,
-        DotTrackingArg::Off => false,
-        DotTrackingArg::Auto => {
-            if let Some(p) = pitch {
-                eprintln!(
-                    "the references show a regular grid of markers ({p:.0} px apart): \
-                     its dots are followed one by one (--dot-tracking off: the flow alone)"
-                );
-            }
-            pitch.is_some()
-        }
+    // can be followed; with it the flow and the light box not asked for.
+    let reference = crop.crop(&first).map_err(err)?.to_owned();
+    let choices = FittingChoices {
+        dot_tracking: match args.dot_tracking {
+            DotTrackingArg::On => Some(true),
+            DotTrackingArg::Off => Some(false),
+            DotTrackingArg::Auto => None,
+        },
+        dot_fit: args.dot_fit,
+        flow: args.flow,
+        light_box_px: args.light_box,
+        weighted_profiles: args.weighted_profiles,
     };
-    let flow = args.flow.unwrap_or_else(|| {
-        let preset = fitting_flow_preset(&geometry, pitch);
-        if preset != DisPreset::Fine {
-            eprintln!(
-                "the references show random markers on a flat sensor: fitted with the `{}` flow \
-                 (--preset fine: the sensor's default, half the time per frame), the frames \
-                 divided by their own light (--light-box 0: as they are)",
-                preset.name()
-            );
-        }
-        preset
-    });
+    let (fitting, pitch) = fitting_extractor(&geometry, &reference, &choices);
+    if let (Some(p), DotTrackingArg::Auto) = (pitch, args.dot_tracking) {
+        eprintln!(
+            "the references show a regular grid of markers ({p:.0} px apart): \
+             its dots are followed one by one (--dot-tracking off: the flow alone)"
+        );
+    }
+    let preset = fitting_flow_preset(&geometry, pitch);
+    if args.flow.is_none() && preset != DisPreset::Fine {
+        eprintln!(
+            "the references show random markers on a flat sensor: fitted with the `{}` flow \
+             (--preset fine: the sensor's default, half the time per frame), the frames \
+             divided by their own light (--light-box 0: as they are)",
+            preset.name()
+        );
+    }
     let sweeps = if args.no_sweeps {
         Vec::new()
     } else {
@@ -705,19 +706,9 @@ fn run(args: Args) -> Result<(), Failure> {
     let mut spot_tables = Vec::new();
     let spots = rows.iter().filter(|r| r.split == Split::Spot).count();
     let config_for = |preset: &str| {
-        let mut config = ExtractorConfig::default()
+        fitting
+            .clone()
             .with_thresholds(thresholds(preset, args.custom))
-            .with_dot_tracking(dot_tracking)
-            .with_dot_fit(args.dot_fit)
-            .with_split(Some(SplitRule::for_geometry(&geometry)));
-        config.flow = DisParams::preset(flow);
-        config.light_box_px = match args.light_box {
-            Some(0) => None,
-            Some(r) => Some(r),
-            None => fitting_light_box(&geometry, pitch, config.flow.patch_size),
-        };
-        config.weighted_profiles = args.weighted_profiles;
-        config
     };
     let extract_tests = |preset: &str, config: &ExtractorConfig| {
         extract_with_bar(&format!("[{preset}] tests"), rows.len(), args.quiet, |p| {

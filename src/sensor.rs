@@ -571,6 +571,72 @@ pub fn fitting_light_box(
     flat_random_markers(geometry, grid_pitch).then_some(LIGHT_BOX_PATCHES * patch_size.max(1))
 }
 
+/// What a calibration's extraction is told; each `None` is decided from the
+/// dataset ([`fitting_extractor`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FittingChoices {
+    /// Follow a regular grid's dots one by one
+    /// ([`ExtractorConfig::dot_tracking`]); `None`: when the dataset's
+    /// reference shows a regular grid.
+    pub dot_tracking: Option<bool>,
+    /// Fit the contacts' displacements to their followed dots
+    /// ([`ExtractorConfig::dot_fit`]; default on).
+    pub dot_fit: bool,
+    /// The flow preset; `None`: [`fitting_flow_preset`].
+    pub flow: Option<DisPreset>,
+    /// Half-side of the light box the frames are divided by, px
+    /// ([`ExtractorConfig::light_box_px`]; `Some(0)`: none); `None`:
+    /// [`fitting_light_box`].
+    pub light_box_px: Option<usize>,
+    /// Weigh each flow cell of the profiles by how well the frame matches
+    /// the reference there ([`ExtractorConfig::weighted_profiles`]).
+    pub weighted_profiles: bool,
+}
+
+impl Default for FittingChoices {
+    fn default() -> Self {
+        FittingChoices {
+            dot_tracking: None,
+            dot_fit: true,
+            flow: None,
+            light_box_px: None,
+            weighted_profiles: false,
+        }
+    }
+}
+
+/// The extraction a characterization dataset is fitted with, and the
+/// pitch of the regular grid of markers its `reference` (the first
+/// reference image, cropped as the tests will be) shows (`None`: random
+/// markers, [`crate::markers::grid_pitch`]): the default configuration
+/// with the split rule of `geometry` ([`SplitRule::for_geometry`]) and
+/// `choices`, each one not given decided from the geometry and the pitch
+/// (dots followed on a grid, [`fitting_flow_preset`],
+/// [`fitting_light_box`]). The thresholds are the default's; a fit sets its
+/// own ([`ExtractorConfig::with_thresholds`]).
+pub fn fitting_extractor(
+    geometry: &SensorGeometry,
+    reference: &ArrayRef2<f32>,
+    choices: &FittingChoices,
+) -> (ExtractorConfig, Option<f64>) {
+    let pitch = crate::markers::grid_pitch(reference);
+    let flow = choices
+        .flow
+        .unwrap_or_else(|| fitting_flow_preset(geometry, pitch));
+    let mut config = ExtractorConfig::default()
+        .with_dot_tracking(choices.dot_tracking.unwrap_or(pitch.is_some()))
+        .with_dot_fit(choices.dot_fit)
+        .with_split(Some(SplitRule::for_geometry(geometry)))
+        .with_flow(DisParams::preset(flow));
+    config.light_box_px = match choices.light_box_px {
+        Some(0) => None,
+        Some(r) => Some(r),
+        None => fitting_light_box(geometry, pitch, config.flow.patch_size),
+    };
+    config.weighted_profiles = choices.weighted_profiles;
+    (config, pitch)
+}
+
 /// Whether a sensor shows random markers on a flat surface: located in 2-D
 /// ([`SensorGeometry::locates_in_2d`]), its reference showing no regular
 /// grid (`grid_pitch` `None`).
@@ -1632,6 +1698,89 @@ impl TactileSensor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 320x240 reference of bright round markers of radius 2.5 px on a
+    /// dark gel: on a square grid of `pitch` px, or at random (`None`).
+    fn markers(pitch: Option<f64>) -> Array2<f32> {
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as f64 / (1u64 << 31) as f64
+        };
+        let centres: Vec<(f64, f64)> = match pitch {
+            Some(p) => (0..(240.0 / p) as usize + 1)
+                .flat_map(|i| {
+                    (0..(320.0 / p) as usize + 1)
+                        .map(move |j| (j as f64 * p + 3.0, i as f64 * p + 3.0))
+                })
+                .collect(),
+            None => (0..300).map(|_| (next() * 320.0, next() * 240.0)).collect(),
+        };
+        let mut img = Array2::<f32>::from_elem((240, 320), 30.0);
+        for (cx, cy) in centres {
+            for ((i, j), v) in img.indexed_iter_mut() {
+                if (j as f64 - cx).powi(2) + (i as f64 - cy).powi(2) < 6.25 {
+                    *v = 220.0;
+                }
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn a_fit_extracts_as_its_dataset_and_its_choices_say() {
+        let flat = SensorGeometry::Flat(crate::geometry::FlatSurface {
+            length_mm: 24.0,
+            width_mm: 18.0,
+        });
+        let strip = SensorGeometry::default();
+        let (grid, random) = (markers(Some(16.0)), markers(None));
+        let fine = DisParams::preset(DisPreset::Fine);
+        let dense = DisParams::preset(DisPreset::Dense);
+        let auto = FittingChoices::default();
+        // A dot grid: its dots followed, the sensor's flow, no light box.
+        let (c, pitch) = fitting_extractor(&flat, &grid, &auto);
+        assert!(pitch.is_some_and(|p| (p - 16.0).abs() < 1.0), "{pitch:?}");
+        assert!(c.dot_tracking && c.dot_fit);
+        assert_eq!((c.flow.clone(), c.light_box_px), (fine.clone(), None));
+        assert_eq!(c.split, Some(SplitRule::for_geometry(&flat)));
+        // Random markers on a flat sensor: the denser flow on frames divided
+        // by their own light; on the strip the defaults.
+        let (c, pitch) = fitting_extractor(&flat, &random, &auto);
+        assert_eq!(pitch, None);
+        assert!(!c.dot_tracking);
+        assert_eq!(c.flow, dense);
+        assert_eq!(c.light_box_px, Some(LIGHT_BOX_PATCHES * dense.patch_size));
+        let (c, _) = fitting_extractor(&strip, &random, &auto);
+        assert_eq!((c.flow.clone(), c.light_box_px), (fine.clone(), None));
+        assert_eq!(c.split, Some(SplitRule::for_geometry(&strip)));
+        // What is asked is kept: the box then follows the asked flow's
+        // patches unless it is asked too (0: none).
+        let asked = FittingChoices {
+            dot_tracking: Some(false),
+            dot_fit: false,
+            flow: Some(DisPreset::Fine),
+            light_box_px: None,
+            weighted_profiles: true,
+        };
+        let (c, _) = fitting_extractor(&flat, &grid, &asked);
+        assert!(!c.dot_tracking && !c.dot_fit && c.weighted_profiles);
+        let (c, _) = fitting_extractor(&flat, &random, &asked);
+        assert_eq!(c.flow, fine);
+        assert_eq!(c.light_box_px, Some(LIGHT_BOX_PATCHES * fine.patch_size));
+        for (box_px, expected) in [(0, None), (24, Some(24))] {
+            let choices = FittingChoices {
+                light_box_px: Some(box_px),
+                ..auto
+            };
+            assert_eq!(
+                fitting_extractor(&flat, &random, &choices).0.light_box_px,
+                expected
+            );
+        }
+    }
 
     #[test]
     fn copy_rows_copies_crops_and_strided_views() {

@@ -259,5 +259,16 @@ def calibrate(
     thresholds: Optional[Union[Literal["auto"], ThresholdsArg]] = None,
     preset: Optional[PresetName] = None,
     crop: Optional[Box] = None,
+    sweeps: bool = True,
+    measured_columns: bool = False,
+    relocation: Optional[Literal["clear", "best"]] = None,
+    shear_free_columns: bool = False,
+    spread_channel: bool = True,
+    weighted_profiles: bool = False,
+    dot_tracking: Optional[bool] = None,
+    dot_fit: bool = True,
+    light_box: Optional[int] = None,
 ) -> Calibration:
-    """Fits a calibration from a characterization dataset."""
+    """Fits a calibration from a characterization dataset, as the ``calibrate``
+    command does with the flags of the same names; ``sweeps=False`` is
+    ``--no-sweeps``, ``None`` leaves a choice to the dataset."""

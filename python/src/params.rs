@@ -1,5 +1,6 @@
 //! Parameters given from Python: thresholds, flow presets, crops.
 
+use optical_tactile::contact::profile::Relocation;
 use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
@@ -71,6 +72,31 @@ pub fn flow(preset: &str) -> Result<DisParams, Failure> {
 pub fn exposure(name: &str) -> Result<ExposureCompensation, Failure> {
     Ok(ExposureCompensation::parse(name)?)
 }
+
+/// A relocation name (`"clear"`, `"best"`).
+pub fn relocation(name: &str) -> Result<Relocation, Failure> {
+    match name {
+        "clear" => Ok(Relocation::Clear),
+        "best" => Ok(Relocation::Best),
+        _ => Err(Failure::Invalid(format!(
+            "relocation must be \"clear\" or \"best\", got {name:?}"
+        ))),
+    }
+}
+
+/// A light box's half-side, px (0: none), at most [`MAX_LIGHT_BOX_PX`].
+pub fn light_box(px: usize) -> Result<usize, Failure> {
+    if px > MAX_LIGHT_BOX_PX {
+        return Err(Failure::Invalid(format!(
+            "light_box must be at most {MAX_LIGHT_BOX_PX} px, got {px}"
+        )));
+    }
+    Ok(px)
+}
+
+/// The largest light box `calibrate` takes, px (as the command line's
+/// `--light-box`).
+pub const MAX_LIGHT_BOX_PX: usize = 16384;
 
 /// A crop `(x, y, w, h)`.
 pub fn crop(c: (usize, usize, usize, usize)) -> Roi {

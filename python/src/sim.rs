@@ -4,15 +4,16 @@ use std::path::PathBuf;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
 use optical_tactile::calibration::fit::{
-    AutoThresholds, FitOptions, MAX_REST_PAIRS, extract_dataset, extract_sweeps,
+    AutoThresholds, FitOptions, MAX_REST_PAIRS, ProfileFitOptions, extract_dataset, extract_sweeps,
     fit_dataset_with_sweeps, read_dataset, read_dataset_geometry, read_dataset_sweeps,
     rest_contacts, rest_pairs,
 };
 use optical_tactile::contact::ContactPointMethod;
+use optical_tactile::flow::dis::DisPreset;
 use optical_tactile::frame::Roi;
 use optical_tactile::io::read_gray;
 use optical_tactile::segment::Thresholds;
-use optical_tactile::sensor::ExtractorConfig;
+use optical_tactile::sensor::{FittingChoices, fitting_extractor};
 use optical_tactile_sim::scenario::{self, Common, Scenario};
 use optical_tactile_sim::{Press as SimPress, SimConfig, SyntheticSensor as SimSensor};
 use pyo3::prelude::*;
@@ -437,87 +438,132 @@ impl SyntheticSensor {
 /// Fits a calibration from a characterization dataset (`tests.csv` and its
 /// frames, docs/formats.md; `simulate("characterization", ...)` makes one):
 /// runs the pipeline on every test (on all cores, the GIL released), then
-/// fits the location and force maps with the library's order search.
+/// fits the location and force maps with the library's order search, as
+/// `calibrate` does with the same options.
 /// `thresholds`: a preset name or a dict, or `"auto"` (the default): the
 /// presets `high`, `mid`, `low` in turn, keeping the first that gives a
 /// contact on all but 5% of the tests, else the most sensitive one that
 /// finds no contact on pairs of the dataset's reference images, as
-/// `calibrate --thresholds auto` does; `preset`: the flow preset
-/// (default: the library's); `crop`: `(x, y, w, h)` of the frames (default:
-/// the whole frame). The sensor's geometry is the dataset's `geometry.json`
-/// (a flat sensor's: contacts located in 2-D), else the curved strip. With
-/// a `sweeps.csv` beside `tests.csv` (the strip), the calibration also
-/// learns per-column location offsets and force gains from the sweeps
-/// (docs/calibration.md). The result's `test_mae` has the test split's errors.
+/// `calibrate --thresholds auto` does; `preset`: the flow preset (default:
+/// decided from the dataset, as `calibrate` does: `dense` for random
+/// markers on a flat sensor, else the library's); `crop`: `(x, y, w, h)` of
+/// the frames (default: the whole frame). The sensor's geometry is the
+/// dataset's `geometry.json` (a flat sensor's: contacts located in 2-D),
+/// else the curved strip. With a `sweeps.csv` beside `tests.csv` (the
+/// strip), the calibration also learns per-column location offsets and
+/// force gains from the sweeps (docs/calibration.md); `sweeps=False`
+/// ignores it. The other options are `calibrate`'s flags of the same names
+/// (docs/calibration.md): `measured_columns`, `relocation` (`"clear"` or
+/// `"best"`; default: clear with sweeps, best without),
+/// `shear_free_columns`, `spread_channel`, `weighted_profiles`,
+/// `dot_tracking` (`None`: when the reference shows a regular grid),
+/// `dot_fit`, `light_box` (px, 0: none; `None`: decided from the dataset).
+/// The result's `test_mae` has the test split's errors.
 #[pyfunction]
-#[pyo3(signature = (dataset_dir, *, thresholds=None, preset=None, crop=None))]
+#[pyo3(signature = (
+    dataset_dir, *, thresholds=None, preset=None, crop=None, sweeps=true,
+    measured_columns=false, relocation=None, shear_free_columns=false,
+    spread_channel=true, weighted_profiles=false, dot_tracking=None, dot_fit=true,
+    light_box=None,
+))]
+#[allow(clippy::too_many_arguments)]
 pub fn calibrate(
     py: Python<'_>,
     dataset_dir: PathBuf,
     thresholds: Option<&Bound<'_, PyAny>>,
     preset: Option<&str>,
     crop: Option<(usize, usize, usize, usize)>,
+    sweeps: bool,
+    measured_columns: bool,
+    relocation: Option<&str>,
+    shear_free_columns: bool,
+    spread_channel: bool,
+    weighted_profiles: bool,
+    dot_tracking: Option<bool>,
+    dot_fit: bool,
+    light_box: Option<usize>,
 ) -> PyResult<Calibration> {
     // `None` (or "auto"): the presets in turn, as `calibrate --thresholds auto`.
     let auto = match thresholds {
         None => true,
         Some(t) => t.extract::<String>().is_ok_and(|s| s == "auto"),
     };
-    let setup = || -> Result<ExtractorConfig, Failure> {
-        let mut config = ExtractorConfig::default();
-        if let (false, Some(t)) = (auto, thresholds) {
-            config = config.with_thresholds(params::thresholds(t, Thresholds::HIGH)?);
-        }
-        if let Some(p) = preset {
-            config = config.with_flow(params::flow(p)?);
-        }
-        Ok(config)
+    let parsed = || -> Result<_, Failure> {
+        let asked = match (auto, thresholds) {
+            (false, Some(t)) => Some(params::thresholds(t, Thresholds::HIGH)?),
+            _ => None,
+        };
+        let flow = preset.map(DisPreset::parse).transpose()?;
+        let relocation = relocation.map(params::relocation).transpose()?;
+        let light_box = light_box.map(params::light_box).transpose()?;
+        Ok((asked, flow, relocation, light_box))
     };
-    let mut config = setup().map_err(|e| e.into_py(py))?;
+    let (asked, flow, relocation, light_box) = parsed().map_err(|e| e.into_py(py))?;
+    let choices = FittingChoices {
+        dot_tracking,
+        dot_fit,
+        flow,
+        light_box_px: light_box,
+        weighted_profiles,
+    };
     let crop = crop.map(params::crop);
     let inner = detached(py, || {
         let rows = read_dataset(&dataset_dir)?;
-        let full = match crop {
-            Some(c) => c,
-            None => {
-                let img = read_gray(dataset_dir.join(&rows[0].reference))?;
-                Roi::full(img.ncols(), img.nrows())
-            }
-        };
+        let first = read_gray(dataset_dir.join(&rows[0].reference))?;
+        let full = crop.unwrap_or_else(|| Roi::full(first.ncols(), first.nrows()));
         // The dataset's geometry.json says which sensor it is (the curved
         // strip without one), and that chooses the contact point and the
-        // force maps' inputs as `calibrate` does.
+        // force maps' inputs as `calibrate` does; its first reference
+        // whether the dots are followed, the flow and the light box.
         let geometry = read_dataset_geometry(&dataset_dir)?.unwrap_or_default();
         let point = ContactPointMethod::for_geometry(&geometry);
-        let ex = if auto {
-            let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
-            let mut search = AutoThresholds::new();
-            while let Some(p) = search.next_preset() {
-                let c = config.clone().with_thresholds(p);
-                let ex = extract_dataset(&dataset_dir, &rows, &c, point, crop, &|_, _| {})?;
-                let rest = rest_contacts(&dataset_dir, &pairs, &c, crop)?;
-                search.record(ex, rest)?;
+        let (mut config, _) =
+            fitting_extractor(&geometry, &full.crop(&first)?.to_owned(), &choices);
+        let ex = match asked {
+            Some(t) => {
+                config = config.with_thresholds(t);
+                extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?
             }
-            let (p, ex) = search
-                .finish()
-                .ok_or_else(|| optical_tactile::Error::param("thresholds", "no preset tried"))?;
-            config = config.clone().with_thresholds(p);
-            ex
-        } else {
-            extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?
+            None => {
+                let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
+                let mut search = AutoThresholds::new();
+                while let Some(p) = search.next_preset() {
+                    let c = config.clone().with_thresholds(p);
+                    let ex = extract_dataset(&dataset_dir, &rows, &c, point, crop, &|_, _| {})?;
+                    let rest = rest_contacts(&dataset_dir, &pairs, &c, crop)?;
+                    search.record(ex, rest)?;
+                }
+                let (p, ex) = search.finish().ok_or_else(|| {
+                    optical_tactile::Error::param("thresholds", "no preset tried")
+                })?;
+                config = config.with_thresholds(p);
+                ex
+            }
         };
-        // The dataset's sweeps.csv, if any, gives the per-column corrections.
-        let sweeps = read_dataset_sweeps(&dataset_dir)?;
+        // The dataset's sweeps.csv, if any and not declined, gives the
+        // per-column corrections.
+        let sweeps = if sweeps {
+            read_dataset_sweeps(&dataset_dir)?
+        } else {
+            Vec::new()
+        };
         let swept = extract_sweeps(&dataset_dir, &sweeps, &config, point, crop, &|_, _| {})?;
-        let fit = fit_dataset_with_sweeps(
-            &ex,
-            &swept,
-            &config,
-            point,
-            full,
-            geometry,
-            &FitOptions::for_geometry(&geometry),
-        )?;
+        let base = FitOptions::for_geometry(&geometry);
+        let options = FitOptions {
+            profile: base.profile.map(|p| ProfileFitOptions {
+                anchor_max_degree: if measured_columns {
+                    0
+                } else {
+                    p.anchor_max_degree
+                },
+                relocation: relocation.or(p.relocation),
+                shear_free_columns: shear_free_columns || p.shear_free_columns,
+                spread_channel: spread_channel && p.spread_channel,
+                ..p
+            }),
+            ..base
+        };
+        let fit = fit_dataset_with_sweeps(&ex, &swept, &config, point, full, geometry, &options)?;
         Ok(fit.calibration)
     })?;
     Ok(Calibration { inner })

@@ -3,6 +3,8 @@ the reference decompositions in fixtures/hhd, segment."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -115,8 +117,6 @@ def test_simulated_pair_through_the_sensor(calibration, tmp_path):
 
 
 def test_simulated_fingertip_sensor(tmp_path):
-    import json
-
     # Presses of round tips anywhere on the flat gel: 320x240 frames, and
     # truth in both surface coordinates.
     n = ot.simulate("presses", tmp_path / "p", sensor="fingertip", presses=3, seed=2)
@@ -194,3 +194,35 @@ def test_characterization_writes_spot_checks(tmp_path):
         assert (tmp_path / "c" / r["frame"]).exists()
     with pytest.raises(ValueError, match="spot_checks"):
         ot.simulate("characterization", tmp_path / "e", subset=1, spot_checks=10**9)
+
+
+def test_calibrate_takes_the_command_lines_choices(tmp_path):
+    # The strip with sweeps: each of `calibrate`'s fit flags lands in the file.
+    ot.simulate("characterization", tmp_path / "s", subset=300, sweep_step_mm=20.0)
+
+    def fitted(path, **options):
+        return json.loads(ot.calibrate(path, thresholds="mid", **options).to_json())
+
+    plain = fitted(tmp_path / "s")
+    assert plain["column_correction"] is not None and "anchor" in plain["profile"]
+    assert "spread" in plain["profile"] and "relocation" not in plain["profile"]
+    assert fitted(tmp_path / "s", sweeps=False).get("column_correction") is None
+    assert "anchor" not in fitted(tmp_path / "s", measured_columns=True)["profile"]
+    assert fitted(tmp_path / "s", relocation="best")["profile"]["relocation"] == "best"
+    assert "spread" not in fitted(tmp_path / "s", spread_channel=False)["profile"]
+    # The flat fingertip's dot grid: its dots followed unless told not, the
+    # `fine` flow and no light box unless asked, as `calibrate` decides.
+    ot.simulate("characterization", tmp_path / "f", sensor="fingertip", subset=300)
+    dots = fitted(tmp_path / "f")["pipeline"]
+    assert dots["dot_tracking"] and dots["flow_preset"] == "fine"
+    assert "light_box_px" not in dots
+    asked = fitted(tmp_path / "f", dot_tracking=False, preset="dense", light_box=24)["pipeline"]
+    assert not asked.get("dot_tracking", False) and asked["flow_preset"] == "dense"
+    assert asked["light_box_px"] == 24
+    # Bad choices are refused before any work.
+    with pytest.raises(ValueError, match="relocation"):
+        ot.calibrate(tmp_path / "s", relocation="sometimes")
+    with pytest.raises(ValueError, match="light_box"):
+        ot.calibrate(tmp_path / "s", light_box=10**9)
+    with pytest.raises(ValueError):
+        ot.calibrate(tmp_path / "s", preset="blurry")
