@@ -1702,13 +1702,7 @@ mod tests {
     /// A 320x240 reference of bright round markers of radius 2.5 px on a
     /// dark gel: on a square grid of `pitch` px, or at random (`None`).
     fn markers(pitch: Option<f64>) -> Array2<f32> {
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 33) as f64 / (1u64 << 31) as f64
-        };
+        let mut next = crate::flow::unit_stream(0x2545_f491_4f6c_dd1d_u64);
         let centres: Vec<(f64, f64)> = match pitch {
             Some(p) => (0..(240.0 / p) as usize + 1)
                 .flat_map(|i| {
@@ -1716,7 +1710,9 @@ mod tests {
                         .map(move |j| (j as f64 * p + 3.0, i as f64 * p + 3.0))
                 })
                 .collect(),
-            None => (0..300).map(|_| (next() * 320.0, next() * 240.0)).collect(),
+            None => (0..300)
+                .map(|_| (f64::from(next()) * 320.0, f64::from(next()) * 240.0))
+                .collect(),
         };
         let mut img = Array2::<f32>::from_elem((240, 320), 30.0);
         for (cx, cy) in centres {
