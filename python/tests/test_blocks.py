@@ -226,3 +226,5 @@ def test_calibrate_takes_the_command_lines_choices(tmp_path):
         ot.calibrate(tmp_path / "s", light_box=10**9)
     with pytest.raises(ValueError):
         ot.calibrate(tmp_path / "s", preset="blurry")
+    with pytest.raises(ValueError, match="crop"):
+        ot.calibrate(tmp_path / "s", crop=(0, 0, 5000, 100))
