@@ -506,6 +506,19 @@ impl SimConfig {
                 "zero markers: nothing to see",
             ));
         }
+        // Each marker is at least a pixel of the image: more cannot be seen,
+        // and the bound keeps a count from a flag or a file from asking for
+        // more memory than there is.
+        let (w, h) = self.image_size();
+        if let Some(n) = m.count.filter(|&n| n > w * h) {
+            return Err(Error::param(
+                "markers.count",
+                format!(
+                    "{n} markers in a {w}x{h} image: at most one per pixel, {}",
+                    w * h
+                ),
+            ));
+        }
         if m.count.is_none() && !(m.coverage.is_finite() && m.coverage > 0.0 && m.coverage < 0.95) {
             return Err(Error::param(
                 "markers.coverage",

@@ -364,6 +364,17 @@ fn nonsense_parameters_are_errors() {
             count: Some(0),
             ..MarkerConfig::default()
         },
+        // More markers than the image has pixels: refused before any
+        // memory is asked for them (a count of 1e11 would abort the
+        // allocation).
+        MarkerConfig {
+            count: Some(1600 * 200 + 1),
+            ..MarkerConfig::default()
+        },
+        MarkerConfig {
+            count: Some(100_000_000_000),
+            ..MarkerConfig::default()
+        },
         MarkerConfig {
             coverage: 0.0,
             ..MarkerConfig::default()
