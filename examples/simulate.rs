@@ -31,10 +31,7 @@ use optical_tactile_sim::scenario::{
     self, Characterization, Common, Mapping, Pair, Perches, Presses, Rest, Scenario, Shear, Single,
     TipPresses,
 };
-use optical_tactile_sim::{
-    ContactLight, DotGrid, ExposureChanges, FINGERTIP_GRID, MarkerLayout, Press, SimConfig,
-    SyntheticSensor,
-};
+use optical_tactile_sim::{ContactLight, Press, SensorOptions, SimConfig, SyntheticSensor};
 
 /// Where `fixtures` writes by default: this crate's fixtures folder.
 const FIXTURES_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures");
@@ -267,13 +264,32 @@ impl CommonArgs {
         self.sensor == Sensor::Fingertip
     }
 
-    /// The dot grid of the flags over `base`.
-    fn grid(&self, base: DotGrid) -> DotGrid {
-        DotGrid {
-            pitch_px: self.pitch_px.unwrap_or(base.pitch_px),
-            diameter_px: self.dot_px.unwrap_or(base.diameter_px),
-            jitter_px: self.jitter_px.unwrap_or(base.jitter_px),
-            ..base
+    /// The sensor of the flags.
+    pub fn sensor(&self) -> SensorOptions {
+        let numbers =
+            |n: &Option<Numbers>| n.as_ref().map(|Numbers(v)| v.clone()).unwrap_or_default();
+        SensorOptions {
+            fingertip: self.is_fingertip(),
+            random_markers: self.random_markers,
+            dot_grid: self.dot_grid,
+            full_frame: self.full_frame,
+            youngs_kpa: self.youngs_kpa,
+            poisson: self.poisson,
+            layer_mm: self.layer_mm,
+            coverage: Some(self.coverage),
+            markers: self.markers,
+            marker_depth_mm: self.marker_depth_mm,
+            pitch_px: self.pitch_px,
+            dot_px: self.dot_px,
+            jitter_px: self.jitter_px,
+            noise_read: Some(self.noise_read),
+            flicker: Some(self.flicker),
+            exposure_steps: numbers(&self.exposure_steps),
+            drift: numbers(&self.drift),
+            contact_light: ContactLight {
+                change: self.contact_light.unwrap_or(0.0),
+                sided: self.contact_shading.unwrap_or(0.0),
+            },
         }
     }
 
@@ -288,59 +304,8 @@ impl CommonArgs {
         } else {
             self.flow || flow_default
         };
-        if self.dot_grid {
-            c.config = SimConfig::dot_grid(self.grid(DotGrid::default()));
-        }
-        if self.is_fingertip() {
-            c.config = if self.random_markers {
-                SimConfig::fingertip_with(MarkerLayout::Random)
-            } else {
-                SimConfig::fingertip_with(MarkerLayout::Grid(self.grid(FINGERTIP_GRID)))
-            };
-        }
-        let cfg = &mut c.config;
-        cfg.full_frame = self.full_frame;
-        if let Some(e) = self.youngs_kpa {
-            cfg.material.youngs_kpa = e;
-        }
-        if let Some(nu) = self.poisson {
-            cfg.material.poisson = nu;
-        }
-        if let Some(t) = self.layer_mm {
-            cfg.material.layer_mm = t;
-        }
-        cfg.markers.coverage = self.coverage;
-        cfg.markers.count = self.markers;
-        if let Some(d) = self.marker_depth_mm {
-            cfg.markers.depth_mm = d;
-        }
-        cfg.noise.read = self.noise_read;
-        cfg.noise.flicker = self.flicker;
-        cfg.noise.exposure = self.exposure();
-        cfg.noise.contact_light = ContactLight {
-            change: self.contact_light.unwrap_or(0.0),
-            sided: self.contact_shading.unwrap_or(0.0),
-        };
+        c.config = self.sensor().config();
         c
-    }
-
-    /// The exposure changes of --exposure-steps and --drift.
-    pub fn exposure(&self) -> ExposureChanges {
-        let mut e = ExposureChanges::default();
-        if let Some(Numbers(v)) = &self.exposure_steps {
-            let at = |k: usize, d: f64| v.get(k).copied().unwrap_or(d);
-            e.step_every = at(0, 0.0).max(0.0) as u64;
-            e.step_gain = at(1, 0.0) as f32;
-            e.step_offset = at(2, 0.0) as f32;
-            e.step_levels = at(3, 2.0).max(0.0) as u32;
-        }
-        if let Some(Numbers(v)) = &self.drift {
-            let at = |k: usize| v.get(k).copied().unwrap_or(0.0);
-            e.drift_gain = at(0) as f32;
-            e.drift_offset = at(1) as f32;
-            e.drift_period = at(2);
-        }
-        e
     }
 }
 

@@ -251,7 +251,15 @@ def simulate(
     sensor: Literal["strip", "fingertip"] = "strip",
     **options: object,
 ) -> int:
-    """Writes a synthetic recording into ``out``; returns the frames written."""
+    """Writes a synthetic recording into ``out``; returns the frames written.
+
+    ``options`` are the scenario's (``force_n``, ``frames``, ``subset``, ...)
+    and the sensor's, as the ``simulate`` command's flags: ``random_markers``,
+    ``dot_grid``, ``youngs_kpa``, ``poisson``, ``layer_mm``, ``coverage``,
+    ``markers``, ``marker_depth_mm=(min, max)``, ``pitch_px``, ``dot_px``,
+    ``jitter_px``, ``noise_read``, ``flicker``,
+    ``exposure_steps=(every, gain[, offset[, levels]])``,
+    ``drift=(gain, offset, period)``, ``contact_light``, ``contact_shading``."""
 
 def calibrate(
     dataset_dir: PathLike,

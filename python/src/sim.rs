@@ -15,7 +15,9 @@ use optical_tactile::io::read_gray;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{FittingChoices, fitting_extractor};
 use optical_tactile_sim::scenario::{self, Common, Scenario};
-use optical_tactile_sim::{Press as SimPress, SimConfig, SyntheticSensor as SimSensor};
+use optical_tactile_sim::{
+    Press as SimPress, SensorOptions, SimConfig, SyntheticSensor as SimSensor,
+};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -40,9 +42,11 @@ macro_rules! set_fields {
                     })+
                     _ => {
                         return Err(Failure::Invalid(format!(
-                            "invalid parameter `{key}`: not an option of the `{}` scenario ({})",
+                            "invalid parameter `{key}`: not an option of the `{}` scenario ({}) \
+                             nor of the sensor ({})",
                             $scenario,
-                            [$(stringify!($f)),+].join(", ")
+                            [$(stringify!($f)),+].join(", "),
+                            SENSOR_KEYS.join(", ")
                         )))
                     }
                 }
@@ -270,6 +274,102 @@ fn scenario_options(
     })
 }
 
+/// The keywords of [`simulate`] that describe the sensor rather than the
+/// scenario (those of `simulate`'s command-line sensor flags).
+const SENSOR_KEYS: [&str; 17] = [
+    "random_markers",
+    "dot_grid",
+    "youngs_kpa",
+    "poisson",
+    "layer_mm",
+    "coverage",
+    "markers",
+    "marker_depth_mm",
+    "pitch_px",
+    "dot_px",
+    "jitter_px",
+    "noise_read",
+    "flicker",
+    "exposure_steps",
+    "drift",
+    "contact_light",
+    "contact_shading",
+];
+
+/// The sensor [`simulate`]'s keywords describe ([`SENSOR_KEYS`]), and the
+/// other keywords (the scenario's). Errors, as the command line does, on
+/// a dot grid or random markers asked of the wrong sensor and on
+/// `exposure_steps` (EVERY, GAIN[, OFFSET[, LEVELS]]) or `drift` (GAIN,
+/// OFFSET, PERIOD) of another length; the values themselves are checked by
+/// the simulator.
+fn sensor_options<'py>(
+    py: Python<'py>,
+    sensor: Sensor,
+    full_frame: bool,
+    kw: Option<&Bound<'py, PyDict>>,
+) -> Result<(SensorOptions, Option<Bound<'py, PyDict>>), Failure> {
+    let mut o = SensorOptions {
+        fingertip: sensor == Sensor::Fingertip,
+        full_frame,
+        ..SensorOptions::default()
+    };
+    let Some(kw) = kw else {
+        return Ok((o, None));
+    };
+    let rest = PyDict::new(py);
+    for (k, v) in kw.iter() {
+        let key: String = k
+            .extract()
+            .map_err(|_| Failure::Type("option names must be strings".into()))?;
+        let bad = |e: PyErr| Failure::Type(format!("option `{key}`: {e}"));
+        match key.as_str() {
+            "random_markers" => o.random_markers = v.extract().map_err(bad)?,
+            "dot_grid" => o.dot_grid = v.extract().map_err(bad)?,
+            "youngs_kpa" => o.youngs_kpa = v.extract().map_err(bad)?,
+            "poisson" => o.poisson = v.extract().map_err(bad)?,
+            "layer_mm" => o.layer_mm = v.extract().map_err(bad)?,
+            "coverage" => o.coverage = v.extract().map_err(bad)?,
+            "markers" => o.markers = v.extract().map_err(bad)?,
+            "marker_depth_mm" => o.marker_depth_mm = v.extract().map_err(bad)?,
+            "pitch_px" => o.pitch_px = v.extract().map_err(bad)?,
+            "dot_px" => o.dot_px = v.extract().map_err(bad)?,
+            "jitter_px" => o.jitter_px = v.extract().map_err(bad)?,
+            "noise_read" => o.noise_read = v.extract().map_err(bad)?,
+            "flicker" => o.flicker = v.extract().map_err(bad)?,
+            "exposure_steps" => o.exposure_steps = v.extract().map_err(bad)?,
+            "drift" => o.drift = v.extract().map_err(bad)?,
+            "contact_light" => o.contact_light.change = v.extract().map_err(bad)?,
+            "contact_shading" => o.contact_light.sided = v.extract().map_err(bad)?,
+            _ => rest
+                .set_item(k, v)
+                .map_err(|e| Failure::Type(e.to_string()))?,
+        }
+    }
+    let invalid = |what: &str| Err(Failure::Invalid(what.into()));
+    if o.dot_grid && o.fingertip {
+        return invalid("dot_grid: the fingertip sensor has a dot grid of its own");
+    }
+    if o.random_markers && !o.fingertip {
+        return invalid(
+            "random_markers: for sensor=\"fingertip\" (the strip's markers are random)",
+        );
+    }
+    let steps = &o.exposure_steps;
+    if !steps.is_empty()
+        && (!(2..=4).contains(&steps.len())
+            || steps[0] < 1.0
+            || steps.get(3).is_some_and(|&l| l < 1.0))
+    {
+        return invalid(
+            "exposure_steps: (EVERY, GAIN[, OFFSET[, LEVELS]]) with EVERY and LEVELS >= 1",
+        );
+    }
+    if !o.drift.is_empty() && (o.drift.len() != 3 || o.drift[2].is_nan() || o.drift[2] <= 0.0) {
+        return invalid("drift: (GAIN, OFFSET, PERIOD) with PERIOD > 0 frames");
+    }
+    Ok((o, Some(rest)))
+}
+
 /// Writes a synthetic recording of `scenario` (`"single"`, `"pair"`,
 /// `"presses"`, `"shear"`, `"characterization"`, `"perches"`, `"mapping"`,
 /// `"rest"`) into the directory `out`, in the formats of docs/formats.md:
@@ -283,6 +383,13 @@ fn scenario_options(
 /// grid of dark dots filmed at 320x240; `presses` then draws spheres, flat
 /// punches and sheared fingertips anywhere in x and y, and
 /// `characterization` writes the flat protocol with its `geometry.json`).
+/// The sensor's own keywords are those of the command line's sensor flags
+/// ([`SENSOR_KEYS`]: `random_markers` (fingertip), `dot_grid` (strip),
+/// `youngs_kpa`, `poisson`, `layer_mm`, `coverage`, `markers`,
+/// `marker_depth_mm=(min, max)`, `pitch_px`, `dot_px`, `jitter_px`,
+/// `noise_read`, `flicker`, `exposure_steps=(every, gain[, offset[,
+/// levels]])`, `drift=(gain, offset, period)`, `contact_light`,
+/// `contact_shading`): the same options make the same frames.
 /// Returns the number of frames written.
 #[pyfunction]
 #[pyo3(signature = (scenario, out, *, seed=1, flow=false, fps=50.0, full_frame=false, sensor="strip", **options))]
@@ -299,15 +406,14 @@ pub fn simulate(
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<usize> {
     let sensor = Sensor::parse(sensor).map_err(|e| e.into_py(py))?;
-    let sc = self::scenario(scenario, sensor, options).map_err(|e| e.into_py(py))?;
+    let (sensor_options, options) =
+        sensor_options(py, sensor, full_frame, options).map_err(|e| e.into_py(py))?;
+    let sc = self::scenario(scenario, sensor, options.as_ref()).map_err(|e| e.into_py(py))?;
     let mut common = Common::new(out);
-    if sensor == Sensor::Fingertip {
-        common.config = SimConfig::fingertip();
-    }
+    common.config = sensor_options.config();
     common.seed = seed;
     common.flow = flow;
     common.fps = fps;
-    common.config.full_frame = full_frame;
     let summary = detached(py, || Ok(scenario::run(&sc, &common)?))?;
     Ok(summary.frames)
 }

@@ -196,6 +196,47 @@ def test_characterization_writes_spot_checks(tmp_path):
         ot.simulate("characterization", tmp_path / "e", subset=1, spot_checks=10**9)
 
 
+def test_simulate_takes_the_command_lines_sensor_flags(tmp_path):
+    # The same sensor options make the same frames as the command line's flags.
+    flags = (
+        "--sensor fingertip --random-markers --coverage 0.2 --marker-depth-mm 0.3,0.8 "
+        "--youngs-kpa 800 --noise-read 2 --exposure-steps 1,0.02,3 --contact-light -0.3"
+    )
+    run([example("simulate"), "single", "--out", tmp_path / "cli", "--frames", "3", "--no-flow", "-q"]
+        + flags.split())
+    ot.simulate(
+        "single", tmp_path / "py", frames=3, sensor="fingertip", random_markers=True,
+        coverage=0.2, marker_depth_mm=(0.3, 0.8), youngs_kpa=800.0, noise_read=2.0,
+        exposure_steps=(1, 0.02, 3), contact_light=-0.3,
+    )
+    names = sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "py").iterdir())
+    for name in names:
+        assert (tmp_path / "cli" / name).read_bytes() == (tmp_path / "py" / name).read_bytes(), name
+    # And other options other frames.
+    ot.simulate("single", tmp_path / "grid", frames=3, sensor="fingertip", pitch_px=26.0)
+    assert (tmp_path / "grid" / "000001.png").read_bytes() != (tmp_path / "py" / "000001.png").read_bytes()
+    # What does not make a sensor is refused before anything is written.
+    for bad in [
+        dict(sensor="fingertip", dot_grid=True),
+        dict(random_markers=True),
+        dict(exposure_steps=(1,)),
+        dict(exposure_steps=(0, 0.02)),
+        dict(drift=(0.05, 4.0)),
+        dict(marker_depth_mm=(3.0, 1.0)),
+        dict(markers=10**11),
+        dict(coverage=2.0),
+        dict(contact_light=5.0),
+    ]:
+        with pytest.raises(ValueError):
+            ot.simulate("single", tmp_path / "bad", frames=3, **bad)
+        assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir()), bad
+    with pytest.raises(TypeError):
+        ot.simulate("single", tmp_path / "bad", frames=3, youngs_kpa="soft")
+    with pytest.raises(ValueError, match="youngs_kpa"):
+        ot.simulate("single", tmp_path / "bad", frames=3, young_kpa=70.0)
+
+
 def test_calibrate_takes_the_command_lines_choices(tmp_path):
     # The strip with sweeps: each of `calibrate`'s fit flags lands in the file.
     ot.simulate("characterization", tmp_path / "s", subset=300, sweep_step_mm=20.0)
@@ -219,6 +260,12 @@ def test_calibrate_takes_the_command_lines_choices(tmp_path):
     asked = fitted(tmp_path / "f", dot_tracking=False, preset="dense", light_box=24)["pipeline"]
     assert not asked.get("dot_tracking", False) and asked["flow_preset"] == "dense"
     assert asked["light_box_px"] == 24
+    # Random markers on the fingertip: the denser flow on frames divided by
+    # their own light.
+    ot.simulate("characterization", tmp_path / "r", sensor="fingertip", random_markers=True, subset=300)
+    beads = fitted(tmp_path / "r")["pipeline"]
+    assert beads["flow_preset"] == "dense" and beads["light_box_px"] > 0
+    assert not beads.get("dot_tracking", False)
     # Bad choices are refused before any work.
     with pytest.raises(ValueError, match="relocation"):
         ot.calibrate(tmp_path / "s", relocation="sometimes")

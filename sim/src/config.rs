@@ -642,3 +642,109 @@ pub struct Rendered {
     /// `None` when not requested.
     pub flow: Option<FlowField>,
 }
+
+/// A simulated sensor as the `simulate` command's options describe it: one
+/// of the three sensors ([`SimConfig::default`], the curved strip;
+/// [`SimConfig::fingertip`]; [`SimConfig::dot_grid`]) with the options
+/// given over it, every `None` the sensor's own. [`SensorOptions::config`]
+/// builds it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SensorOptions {
+    /// The flat fingertip sensor ([`SimConfig::fingertip_with`]) instead of
+    /// the strip.
+    pub fingertip: bool,
+    /// With `fingertip`: random bright markers on a dark gel instead of its
+    /// dot grid.
+    pub random_markers: bool,
+    /// A GelSight-like dot grid on a piece of the strip
+    /// ([`SimConfig::dot_grid`]); the fingertip has its own.
+    pub dot_grid: bool,
+    /// Render the whole camera frame with the strip inside it.
+    pub full_frame: bool,
+    /// Gel Young's modulus, kPa.
+    pub youngs_kpa: Option<f64>,
+    /// Gel Poisson's ratio.
+    pub poisson: Option<f64>,
+    /// Gel layer thickness, mm.
+    pub layer_mm: Option<f64>,
+    /// Fraction of the image covered by markers.
+    pub coverage: Option<f64>,
+    /// Exact number of markers (overrides the coverage).
+    pub markers: Option<usize>,
+    /// Depths of the markers below the skin, mm (min, max).
+    pub marker_depth_mm: Option<(f64, f64)>,
+    /// Dot grid: distance between dot centres, px.
+    pub pitch_px: Option<f64>,
+    /// Dot grid: dot diameter, px.
+    pub dot_px: Option<f64>,
+    /// Dot grid: each dot moved off the grid by up to this, px.
+    pub jitter_px: Option<f64>,
+    /// Read-noise standard deviation, grey levels.
+    pub noise_read: Option<f32>,
+    /// Relative per-frame brightness flicker.
+    pub flicker: Option<f32>,
+    /// Camera exposure steps: every `[0]` frames the gain changes by `[1]`
+    /// (relative) and the black level by `[2]` grey levels (default 0), at
+    /// most `[3]` steps from the start (default 2); empty: none.
+    pub exposure_steps: Vec<f64>,
+    /// Slow camera drift: gain `[0]` (relative), black level `[1]` (grey
+    /// levels), period `[2]` frames; empty: none.
+    pub drift: Vec<f64>,
+    /// The gel's light under each contact: change at its centre, and the
+    /// sided change of its slopes ([`ContactLight`]).
+    pub contact_light: ContactLight,
+}
+
+impl SensorOptions {
+    /// The sensor these options describe (the fingertip's own dot grid
+    /// with `fingertip`, whatever `dot_grid` says; numbers of
+    /// `exposure_steps` and `drift` beyond those named are not read).
+    /// Not checked: [`SimConfig::validate`] (which every scenario runs)
+    /// refuses what does not make a sensor.
+    pub fn config(&self) -> SimConfig {
+        let grid = |base: DotGrid| DotGrid {
+            pitch_px: self.pitch_px.unwrap_or(base.pitch_px),
+            diameter_px: self.dot_px.unwrap_or(base.diameter_px),
+            jitter_px: self.jitter_px.unwrap_or(base.jitter_px),
+            ..base
+        };
+        let mut cfg = if self.fingertip {
+            SimConfig::fingertip_with(if self.random_markers {
+                MarkerLayout::Random
+            } else {
+                MarkerLayout::Grid(grid(FINGERTIP_GRID))
+            })
+        } else if self.dot_grid {
+            SimConfig::dot_grid(grid(DotGrid::default()))
+        } else {
+            SimConfig::default()
+        };
+        cfg.full_frame = self.full_frame;
+        let m = &mut cfg.material;
+        m.youngs_kpa = self.youngs_kpa.unwrap_or(m.youngs_kpa);
+        m.poisson = self.poisson.unwrap_or(m.poisson);
+        m.layer_mm = self.layer_mm.unwrap_or(m.layer_mm);
+        let k = &mut cfg.markers;
+        k.coverage = self.coverage.unwrap_or(k.coverage);
+        k.count = self.markers.or(k.count);
+        k.depth_mm = self.marker_depth_mm.unwrap_or(k.depth_mm);
+        let n = &mut cfg.noise;
+        n.read = self.noise_read.unwrap_or(n.read);
+        n.flicker = self.flicker.unwrap_or(n.flicker);
+        let at = |v: &[f64], k: usize, d: f64| v.get(k).copied().unwrap_or(d);
+        let (s, d) = (&self.exposure_steps, &self.drift);
+        if !s.is_empty() {
+            n.exposure.step_every = at(s, 0, 0.0).max(0.0) as u64;
+            n.exposure.step_gain = at(s, 1, 0.0) as f32;
+            n.exposure.step_offset = at(s, 2, 0.0) as f32;
+            n.exposure.step_levels = at(s, 3, 2.0).max(0.0) as u32;
+        }
+        if !d.is_empty() {
+            n.exposure.drift_gain = at(d, 0, 0.0) as f32;
+            n.exposure.drift_offset = at(d, 1, 0.0) as f32;
+            n.exposure.drift_period = at(d, 2, 0.0);
+        }
+        n.contact_light = self.contact_light;
+        cfg
+    }
+}

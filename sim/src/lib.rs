@@ -51,7 +51,8 @@ mod sensor;
 pub use camera::{CameraModel, Skin};
 pub use config::{
     ContactLight, DotGrid, ExposureChanges, FINGERTIP_GRID, FINGERTIP_LENGTH_MM,
-    FINGERTIP_WIDTH_MM, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SimConfig,
+    FINGERTIP_WIDTH_MM, MarkerConfig, MarkerLayout, NoiseConfig, Rendered, SensorOptions,
+    SimConfig,
 };
 pub use elastic::Material;
 pub use sensor::{Press, SyntheticSensor, Tip};

@@ -10,7 +10,10 @@ use optical_tactile_sim::elastic::{
 use optical_tactile_sim::scenario::{
     self, Common, Mapping, Perches, Presses, Scenario, Single, tilted_force,
 };
-use optical_tactile_sim::{MarkerConfig, Material, NoiseConfig, Press, SimConfig, SyntheticSensor};
+use optical_tactile_sim::{
+    DotGrid, FINGERTIP_GRID, MarkerConfig, MarkerLayout, Material, NoiseConfig, Press,
+    SensorOptions, SimConfig, SyntheticSensor,
+};
 use proptest::prelude::*;
 
 #[path = "common/scratch.rs"]
@@ -857,4 +860,69 @@ fn single_sweep_moves_one_load_along_the_skin() {
         assert!(scenario::run(&Scenario::Single(bad), &c).is_err(), "{to}");
         assert!(!out.exists());
     }
+}
+
+/// The command line's sensor options: none given is the sensor itself; each
+/// given lands in its field, over the sensor asked for.
+#[test]
+fn sensor_options_over_the_three_sensors() {
+    let none = SensorOptions::default();
+    assert_eq!(none.config(), SimConfig::default());
+    let tip = SensorOptions {
+        fingertip: true,
+        ..none.clone()
+    };
+    assert_eq!(tip.config(), SimConfig::fingertip());
+    let grid = SensorOptions {
+        dot_grid: true,
+        ..none.clone()
+    };
+    assert_eq!(grid.config(), SimConfig::dot_grid(DotGrid::default()));
+    let asked = SensorOptions {
+        fingertip: true,
+        pitch_px: Some(26.0),
+        youngs_kpa: Some(800.0),
+        markers: Some(900),
+        marker_depth_mm: Some((0.4, 0.6)),
+        noise_read: Some(2.5),
+        exposure_steps: vec![5.0, 0.02],
+        drift: vec![0.05, 3.0, 40.0],
+        ..none.clone()
+    };
+    let c = asked.config();
+    let MarkerLayout::Grid(g) = c.markers.layout else {
+        panic!("{:?}", c.markers.layout)
+    };
+    assert_eq!(
+        (g.pitch_px, g.diameter_px),
+        (26.0, FINGERTIP_GRID.diameter_px)
+    );
+    assert_eq!(c.material.youngs_kpa, 800.0);
+    assert_eq!(
+        c.material.layer_mm,
+        SimConfig::fingertip().material.layer_mm
+    );
+    assert_eq!(
+        (c.markers.count, c.markers.depth_mm),
+        (Some(900), (0.4, 0.6))
+    );
+    assert_eq!(c.noise.read, 2.5);
+    let e = c.noise.exposure;
+    assert_eq!(
+        (e.step_every, e.step_gain, e.step_offset, e.step_levels),
+        (5, 0.02, 0.0, 2)
+    );
+    assert_eq!(
+        (e.drift_gain, e.drift_offset, e.drift_period),
+        (0.05, 3.0, 40.0)
+    );
+    assert!(c.validate().is_ok());
+    let beads = SensorOptions {
+        random_markers: true,
+        ..tip
+    };
+    assert_eq!(
+        beads.config(),
+        SimConfig::fingertip_with(MarkerLayout::Random)
+    );
 }
