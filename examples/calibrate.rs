@@ -106,7 +106,7 @@ use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::contact::profile::Relocation;
 use optical_tactile::flow::dis::DisPreset;
 use optical_tactile::frame::Roi;
-use optical_tactile::geometry::{FlatSurface, SensorGeometry};
+use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{
@@ -517,21 +517,7 @@ fn parse_contact_point(v: &str) -> Result<ContactPointMethod, String> {
 
 /// `strip` or `flat:LENGTHxWIDTH` (mm).
 fn parse_geometry(v: &str) -> Result<SensorGeometry, String> {
-    let bad = || format!("expected strip or flat:LENGTHxWIDTH (mm, e.g. flat:24x18), got `{v}`");
-    let g = match v.split_once(':') {
-        None if v == "strip" => SensorGeometry::default(),
-        Some(("flat", dims)) => {
-            let (l, w) = dims.split_once('x').ok_or_else(bad)?;
-            let num = |x: &str| x.trim().parse::<f64>().map_err(|_| bad());
-            SensorGeometry::Flat(FlatSurface {
-                length_mm: num(l)?,
-                width_mm: num(w)?,
-            })
-        }
-        _ => return Err(bad()),
-    };
-    g.validate().map_err(|e| e.to_string())?;
-    Ok(g)
+    SensorGeometry::parse(v).map_err(|e| e.to_string())
 }
 
 /// `MAGNITUDE,SUM`: a positive flow magnitude and a patch sum >= 0.

@@ -124,6 +124,33 @@ impl SensorGeometry {
         }
     }
 
+    /// A surface named as on the command line: `strip` (the default curved
+    /// strip) or `flat:LENGTHxWIDTH` (mm, e.g. `flat:24x18`); anything else,
+    /// or a dimension [`SensorGeometry::validate`] refuses, is
+    /// [`Error::InvalidParameter`].
+    pub fn parse(text: &str) -> Result<Self> {
+        let bad = || {
+            Error::param(
+                "geometry",
+                format!("expected strip or flat:LENGTHxWIDTH (mm, e.g. flat:24x18), got `{text}`"),
+            )
+        };
+        let g = match text.split_once(':') {
+            None if text == "strip" => SensorGeometry::default(),
+            Some(("flat", dims)) => {
+                let (l, w) = dims.split_once('x').ok_or_else(bad)?;
+                let num = |x: &str| x.trim().parse::<f64>().map_err(|_| bad());
+                SensorGeometry::Flat(FlatSurface {
+                    length_mm: num(l)?,
+                    width_mm: num(w)?,
+                })
+            }
+            _ => return Err(bad()),
+        };
+        g.validate()?;
+        Ok(g)
+    }
+
     /// The surface's name in files and messages: `curved_strip` or `flat`.
     pub fn kind(&self) -> &'static str {
         match self {
@@ -429,6 +456,43 @@ impl CurvedStrip {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn surfaces_parse_from_their_command_line_names() {
+        assert_eq!(
+            SensorGeometry::parse("strip").unwrap(),
+            SensorGeometry::default()
+        );
+        let flat = SensorGeometry::parse("flat:24x18").unwrap();
+        assert_eq!(
+            flat,
+            SensorGeometry::Flat(FlatSurface {
+                length_mm: 24.0,
+                width_mm: 18.0
+            })
+        );
+        assert_eq!(
+            SensorGeometry::parse("flat: 30 x 20.5").unwrap().kind(),
+            "flat"
+        );
+        for bad in [
+            "",
+            "curved",
+            "flat",
+            "flat:24",
+            "flat:24x",
+            "flat:ax18",
+            "flat:0x18",
+            "flat:-24x18",
+            "flat:24x1e9",
+            "flat:NaNx18",
+            "strip:1",
+            "flat:24x18x3",
+        ] {
+            let e = SensorGeometry::parse(bad).unwrap_err();
+            assert!(matches!(e, Error::InvalidParameter { .. }), "{bad:?}: {e}");
+        }
+    }
     use approx::assert_relative_eq;
 
     #[test]

@@ -276,6 +276,7 @@ def calibrate(
     dot_tracking: Optional[bool] = None,
     dot_fit: bool = True,
     light_box: Optional[int] = None,
+    geometry: Optional[str] = None,
 ) -> Calibration:
     """Fits a calibration from a characterization dataset, as the ``calibrate``
     command does with the flags of the same names; ``sweeps=False`` is

@@ -11,6 +11,7 @@ use optical_tactile::calibration::fit::{
 use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::DisPreset;
 use optical_tactile::frame::Roi;
+use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::read_gray;
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{FittingChoices, fitting_extractor};
@@ -553,9 +554,10 @@ impl SyntheticSensor {
 /// `calibrate --thresholds auto` does; `preset`: the flow preset (default:
 /// decided from the dataset, as `calibrate` does: `dense` for random
 /// markers on a flat sensor, else the library's); `crop`: `(x, y, w, h)` of
-/// the frames (default: the whole frame). The sensor's geometry is the
-/// dataset's `geometry.json` (a flat sensor's: contacts located in 2-D),
-/// else the curved strip. With a `sweeps.csv` beside `tests.csv` (the
+/// the frames (default: the whole frame). The sensor's geometry is
+/// `geometry` (`"strip"` or `"flat:LENGTHxWIDTH"`, mm), else the dataset's
+/// `geometry.json` (a flat sensor's: contacts located in 2-D), else the
+/// curved strip. With a `sweeps.csv` beside `tests.csv` (the
 /// strip), the calibration also learns per-column location offsets and
 /// force gains from the sweeps (docs/calibration.md); `sweeps=False`
 /// ignores it. The other options are `calibrate`'s flags of the same names
@@ -570,7 +572,7 @@ impl SyntheticSensor {
     dataset_dir, *, thresholds=None, preset=None, crop=None, sweeps=true,
     measured_columns=false, relocation=None, shear_free_columns=false,
     spread_channel=true, weighted_profiles=false, dot_tracking=None, dot_fit=true,
-    light_box=None,
+    light_box=None, geometry=None,
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn calibrate(
@@ -588,6 +590,7 @@ pub fn calibrate(
     dot_tracking: Option<bool>,
     dot_fit: bool,
     light_box: Option<usize>,
+    geometry: Option<&str>,
 ) -> PyResult<Calibration> {
     // `None` (or "auto"): the presets in turn, as `calibrate --thresholds auto`.
     let auto = match thresholds {
@@ -602,9 +605,10 @@ pub fn calibrate(
         let flow = preset.map(DisPreset::parse).transpose()?;
         let relocation = relocation.map(params::relocation).transpose()?;
         let light_box = light_box.map(params::light_box).transpose()?;
-        Ok((asked, flow, relocation, light_box))
+        let geometry = geometry.map(SensorGeometry::parse).transpose()?;
+        Ok((asked, flow, relocation, light_box, geometry))
     };
-    let (asked, flow, relocation, light_box) = parsed().map_err(|e| e.into_py(py))?;
+    let (asked, flow, relocation, light_box, geometry) = parsed().map_err(|e| e.into_py(py))?;
     let choices = FittingChoices {
         dot_tracking,
         dot_fit,
@@ -621,7 +625,10 @@ pub fn calibrate(
         // strip without one), and that chooses the contact point and the
         // force maps' inputs as `calibrate` does; its first reference
         // whether the dots are followed, the flow and the light box.
-        let geometry = read_dataset_geometry(&dataset_dir)?.unwrap_or_default();
+        let geometry = match geometry {
+            Some(g) => g,
+            None => read_dataset_geometry(&dataset_dir)?.unwrap_or_default(),
+        };
         let point = ContactPointMethod::for_geometry(&geometry);
         let (mut config, _) =
             fitting_extractor(&geometry, &full.crop(&first)?.to_owned(), &choices);

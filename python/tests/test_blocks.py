@@ -254,7 +254,9 @@ def test_calibrate_takes_the_command_lines_choices(tmp_path):
     # The flat fingertip's dot grid: its dots followed unless told not, the
     # `fine` flow and no light box unless asked, as `calibrate` decides.
     ot.simulate("characterization", tmp_path / "f", sensor="fingertip", subset=300)
-    dots = fitted(tmp_path / "f")["pipeline"]
+    tip = fitted(tmp_path / "f")
+    assert fitted(tmp_path / "f", geometry="flat:24x18") == tip  # its geometry.json's
+    dots = tip["pipeline"]
     assert dots["dot_tracking"] and dots["flow_preset"] == "fine"
     assert "light_box_px" not in dots
     asked = fitted(tmp_path / "f", dot_tracking=False, preset="dense", light_box=24)["pipeline"]
@@ -275,3 +277,6 @@ def test_calibrate_takes_the_command_lines_choices(tmp_path):
         ot.calibrate(tmp_path / "s", preset="blurry")
     with pytest.raises(ValueError, match="crop"):
         ot.calibrate(tmp_path / "s", crop=(0, 0, 5000, 100))
+    for geometry in ["flat", "flat:24", "flat:0x18", "cylinder"]:
+        with pytest.raises(ValueError, match="geometry|length_mm|width_mm"):
+            ot.calibrate(tmp_path / "s", geometry=geometry)
