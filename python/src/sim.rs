@@ -358,8 +358,9 @@ fn sensor_options<'py>(
     let steps = &o.exposure_steps;
     if !steps.is_empty()
         && (!(2..=4).contains(&steps.len())
+            || steps[0].is_nan()
             || steps[0] < 1.0
-            || steps.get(3).is_some_and(|&l| l < 1.0))
+            || steps.get(3).is_some_and(|&l| l.is_nan() || l < 1.0))
     {
         return invalid(
             "exposure_steps: (EVERY, GAIN[, OFFSET[, LEVELS]]) with EVERY and LEVELS >= 1",

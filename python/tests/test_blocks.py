@@ -222,6 +222,8 @@ def test_simulate_takes_the_command_lines_sensor_flags(tmp_path):
         dict(random_markers=True),
         dict(exposure_steps=(1,)),
         dict(exposure_steps=(0, 0.02)),
+        dict(exposure_steps=(float("nan"), 0.02)),
+        dict(exposure_steps=(1, float("nan"))),
         dict(drift=(0.05, 4.0)),
         dict(marker_depth_mm=(3.0, 1.0)),
         dict(markers=10**11),
