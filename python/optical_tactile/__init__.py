@@ -16,7 +16,8 @@ scale; grey ``(H, W)`` or colour ``(H, W, 3)``); contacts come out as
 
 The pipeline's stages are usable alone: :func:`dis_flow`, :func:`nhhd`,
 :func:`segment`; :func:`simulate` and :class:`SyntheticSensor` make
-synthetic recordings, :func:`calibrate` fits a calibration. Errors derive
+synthetic recordings, :func:`calibrate` fits a calibration and
+:func:`evaluate` scores contacts against a recording's truth. Errors derive
 from :class:`OpticalTactileError` (bad input also from ``ValueError``, a
 missing file from ``FileNotFoundError``).
 """
@@ -44,6 +45,7 @@ from ._native import (
     __version__,
     calibrate,
     dis_flow,
+    evaluate,
     nhhd,
     read_image,
     segment,
@@ -69,6 +71,7 @@ __all__ = [
     "as_array",
     "calibrate",
     "dis_flow",
+    "evaluate",
     "nhhd",
     "read_image",
     "segment",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 import pathlib
-from typing import Iterator, Literal, Optional, Union
+from typing import Iterable, Iterator, Literal, Optional, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -260,6 +260,19 @@ def simulate(
     ``jitter_px``, ``noise_read``, ``flicker``,
     ``exposure_steps=(every, gain[, offset[, levels]])``,
     ``drift=(gain, offset, period)``, ``contact_light``, ``contact_shading``."""
+
+def evaluate(
+    predictions: Union[PathLike, Iterable[tuple[str, list[Contact]]]],
+    truth: PathLike,
+    *,
+    gate_mm: float = 10.0,
+    beyond_n: float = 0.3,
+    worst: int = 5,
+    band_mm: Optional[float] = None,
+) -> dict[str, object]:
+    """Scores predicted contacts (a contacts file, or ``(frame name, contacts)``
+    pairs of a calibrated sensor) against a ``truth.jsonl``, as the ``evaluate``
+    command does; the scores as its ``--json`` writes them."""
 
 def calibrate(
     dataset_dir: PathLike,

@@ -9,7 +9,7 @@ use numpy::{IntoPyArray, PyArray2};
 use optical_tactile::capture::{FrameSource, SequenceSource};
 use optical_tactile::contact::{Contact as LibContact, ContactPointMethod, RawContact as LibRaw};
 use optical_tactile::frame::Roi;
-use optical_tactile::io::read_gray_channel;
+use optical_tactile::io::{ContactRecord, read_gray_channel};
 use optical_tactile::sensor::{ContactExtractor, ExtractorConfig};
 use optical_tactile::track::FilterConfig;
 use optical_tactile::{Calibration as LibCalibration, TactileSensor};
@@ -199,6 +199,32 @@ pub struct Contact {
 }
 
 impl Contact {
+    /// The contact as a contacts-file record (docs/formats.md), `None`
+    /// without calibration (no location or force).
+    pub fn record(&self) -> Option<ContactRecord> {
+        let ((x_mm, y_mm, z_mm), (fx_n, fy_n, fz_n)) = (self.location_mm?, self.force_n?);
+        let sigma = self.force_sigma_n;
+        Some(ContactRecord {
+            id: Some(self.id),
+            x_mm,
+            y_mm,
+            z_mm,
+            fx_n,
+            fy_n,
+            fz_n,
+            x_px: Some(self.x_px),
+            y_px: Some(self.y_px),
+            d_pf: Some(self.raw.d_pf),
+            fallback: Some(self.fallback),
+            out_of_domain: Some(self.out_of_domain),
+            missed: Some(self.missed),
+            fx_sigma_n: sigma.map(|s| s.0),
+            fy_sigma_n: sigma.map(|s| s.1),
+            fz_sigma_n: sigma.map(|s| s.2),
+            ..ContactRecord::default()
+        })
+    }
+
     fn calibrated(c: &LibContact) -> Self {
         let [x, y, z] = c.location_mm;
         let [fx, fy, fz] = c.force_n;

@@ -12,9 +12,10 @@ use optical_tactile::contact::ContactPointMethod;
 use optical_tactile::flow::dis::DisPreset;
 use optical_tactile::frame::Roi;
 use optical_tactile::geometry::SensorGeometry;
-use optical_tactile::io::read_gray;
+use optical_tactile::io::{FrameRecord, read_gray, read_jsonl};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{FittingChoices, fitting_extractor};
+use optical_tactile_sim::evaluate::{ScoreOptions, score_with};
 use optical_tactile_sim::scenario::{self, Common, Scenario};
 use optical_tactile_sim::{
     Press as SimPress, SensorOptions, SimConfig, SyntheticSensor as SimSensor,
@@ -24,7 +25,7 @@ use pyo3::types::PyDict;
 
 use crate::errors::{Failure, detached};
 use crate::params;
-use crate::sensor::Calibration;
+use crate::sensor::{Calibration, Contact};
 
 /// Sets the fields named in `kw` on `$s`; an unknown name is an error that
 /// lists the known ones.
@@ -681,4 +682,107 @@ pub fn calibrate(
         Ok(fit.calibration)
     })?;
     Ok(Calibration { inner })
+}
+
+/// Largest number of contacts `evaluate` lists as the worst (as the
+/// command line's `--worst`).
+const MAX_WORST: usize = 1000;
+
+/// Scores predicted contacts against the truth as the `evaluate` example
+/// does, and returns its scores as a dict (the JSON of `evaluate --json`:
+/// `frames`, `matched`, `misses`, `false_contacts`, `mae_x_mm` ...
+/// `mae_fz_n`, `mean_force_error_n`, `beyond`, `worst`, `sigma_coverage`,
+/// `bands`, ...). `predictions` is a contacts file (JSON Lines, as `track
+/// --out` writes) or the frames' `(name, contacts)` pairs, `contacts` the
+/// list a calibrated `Sensor.process` returned for the frame of that name;
+/// `truth` a `truth.jsonl` (as `simulate` writes). A prediction matches a
+/// true contact within `gate_mm`; `beyond_n` is the bar of `beyond`;
+/// `worst` how many contacts of largest 3-D force error are listed;
+/// `band_mm` scores the contacts apart per band of that width along the
+/// true x. Nothing to score (no frame named in both, or no contact
+/// matched) is an error, as it is for the command.
+#[pyfunction]
+#[pyo3(signature = (predictions, truth, *, gate_mm=10.0, beyond_n=0.3, worst=5, band_mm=None))]
+pub fn evaluate<'py>(
+    py: Python<'py>,
+    predictions: &Bound<'py, PyAny>,
+    truth: PathBuf,
+    gate_mm: f64,
+    beyond_n: f64,
+    worst: usize,
+    band_mm: Option<f64>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let checked = || -> Result<(Option<PathBuf>, Vec<FrameRecord>), Failure> {
+        for (name, v) in [("gate_mm", gate_mm), ("beyond_n", beyond_n)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Failure::Invalid(format!(
+                    "{name} must be finite and > 0, got {v}"
+                )));
+            }
+        }
+        if band_mm.is_some_and(|b| !(b.is_finite() && b > 0.0)) {
+            return Err(Failure::Invalid(format!(
+                "band_mm must be finite and > 0, got {band_mm:?}"
+            )));
+        }
+        if worst > MAX_WORST {
+            return Err(Failure::Invalid(format!(
+                "worst must be at most {MAX_WORST}, got {worst}"
+            )));
+        }
+        if let Ok(path) = predictions.extract::<PathBuf>() {
+            return Ok((Some(path), Vec::new()));
+        }
+        let mut frames = Vec::new();
+        for item in predictions
+            .try_iter()
+            .map_err(|_| Failure::Type("predictions: a path or (name, contacts) pairs".into()))?
+        {
+            let (frame, contacts): (String, Vec<Bound<'py, Contact>>) = item
+                .and_then(|i| i.extract())
+                .map_err(|e| Failure::Type(format!("predictions: (name, contacts) pairs: {e}")))?;
+            let contacts = contacts
+                .iter()
+                .map(|c| {
+                    c.get().record().ok_or_else(|| {
+                        Failure::Invalid(format!(
+                            "predictions: a contact of {frame} has no location or force \
+                             (a raw sensor's patch: only a calibrated sensor's contacts are scored)"
+                        ))
+                    })
+                })
+                .collect::<Result<_, _>>()?;
+            frames.push(FrameRecord {
+                frame,
+                t_s: 0.0,
+                contacts,
+                latency_ms: None,
+            });
+        }
+        Ok((None, frames))
+    };
+    let (path, frames) = checked().map_err(|e| e.into_py(py))?;
+    let json = detached(py, || {
+        let pred = match path {
+            Some(p) => read_jsonl(p)?,
+            None => frames,
+        };
+        let truth: Vec<FrameRecord> = read_jsonl(&truth)?;
+        let options = ScoreOptions {
+            gate_mm,
+            beyond_n,
+            worst,
+            band_mm,
+        };
+        let e = score_with(&pred, &truth, &options);
+        if e.frames == 0 || e.matched == 0 {
+            return Err(Failure::Invalid(format!(
+                "nothing to score: {} frames named in both, {} contacts matched within {gate_mm} \
+                 mm ({} misses, {} false contacts)",
+                e.frames, e.matched, e.misses, e.false_contacts
+            )));
+        }
+        serde_json::to_string(&e).map_err(|e| Failure::Invalid(e.to_string()))
+    })?;
+    py.import("json")?.call_method1("loads", (json,))
 }

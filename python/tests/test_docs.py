@@ -53,6 +53,7 @@ def test_docs_python_md_runs(tmp_path):
     out = run_script(_docs_script(with_plot=False), tmp_path)
     assert "test split errors:" in out
     assert len(re.findall(r"^x .* mm \(true .*Fz .* N \(true", out, flags=re.M)) == 2
+    assert re.search(r"^\d+ contacts matched, \d+ missed, 0 false: location ", out, flags=re.M)
 
 
 @pytest.mark.skipif(

@@ -73,6 +73,39 @@ def test_sensor_equals_track_example(calibration, press_frames, tmp_path):
         assert got == rec["contacts"], name
 
 
+def test_evaluate_equals_the_evaluate_example(calibration, press_frames, tmp_path):
+    truth = PRESS / "truth.jsonl"
+    out, scores = tmp_path / "contacts.jsonl", tmp_path / "scores.json"
+    run([example("track"), PRESS, "--calibration", CALIBRATION, "--out", out, "--quiet"])
+    run([example("evaluate"), out, truth, "--bands", "20", "--worst", "3", "--json", scores])
+    expected = json.loads(scores.read_text())
+    assert ot.evaluate(out, truth, band_mm=20.0, worst=3) == expected
+    # The sensor's own contacts, frame by frame: the same scores but the
+    # latency, which only a contacts file records.
+    found = track(ot.Sensor.from_calibration(calibration), press_frames)
+    pairs = [(name, cs) for name, _, cs in found]
+    got = ot.evaluate(pairs, truth, band_mm=20.0, worst=3)
+    assert got["matched"] == 12 and got["false_contacts"] == 0
+    assert got["median_latency_ms"] is None
+    for key, value in expected.items():
+        if "latency" not in key:
+            assert got[key] == value, key
+    # Nothing to score, bad options and a raw sensor's patches are refused.
+    with pytest.raises(ValueError, match="nothing to score"):
+        ot.evaluate([("elsewhere.png", [])], truth)
+    with pytest.raises(ValueError, match="gate_mm"):
+        ot.evaluate(out, truth, gate_mm=0.0)
+    with pytest.raises(ValueError, match="worst"):
+        ot.evaluate(out, truth, worst=10**6)
+    raw = track(ot.Sensor.raw(), press_frames)
+    with pytest.raises(ValueError, match="calibrated"):
+        ot.evaluate([(name, cs) for name, _, cs in raw], truth)
+    with pytest.raises(TypeError):
+        ot.evaluate(5, truth)
+    with pytest.raises(FileNotFoundError):
+        ot.evaluate(tmp_path / "none.jsonl", truth)
+
+
 def test_raw_sensor_equals_track_raw(press_frames, tmp_path):
     out = tmp_path / "raw.jsonl"
     run([example("track"), PRESS, "--raw", "--out", out, "--quiet"])
