@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 import pathlib
-from typing import Iterable, Iterator, Literal, Optional, Union
+from typing import Callable, Iterable, Iterator, Literal, Optional, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -290,6 +290,7 @@ def calibrate(
     dot_fit: bool = True,
     light_box: Optional[int] = None,
     geometry: Optional[str] = None,
+    progress: Optional[Callable[[str, int, int], object]] = None,
 ) -> Calibration:
     """Fits a calibration from a characterization dataset, as the ``calibrate``
     command does with the flags of the same names; ``sweeps=False`` is

@@ -1,6 +1,7 @@
 //! The synthetic sensor (`optical-tactile-sim`) and calibration fitting.
 
 use std::path::PathBuf;
+use std::sync::Mutex;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
 use optical_tactile::calibration::fit::{
@@ -387,7 +388,7 @@ fn sensor_options<'py>(
 /// punches and sheared fingertips anywhere in x and y, and
 /// `characterization` writes the flat protocol with its `geometry.json`).
 /// The sensor's own keywords are those of the command line's sensor flags
-/// ([`SENSOR_KEYS`]: `random_markers` (fingertip), `dot_grid` (strip),
+/// (`random_markers` (fingertip), `dot_grid` (strip),
 /// `youngs_kpa`, `poisson`, `layer_mm`, `coverage`, `markers`,
 /// `marker_depth_mm=(min, max)`, `pitch_px`, `dot_px`, `jitter_px`,
 /// `noise_read`, `flicker`, `exposure_steps=(every, gain[, offset[,
@@ -568,13 +569,17 @@ impl SyntheticSensor {
 /// `shear_free_columns`, `spread_channel`, `weighted_profiles`,
 /// `dot_tracking` (`None`: when the reference shows a regular grid),
 /// `dot_fit`, `light_box` (px, 0: none; `None`: decided from the dataset).
+/// `progress`, if given, is called as `progress(stage, done, total)` about
+/// every percent of each stage (`"tests"` once per thresholds preset tried,
+/// `"sweeps"`, `"fit"`), from the worker threads, one call at a time; an
+/// exception it raises is raised once the fit is done.
 /// The result's `test_mae` has the test split's errors.
 #[pyfunction]
 #[pyo3(signature = (
     dataset_dir, *, thresholds=None, preset=None, crop=None, sweeps=true,
     measured_columns=false, relocation=None, shear_free_columns=false,
     spread_channel=true, weighted_profiles=false, dot_tracking=None, dot_fit=true,
-    light_box=None, geometry=None,
+    light_box=None, geometry=None, progress=None,
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn calibrate(
@@ -593,6 +598,7 @@ pub fn calibrate(
     dot_fit: bool,
     light_box: Option<usize>,
     geometry: Option<&str>,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<Calibration> {
     // `None` (or "auto"): the presets in turn, as `calibrate --thresholds auto`.
     let auto = match thresholds {
@@ -619,6 +625,23 @@ pub fn calibrate(
         weighted_profiles,
     };
     let crop = crop.map(params::crop);
+    // The progress callback, called from the workers with the GIL taken,
+    // one call at a time, about every percent; its first error is raised
+    // once the fit is done (the work cannot be stopped half-way).
+    let failed: Mutex<Option<PyErr>> = Mutex::new(None);
+    let report = |stage: &str, done: usize, total: usize| {
+        let Some(callback) = &progress else {
+            return;
+        };
+        if done % (total / 100).max(1) != 0 && done != total {
+            return;
+        }
+        let mut slot = failed.lock().unwrap_or_else(|e| e.into_inner());
+        if slot.is_none() {
+            let called = Python::attach(|py| callback.call1(py, (stage, done, total)).map(drop));
+            *slot = called.err();
+        }
+    };
     let inner = detached(py, || {
         let rows = read_dataset(&dataset_dir)?;
         let first = read_gray(dataset_dir.join(&rows[0].reference))?;
@@ -637,14 +660,17 @@ pub fn calibrate(
         let ex = match asked {
             Some(t) => {
                 config = config.with_thresholds(t);
-                extract_dataset(&dataset_dir, &rows, &config, point, crop, &|_, _| {})?
+                let tick = |done, total| report("tests", done, total);
+                extract_dataset(&dataset_dir, &rows, &config, point, crop, &tick)?
             }
             None => {
                 let pairs = rest_pairs(&rows, MAX_REST_PAIRS);
                 let mut search = AutoThresholds::new();
                 while let Some(p) = search.next_preset() {
                     let c = config.clone().with_thresholds(p);
-                    let ex = extract_dataset(&dataset_dir, &rows, &c, point, crop, &|_, _| {})?;
+                    let stage = format!("tests ({})", p.name());
+                    let tick = |done, total| report(&stage, done, total);
+                    let ex = extract_dataset(&dataset_dir, &rows, &c, point, crop, &tick)?;
                     let rest = rest_contacts(&dataset_dir, &pairs, &c, crop)?;
                     search.record(ex, rest)?;
                 }
@@ -662,7 +688,8 @@ pub fn calibrate(
         } else {
             Vec::new()
         };
-        let swept = extract_sweeps(&dataset_dir, &sweeps, &config, point, crop, &|_, _| {})?;
+        let tick = |done, total| report("sweeps", done, total);
+        let swept = extract_sweeps(&dataset_dir, &sweeps, &config, point, crop, &tick)?;
         let base = FitOptions::for_geometry(&geometry);
         let options = FitOptions {
             profile: base.profile.map(|p| ProfileFitOptions {
@@ -678,9 +705,14 @@ pub fn calibrate(
             }),
             ..base
         };
+        report("fit", 0, 1);
         let fit = fit_dataset_with_sweeps(&ex, &swept, &config, point, full, geometry, &options)?;
+        report("fit", 1, 1);
         Ok(fit.calibration)
     })?;
+    if let Some(e) = failed.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        return Err(e);
+    }
     Ok(Calibration { inner })
 }
 

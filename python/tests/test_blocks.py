@@ -246,7 +246,25 @@ def test_calibrate_takes_the_command_lines_choices(tmp_path):
     def fitted(path, **options):
         return json.loads(ot.calibrate(path, thresholds="mid", **options).to_json())
 
-    plain = fitted(tmp_path / "s")
+    calls = []
+    plain = json.loads(
+        ot.calibrate(tmp_path / "s", thresholds="mid", progress=lambda *a: calls.append(a)).to_json()
+    )
+    # Progress: each stage counted up to its total (the workers report in
+    # any order), the fit last.
+    stages = [c[0] for c in calls]
+    assert stages[0] == "tests" and stages[-2:] == ["fit", "fit"] and "sweeps" in stages
+    for stage in ("tests", "sweeps"):
+        done = [d for s, d, _ in calls if s == stage]
+        total = {t for s, _, t in calls if s == stage}
+        assert len(total) == 1 and max(done) == total.pop() and len(done) <= 101
+    assert fitted(tmp_path / "s") == plain
+
+    def fails(stage, done, total):
+        raise RuntimeError(f"stop at {stage} {done}/{total}")
+
+    with pytest.raises(RuntimeError, match="stop at tests"):
+        ot.calibrate(tmp_path / "s", thresholds="mid", progress=fails)
     assert plain["column_correction"] is not None and "anchor" in plain["profile"]
     assert "spread" in plain["profile"] and "relocation" not in plain["profile"]
     assert fitted(tmp_path / "s", sweeps=False).get("column_correction") is None
