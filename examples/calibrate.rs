@@ -98,7 +98,7 @@ use optical_tactile::calibration::fit::{
     extract_sweeps, fit_dataset_with_sweeps, load_cell_spread, read_dataset, read_dataset_geometry,
     read_dataset_sweeps, rest_contacts, rest_pairs,
 };
-use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileFitOptions};
+use optical_tactile::calibration::fit::{FitOptions, GuardOptions, ProfileChoices};
 use optical_tactile::calibration::report::{self, ThresholdRow};
 use optical_tactile::calibration::uncertainty::ForceUncertainty;
 use optical_tactile::calibration::{ForceFrame, Sample};
@@ -769,18 +769,15 @@ fn run(args: Args) -> Result<(), Failure> {
             guard: args.guard,
             force_frame: args.force_frame.unwrap_or(base.force_frame),
             force_use_y2d: args.force_y2d || two_d,
-            profile: base.profile.map(|p| ProfileFitOptions {
-                size_term: p.size_term && !args.no_size_term,
-                tail_px: if args.no_profile_tail { 0.0 } else { p.tail_px },
-                anchor_max_degree: if args.measured_columns {
-                    0
-                } else {
-                    p.anchor_max_degree
-                },
-                relocation: args.relocation.or(p.relocation),
-                shear_free_columns: args.shear_free_columns || p.shear_free_columns,
-                spread_channel: args.spread_channel && p.spread_channel,
-                ..p
+            profile: base.profile.map(|p| {
+                p.with_choices(&ProfileChoices {
+                    measured_columns: args.measured_columns,
+                    relocation: args.relocation,
+                    shear_free_columns: args.shear_free_columns,
+                    spread_channel: args.spread_channel,
+                    size_term: !args.no_size_term,
+                    profile_tail: !args.no_profile_tail,
+                })
             }),
             ..base
         };

@@ -5,7 +5,7 @@ use std::sync::Mutex;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
 use optical_tactile::calibration::fit::{
-    AutoThresholds, FitOptions, MAX_REST_PAIRS, ProfileFitOptions, extract_dataset, extract_sweeps,
+    AutoThresholds, FitOptions, MAX_REST_PAIRS, ProfileChoices, extract_dataset, extract_sweeps,
     fit_dataset_with_sweeps, read_dataset, read_dataset_geometry, read_dataset_sweeps,
     rest_contacts, rest_pairs,
 };
@@ -692,16 +692,14 @@ pub fn calibrate(
         let swept = extract_sweeps(&dataset_dir, &sweeps, &config, point, crop, &tick)?;
         let base = FitOptions::for_geometry(&geometry);
         let options = FitOptions {
-            profile: base.profile.map(|p| ProfileFitOptions {
-                anchor_max_degree: if measured_columns {
-                    0
-                } else {
-                    p.anchor_max_degree
-                },
-                relocation: relocation.or(p.relocation),
-                shear_free_columns: shear_free_columns || p.shear_free_columns,
-                spread_channel: spread_channel && p.spread_channel,
-                ..p
+            profile: base.profile.map(|p| {
+                p.with_choices(&ProfileChoices {
+                    measured_columns,
+                    relocation,
+                    shear_free_columns,
+                    spread_channel,
+                    ..ProfileChoices::default()
+                })
             }),
             ..base
         };

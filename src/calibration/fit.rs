@@ -341,6 +341,70 @@ impl Default for ProfileFitOptions {
     }
 }
 
+/// What a fit is told about its profile model, over the sensor's defaults
+/// ([`ProfileFitOptions::with_choices`]): the `calibrate` command's flags
+/// of the same names (docs/calibration.md). The default changes nothing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ProfileChoices {
+    /// Match every contact at its measured column, never at an anchor map
+    /// ([`ProfileFitOptions::anchor_max_degree`] 0).
+    pub measured_columns: bool,
+    /// The relocation ([`ProfileFitOptions::relocation`]); `None`: the
+    /// defaults'.
+    pub relocation: Option<Relocation>,
+    /// Measure the columns again without the tangential motion
+    /// ([`ProfileFitOptions::shear_free_columns`]).
+    pub shear_free_columns: bool,
+    /// Keep the spread channel where the defaults fit it
+    /// ([`ProfileFitOptions::spread_channel`]).
+    pub spread_channel: bool,
+    /// Keep the indenter-size kernels where the defaults fit them
+    /// ([`ProfileFitOptions::size_term`]).
+    pub size_term: bool,
+    /// Keep the kernels' far tails ([`ProfileFitOptions::tail_px`]; off:
+    /// none).
+    pub profile_tail: bool,
+}
+
+impl Default for ProfileChoices {
+    fn default() -> Self {
+        ProfileChoices {
+            measured_columns: false,
+            relocation: None,
+            shear_free_columns: false,
+            spread_channel: true,
+            size_term: true,
+            profile_tail: true,
+        }
+    }
+}
+
+impl ProfileFitOptions {
+    /// These options with `choices` over them: a choice can turn off what
+    /// these fit (the spread channel, the size kernels, the tails, the
+    /// anchor maps) and turn on the shear-free columns, and a relocation
+    /// asked for replaces theirs.
+    pub fn with_choices(self, choices: &ProfileChoices) -> Self {
+        ProfileFitOptions {
+            size_term: self.size_term && choices.size_term,
+            tail_px: if choices.profile_tail {
+                self.tail_px
+            } else {
+                0.0
+            },
+            anchor_max_degree: if choices.measured_columns {
+                0
+            } else {
+                self.anchor_max_degree
+            },
+            relocation: choices.relocation.or(self.relocation),
+            shear_free_columns: self.shear_free_columns || choices.shear_free_columns,
+            spread_channel: self.spread_channel && choices.spread_channel,
+            ..self
+        }
+    }
+}
+
 /// The spec of the force maps for these options.
 ///
 /// Groups, in variable order: `displacement {dx, dy, dz}` (or `shear {dx,
@@ -2633,6 +2697,39 @@ mod tests {
             .filter(|t| t.0 < 6)
             .collect();
         assert!(anchor_degrees(&four, 5).iter().all(|&d| d <= 2));
+    }
+
+    #[test]
+    fn profile_choices_turn_off_what_the_defaults_fit_and_ask_the_rest() {
+        let base = ProfileFitOptions::default();
+        assert_eq!(base.with_choices(&ProfileChoices::default()), base);
+        let all = ProfileChoices {
+            measured_columns: true,
+            relocation: Some(Relocation::Best),
+            shear_free_columns: true,
+            spread_channel: false,
+            size_term: false,
+            profile_tail: false,
+        };
+        let got = base.with_choices(&all);
+        assert_eq!(got.anchor_max_degree, 0);
+        assert_eq!(got.relocation, Some(Relocation::Best));
+        assert!(got.shear_free_columns && !got.spread_channel && !got.size_term);
+        assert_eq!(got.tail_px, 0.0);
+        assert_eq!(
+            (got.half_width_px, got.degree),
+            (base.half_width_px, base.degree)
+        );
+        // What the defaults leave off, a choice to keep does not turn on.
+        let bare = ProfileFitOptions {
+            spread_channel: false,
+            size_term: false,
+            relocation: Some(Relocation::Clear),
+            ..base
+        };
+        let kept = bare.with_choices(&ProfileChoices::default());
+        assert!(!kept.spread_channel && !kept.size_term);
+        assert_eq!(kept.relocation, Some(Relocation::Clear));
     }
 
     #[test]
