@@ -25,7 +25,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use cli_support::{Failure, Sink, TextOut};
 use optical_tactile::io::{FrameRecord, read_jsonl};
-use optical_tactile_sim::evaluate::{ScoreOptions, score_with};
+use optical_tactile_sim::evaluate::{MAX_WORST, ScoreOptions, score_with};
 
 /// Scores predicted contacts (JSON Lines, docs/formats.md) against the truth:
 /// location and force MAE over matched contacts, misses, false contacts and
@@ -59,9 +59,6 @@ struct Cli {
     #[arg(long, value_name = "FILE|-")]
     json: Option<TextOut>,
 }
-
-/// Most contacts `--worst` lists (a longer list is no longer a summary).
-const MAX_WORST: u32 = 1000;
 
 fn run(a: &Cli) -> Result<(), Failure> {
     let pred: Vec<FrameRecord> = read_jsonl(&a.contacts)?;

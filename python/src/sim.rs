@@ -16,7 +16,7 @@ use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::{FrameRecord, read_gray, read_jsonl};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{FittingChoices, fitting_extractor};
-use optical_tactile_sim::evaluate::{ScoreOptions, score_with};
+use optical_tactile_sim::evaluate::{MAX_WORST, ScoreOptions, score_with};
 use optical_tactile_sim::scenario::{self, Common, Scenario};
 use optical_tactile_sim::{
     Press as SimPress, SensorOptions, SimConfig, SyntheticSensor as SimSensor,
@@ -668,8 +668,7 @@ pub fn calibrate(
                 let mut search = AutoThresholds::new();
                 while let Some(p) = search.next_preset() {
                     let c = config.clone().with_thresholds(p);
-                    let stage = format!("tests ({})", p.name());
-                    let tick = |done, total| report(&stage, done, total);
+                    let tick = |done, total| report("tests", done, total);
                     let ex = extract_dataset(&dataset_dir, &rows, &c, point, crop, &tick)?;
                     let rest = rest_contacts(&dataset_dir, &pairs, &c, crop)?;
                     search.record(ex, rest)?;
@@ -713,10 +712,6 @@ pub fn calibrate(
     }
     Ok(Calibration { inner })
 }
-
-/// Largest number of contacts `evaluate` lists as the worst (as the
-/// command line's `--worst`).
-const MAX_WORST: usize = 1000;
 
 /// Scores predicted contacts against the truth as the `evaluate` example
 /// does, and returns its scores as a dict (the JSON of `evaluate --json`:

@@ -142,6 +142,10 @@ pub struct SigmaCoverage {
     pub within_two: [f64; 3],
 }
 
+/// Most contacts [`ScoreOptions::worst`] may list, for a caller that takes
+/// the count from a user (a longer list is no longer a summary).
+pub const MAX_WORST: usize = 1000;
+
 /// What [`score_with`] reports besides the means.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScoreOptions {
