@@ -110,7 +110,7 @@ use optical_tactile::geometry::SensorGeometry;
 use optical_tactile::io::{self, FrameRecord, Split};
 use optical_tactile::segment::Thresholds;
 use optical_tactile::sensor::{
-    ExtractorConfig, FittingChoices, fitting_extractor, fitting_flow_preset,
+    ExtractorConfig, FittingChoices, MAX_LIGHT_BOX_PX, fitting_extractor, fitting_flow_preset,
 };
 
 /// Calibrates a sensor from a characterization dataset: runs the pipeline on
@@ -239,7 +239,7 @@ struct Cli {
     /// Divide the frames by their own local light, a box of this half-side
     /// (px), before the flow; 0: not [default: two flow patches (16 px)
     /// for random markers on a flat sensor, otherwise 0].
-    #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(0..=16384))]
+    #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(0..=MAX_LIGHT_BOX_PX as i64))]
     light_box: Option<u32>,
     /// Weigh each flow cell by how well the frame warped back by the flow
     /// matches the reference there when the motion profiles along the arc

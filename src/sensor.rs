@@ -571,6 +571,11 @@ pub fn fitting_light_box(
     flat_random_markers(geometry, grid_pitch).then_some(LIGHT_BOX_PATCHES * patch_size.max(1))
 }
 
+/// The largest light box a fit takes from a user, px of half-side
+/// ([`FittingChoices::light_box_px`]): four times a 4K camera's width, far
+/// beyond any frame.
+pub const MAX_LIGHT_BOX_PX: usize = 16384;
+
 /// What a calibration's extraction is told; each `None` is decided from the
 /// dataset ([`fitting_extractor`]).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -5,6 +5,7 @@ use optical_tactile::exposure::ExposureCompensation;
 use optical_tactile::flow::dis::{DisParams, DisPreset};
 use optical_tactile::frame::Roi;
 use optical_tactile::segment::{Shape, ThresholdPreset, Thresholds};
+use optical_tactile::sensor::MAX_LIGHT_BOX_PX;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
@@ -93,10 +94,6 @@ pub fn light_box(px: usize) -> Result<usize, Failure> {
     }
     Ok(px)
 }
-
-/// The largest light box `calibrate` takes, px (as the command line's
-/// `--light-box`).
-pub const MAX_LIGHT_BOX_PX: usize = 16384;
 
 /// A crop `(x, y, w, h)`.
 pub fn crop(c: (usize, usize, usize, usize)) -> Roi {
